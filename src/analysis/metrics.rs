@@ -1,0 +1,121 @@
+//! Accuracy metrics of a model against measurements (paper eq. 13, ISO 9283 style).
+//!
+//! Position error `e = P1 − p_model` (mm): axial mean/max of |e_x|, |e_y|, |e_z|, mean, max,
+//! RMS and 95th percentile of ‖e‖. Attitude (rad): full model — the angle of the rotation
+//! vector of `R_meas · R_modelᵀ`; NP/OP — the angle between the measured and the modelled
+//! stage axis; position model — not measured (`None`).
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use crate::identify::observation::{predict, Measured, ObsConfig, ObsModel};
+use crate::model::rotation::to_rotation_vector;
+use crate::model::RobotModel;
+
+/// Accuracy of a model on a set of poses (the `M` object of the JSON contract).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Metrics {
+    /// Number of poses.
+    pub poses: usize,
+    /// Mean comprehensive position error ‖e‖ (mm).
+    pub position_mean_mm: f64,
+    /// Max comprehensive position error (mm).
+    pub position_max_mm: f64,
+    /// RMS of ‖e‖ (mm).
+    pub position_rms_mm: f64,
+    /// 95th percentile of ‖e‖ (mm).
+    pub position_p95_mm: f64,
+    /// Mean |e_x|, |e_y|, |e_z| (mm).
+    pub position_axial_mean_mm: [f64; 3],
+    /// Max |e_x|, |e_y|, |e_z| (mm).
+    pub position_axial_max_mm: [f64; 3],
+    /// Mean attitude error (rad); null where nothing measures it.
+    pub attitude_mean_rad: Option<f64>,
+    /// Max attitude error (rad); null where nothing measures it.
+    pub attitude_max_rad: Option<f64>,
+    /// RMS attitude error (rad); null where nothing measures it.
+    pub attitude_rms_rad: Option<f64>,
+}
+
+/// Percentile (0..=100) by linear interpolation of sorted values.
+fn percentile(sorted: &[f64], pct: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let x = pct / 100.0 * (sorted.len() - 1) as f64;
+    let lo = x.floor() as usize;
+    let hi = x.ceil() as usize;
+    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+}
+
+/// Position and attitude errors per pose.
+pub fn pose_errors(
+    model: &RobotModel,
+    poses: &[Measured],
+    cfg: &ObsConfig,
+) -> Vec<(Vector3<f64>, Option<f64>)> {
+    poses
+        .iter()
+        .map(|m| {
+            let pr = predict(model, &m.q);
+            let e = m.p1 - pr.p;
+            let att = match cfg.model {
+                ObsModel::Position => None,
+                ObsModel::Np | ObsModel::Op => m.direction.map(|d| {
+                    let l = pr.r * cfg.stage_axis;
+                    d.cross(&l).norm().atan2(d.dot(&l))
+                }),
+                ObsModel::Full => m
+                    .rotation
+                    .map(|r| to_rotation_vector(&(r * pr.r.transpose())).norm()),
+            };
+            (e, att)
+        })
+        .collect()
+}
+
+/// Metrics of `model` on `poses`.
+pub fn evaluate(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Metrics {
+    let errs = pose_errors(model, poses, cfg);
+    let n = errs.len().max(1) as f64;
+    let mut norms: Vec<f64> = errs.iter().map(|(e, _)| e.norm()).collect();
+    let mut axial_mean = [0.0; 3];
+    let mut axial_max = [0.0f64; 3];
+    for (e, _) in &errs {
+        for k in 0..3 {
+            axial_mean[k] += e[k].abs() / n;
+            axial_max[k] = axial_max[k].max(e[k].abs());
+        }
+    }
+    let atts: Vec<f64> = errs.iter().filter_map(|(_, a)| *a).collect();
+    let has_att = !atts.is_empty() && atts.len() == errs.len();
+    let mean = norms.iter().sum::<f64>() / n;
+    let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    norms.sort_by(f64::total_cmp);
+    Metrics {
+        poses: errs.len(),
+        position_mean_mm: mean,
+        position_max_mm: norms.last().copied().unwrap_or(0.0),
+        position_rms_mm: rms,
+        position_p95_mm: percentile(&norms, 95.0),
+        position_axial_mean_mm: axial_mean,
+        position_axial_max_mm: axial_max,
+        attitude_mean_rad: has_att.then(|| atts.iter().sum::<f64>() / atts.len() as f64),
+        attitude_max_rad: has_att.then(|| atts.iter().copied().fold(0.0, f64::max)),
+        attitude_rms_rad: has_att
+            .then(|| (atts.iter().map(|a| a * a).sum::<f64>() / atts.len() as f64).sqrt()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentile_interpolates() {
+        let v = [1.0, 2.0, 3.0, 4.0, 5.0];
+        assert_eq!(percentile(&v, 50.0), 3.0);
+        assert_eq!(percentile(&v, 100.0), 5.0);
+        assert!((percentile(&v, 95.0) - 4.8).abs() < 1e-12);
+    }
+}

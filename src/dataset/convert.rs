@@ -1,0 +1,110 @@
+//! Turning data-set rows into observations for a given observation model.
+
+use super::csv_format::{Observation, PoseSet};
+use crate::identify::observation::{Measured, ObsModel};
+use crate::model::rotation::project_so3;
+
+/// A row that cannot serve the chosen model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConvertError {
+    /// P2 − P1 is far from the configured stage travel.
+    #[error("line {line} (pose {pose}): ‖P2 − P1‖ = {measured_mm:.3} mm but the stage travel is {travel_mm} mm")]
+    BadTravel {
+        /// Line number.
+        line: usize,
+        /// Pose id.
+        pose: String,
+        /// Measured distance (mm).
+        measured_mm: f64,
+        /// Configured travel (mm).
+        travel_mm: f64,
+    },
+    /// The rotation columns are not a rotation.
+    #[error("line {line} (pose {pose}): n, o, a columns are not orthonormal (‖RᵀR − I‖ = {deviation:.3})")]
+    NotRotation {
+        /// Line number.
+        line: usize,
+        /// Pose id.
+        pose: String,
+        /// Frobenius deviation from orthonormality.
+        deviation: f64,
+    },
+    /// The model needs columns this row lacks.
+    #[error("line {line} (pose {pose}): the {model} model needs {what}")]
+    Missing {
+        /// Line number.
+        line: usize,
+        /// Pose id.
+        pose: String,
+        /// Model name.
+        model: &'static str,
+        /// What is missing.
+        what: &'static str,
+    },
+}
+
+/// Convert rows for `model`; P2 − P1 must be within 50 % of `travel_mm`.
+pub fn to_measured(
+    rows: &[Observation],
+    model: ObsModel,
+    travel_mm: f64,
+) -> Result<Vec<Measured>, ConvertError> {
+    rows.iter()
+        .map(|o| {
+            let mut m = Measured {
+                q: o.q.clone(),
+                p1: o.p1,
+                direction: None,
+                rotation: None,
+                weight: 1.0,
+            };
+            if let Some(p2) = o.p2 {
+                let d = p2 - o.p1;
+                let n = d.norm();
+                if matches!(model, ObsModel::Np | ObsModel::Op)
+                    && (n - travel_mm).abs() > 0.5 * travel_mm
+                {
+                    return Err(ConvertError::BadTravel {
+                        line: o.line,
+                        pose: o.id.clone(),
+                        measured_mm: n,
+                        travel_mm,
+                    });
+                }
+                if n > 0.0 {
+                    m.direction = Some(d / n);
+                }
+            }
+            if let Some(r) = o.rotation {
+                let dev = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
+                if model == ObsModel::Full && dev > 0.1 {
+                    return Err(ConvertError::NotRotation {
+                        line: o.line,
+                        pose: o.id.clone(),
+                        deviation: dev,
+                    });
+                }
+                m.rotation = Some(project_so3(&r));
+            }
+            let missing = match model {
+                ObsModel::Np | ObsModel::Op if m.direction.is_none() => Some("p2_x, p2_y, p2_z"),
+                ObsModel::Full if m.rotation.is_none() => Some("n_x … a_z"),
+                _ => None,
+            };
+            if let Some(what) = missing {
+                return Err(ConvertError::Missing {
+                    line: o.line,
+                    pose: o.id.clone(),
+                    model: model.name(),
+                    what,
+                });
+            }
+            Ok(m)
+        })
+        .collect()
+}
+
+/// Split rows into identification and verification sets (file order kept).
+pub fn split(rows: &[Observation]) -> (Vec<Observation>, Vec<Observation>) {
+    rows.iter().cloned().partition(|o| o.set == PoseSet::Ident)
+}

@@ -1,0 +1,8 @@
+//! Measurement data sets in the `cellcal identify` CSV format, and their conversion to
+//! observations.
+
+pub mod convert;
+pub mod csv_format;
+
+pub use convert::{split, to_measured, ConvertError};
+pub use csv_format::{parse_csv, write_csv, CsvError, Observation, PoseSet, Required};

@@ -1,0 +1,267 @@
+//! Identification of MDH (and optionally base and tool) parameter errors.
+//!
+//! Pure code. Flow: [`identify`] → initial state (given base/tool, or a rigid registration of
+//! the nominal model to the data when the base is identified) → [`identifiability::analyze`]
+//! on the actual poses, checked against generic poses so that too few or too similar poses are
+//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]) →
+//! optional iteratively reweighted robust refit ([`robust`]) → standard deviations and
+//! correlations from `σ̂²·(JᵀJ)⁻¹`.
+
+pub mod identifiability;
+pub mod observation;
+pub mod params;
+pub mod problem;
+pub mod robust;
+pub mod solver;
+
+use nalgebra::{DMatrix, Vector3};
+use rand::{Rng, SeedableRng};
+
+pub use identifiability::{Dropped, Identifiability};
+pub use observation::{predict, Measured, ObsConfig, ObsModel};
+pub use params::{all_params, retract, ParamId};
+pub use robust::RobustLoss;
+
+use crate::measure::fit_rigid;
+use crate::model::kinematics::forward;
+use crate::model::rotation::to_rotation_vector;
+use crate::model::RobotModel;
+use problem::CalibProblem;
+
+/// Options of one identification.
+#[derive(Debug, Clone, Copy)]
+pub struct IdentifyOptions {
+    /// Observation model and weighting.
+    pub obs: ObsConfig,
+    /// Identify the base transform (measurement frame ≠ robot base frame).
+    pub identify_base: bool,
+    /// Identify the ball position in the flange frame.
+    pub identify_tool: bool,
+    /// Robust loss for an iteratively reweighted refit, if any.
+    pub robust: Option<RobustLoss>,
+    /// Solver options.
+    pub solver: solver::Options,
+}
+
+/// Why an identification could not be run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IdentifyError {
+    /// Not enough poses for the parameters to identify.
+    #[error("too few poses: {poses} identification poses give {rows} equations, but {parameters} parameters need at least {needed} poses")]
+    TooFewPoses {
+        /// Poses given.
+        poses: usize,
+        /// Residual rows they give.
+        rows: usize,
+        /// Parameters to identify.
+        parameters: usize,
+        /// Minimum number of poses.
+        needed: usize,
+    },
+    /// The poses do not excite parameters that are identifiable in general.
+    #[error("rank-deficient data: the poses cannot separate {}; use more varied poses", .missing.join(", "))]
+    RankDeficient {
+        /// Parameter names identifiable in general but not from these poses.
+        missing: Vec<String>,
+    },
+    /// The base registration failed.
+    #[error("base registration failed: {0}")]
+    Registration(String),
+    /// Robust refit rejected so many poses that too few remain.
+    #[error("robust fit rejected {rejected} of {poses} poses; too few remain")]
+    TooManyOutliers {
+        /// Rejected poses.
+        rejected: usize,
+        /// All poses.
+        poses: usize,
+    },
+}
+
+/// One parameter's estimate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// The parameter.
+    pub param: ParamId,
+    /// Value before identification (mm or rad).
+    pub nominal: f64,
+    /// Identified − nominal (mm or rad).
+    pub error: f64,
+    /// Standard deviation of the error (mm or rad); `None` when not identified.
+    pub std: Option<f64>,
+    /// Whether it was identified.
+    pub identified: bool,
+}
+
+/// Result of an identification.
+#[derive(Debug, Clone)]
+pub struct Identification {
+    /// Options used.
+    pub options: IdentifyOptions,
+    /// Starting model (nominal, with the registered base when the base is identified).
+    pub initial: RobotModel,
+    /// Identified model.
+    pub corrected: RobotModel,
+    /// Identifiability analysis.
+    pub identifiability: Identifiability,
+    /// Every candidate parameter, identified or not.
+    pub estimates: Vec<Estimate>,
+    /// Correlation matrix of the identified parameters (order of `identifiability.identified`).
+    pub correlation: DMatrix<f64>,
+    /// A-posteriori standard deviation of unit weight (mm).
+    pub sigma0_mm: f64,
+    /// Solver iterations (of the final fit).
+    pub iterations: usize,
+    /// Solver termination.
+    pub termination: solver::Termination,
+    /// Final cost `½Σr²` (mm²).
+    pub final_cost: f64,
+    /// Indices (into the given poses) rejected by the robust fit.
+    pub rejected: Vec<usize>,
+}
+
+/// Joint configurations spread over the joint limits (wrist away from singular), fixed seed.
+pub fn generic_poses(model: &RobotModel, n: usize) -> Vec<Vec<f64>> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x05EE_DCA1);
+    let mut out = Vec::with_capacity(n);
+    while out.len() < n {
+        let q: Vec<f64> = model
+            .limits
+            .iter()
+            .map(|l| rng.random_range(l.min..=l.max))
+            .collect();
+        if model.dof() >= 5 && q[4].abs() < 10f64.to_radians() {
+            continue;
+        }
+        out.push(q);
+    }
+    out
+}
+
+/// Starting model: the given one, with the base from a rigid registration when identified.
+pub fn initial_model(
+    nominal: &RobotModel,
+    poses: &[Measured],
+    opts: &IdentifyOptions,
+) -> Result<RobotModel, IdentifyError> {
+    let mut m = nominal.clone();
+    if opts.identify_base {
+        let a: Vec<Vector3<f64>> = poses
+            .iter()
+            .map(|p| {
+                forward(nominal, &p.q)
+                    .flange()
+                    .transform_point(&nominal.tool)
+            })
+            .collect();
+        let b: Vec<Vector3<f64>> = poses.iter().map(|p| p.p1).collect();
+        let (r, t) = fit_rigid(&a, &b).map_err(|e| IdentifyError::Registration(e.to_string()))?;
+        m.base_rotation = r;
+        m.base_translation = t;
+    }
+    Ok(m)
+}
+
+/// Identify the parameter errors of `nominal` from identification poses.
+pub fn identify(
+    nominal: &RobotModel,
+    poses: &[Measured],
+    opts: &IdentifyOptions,
+) -> Result<Identification, IdentifyError> {
+    let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
+    let rows = opts.obs.model.rows();
+    // generic structure first: how many parameters can this model identify at all?
+    let generic: Vec<Measured> = generic_poses(nominal, 64)
+        .into_iter()
+        .map(|q| Measured {
+            q,
+            p1: Vector3::zeros(),
+            direction: None,
+            rotation: None,
+            weight: 1.0,
+        })
+        .collect();
+    let structural = identifiability::analyze(nominal, &generic, &opts.obs, &candidates);
+    let k = structural.identified.len();
+    let needed = k.div_ceil(rows) + 1;
+    if poses.len() < needed.max(3) {
+        return Err(IdentifyError::TooFewPoses {
+            poses: poses.len(),
+            rows: poses.len() * rows,
+            parameters: k,
+            needed: needed.max(3),
+        });
+    }
+    let initial = initial_model(nominal, poses, opts)?;
+    let ident = identifiability::analyze(&initial, poses, &opts.obs, &candidates);
+    let missing: Vec<String> = structural
+        .identified
+        .iter()
+        .filter(|p| !ident.identified.contains(p))
+        .map(|p| p.name())
+        .collect();
+    if !missing.is_empty() {
+        return Err(IdentifyError::RankDeficient { missing });
+    }
+    let params = ident.identified.clone();
+    let (fit, rejected) = match opts.robust {
+        None => (
+            solver::solve(
+                &CalibProblem::new(poses, &opts.obs, &params),
+                initial.clone(),
+                &opts.solver,
+            ),
+            Vec::new(),
+        ),
+        Some(loss) => {
+            robust::solve_robust(&initial, poses, &opts.obs, &params, loss, &opts.solver)?
+        }
+    };
+    let used = poses.len() - rejected.len();
+    let dof = (used * rows).saturating_sub(params.len()).max(1);
+    let sigma0_sq = 2.0 * fit.final_cost / dof as f64;
+    let cov = fit
+        .normal_matrix
+        .clone()
+        .try_inverse()
+        .unwrap_or_else(|| DMatrix::from_element(params.len(), params.len(), f64::NAN))
+        * sigma0_sq;
+    let std: Vec<f64> = (0..params.len())
+        .map(|i| cov[(i, i)].max(0.0).sqrt())
+        .collect();
+    let correlation = DMatrix::from_fn(params.len(), params.len(), |i, j| {
+        cov[(i, j)] / (std[i] * std[j])
+    });
+    let corrected = fit.state;
+    let base_dr =
+        to_rotation_vector(&(corrected.base_rotation * initial.base_rotation.transpose()));
+    let estimates = candidates
+        .iter()
+        .map(|p| {
+            let pos = params.iter().position(|q| q == p);
+            let error = match p {
+                ParamId::BaseRotation(i) => base_dr[*i],
+                _ => p.value(&corrected) - p.value(&initial),
+            };
+            Estimate {
+                param: *p,
+                nominal: p.value(&initial),
+                error,
+                std: pos.map(|i| std[i]),
+                identified: pos.is_some(),
+            }
+        })
+        .collect();
+    Ok(Identification {
+        options: *opts,
+        initial,
+        corrected,
+        identifiability: ident,
+        estimates,
+        correlation,
+        sigma0_mm: sigma0_sq.sqrt(),
+        iterations: fit.iterations,
+        termination: fit.termination,
+        final_cost: fit.final_cost,
+        rejected,
+    })
+}

@@ -1,0 +1,306 @@
+//! Observation models: what is measured at each pose, its model, residuals and Jacobian rows.
+//!
+//! Rows per pose: position `[Δp]` (3), NP/OP `[Δp; w·ΔL]` (6) with `L = R·u` the stage axis,
+//! full `[Δp; w·Δn; w·Δo; w·Δa]` (12). Residual = model − measurement. Direction rows are
+//! dimensionless and multiplied by the direction weight `w` (mm); the default
+//! `w = σ_p/σ_L = s/√2` (stage travel `s`) is the maximum-likelihood choice when P1 and P2 carry
+//! the same isotropic noise. Every row of a pose is further multiplied by the pose weight.
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::params::ParamId;
+use crate::model::kinematics::{forward, Screw};
+use crate::model::RobotModel;
+
+/// Which quantities the identification uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ObsModel {
+    /// Position of the ball only.
+    Position,
+    /// Position + one stage axis (nominally flange x).
+    Np,
+    /// Position + one stage axis (nominally flange y).
+    Op,
+    /// Position + full flange rotation.
+    Full,
+}
+
+impl ObsModel {
+    /// Contract name: `position`, `np`, `op`, `full`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObsModel::Position => "position",
+            ObsModel::Np => "np",
+            ObsModel::Op => "op",
+            ObsModel::Full => "full",
+        }
+    }
+
+    /// Parse a contract name.
+    pub fn parse(s: &str) -> Option<ObsModel> {
+        match s {
+            "position" => Some(ObsModel::Position),
+            "np" => Some(ObsModel::Np),
+            "op" => Some(ObsModel::Op),
+            "full" => Some(ObsModel::Full),
+            _ => None,
+        }
+    }
+
+    /// Residual rows per pose.
+    pub fn rows(self) -> usize {
+        match self {
+            ObsModel::Position => 3,
+            ObsModel::Np | ObsModel::Op => 6,
+            ObsModel::Full => 12,
+        }
+    }
+
+    /// Default stage axis in the flange frame (+x for NP, +y for OP).
+    pub fn default_stage_axis(self) -> Vector3<f64> {
+        match self {
+            ObsModel::Np => Vector3::x(),
+            _ => Vector3::y(),
+        }
+    }
+
+    /// Whether the model measures an orientation quantity.
+    pub fn measures_attitude(self) -> bool {
+        self != ObsModel::Position
+    }
+}
+
+/// How observations are turned into residuals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObsConfig {
+    /// Observation model.
+    pub model: ObsModel,
+    /// Unit stage axis `u` in the flange frame (NP/OP).
+    pub stage_axis: Vector3<f64>,
+    /// Weight of direction rows (mm per unit of direction).
+    pub direction_weight_mm: f64,
+}
+
+impl ObsConfig {
+    /// Default configuration for a model and a stage travel (mm): default axis, `w = s/√2`.
+    pub fn new(model: ObsModel, stage_travel_mm: f64) -> ObsConfig {
+        ObsConfig {
+            model,
+            stage_axis: model.default_stage_axis(),
+            direction_weight_mm: stage_travel_mm / std::f64::consts::SQRT_2,
+        }
+    }
+}
+
+/// What was measured at one pose (measurement frame, mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measured {
+    /// Joint values (rad).
+    pub q: Vec<f64>,
+    /// Ball position at stage position P1 (mm).
+    pub p1: Vector3<f64>,
+    /// Measured unit stage direction `(P2 − P1)/‖P2 − P1‖`, when P2 was measured.
+    pub direction: Option<Vector3<f64>>,
+    /// Measured flange rotation (columns n, o, a), when measured.
+    pub rotation: Option<Matrix3<f64>>,
+    /// Relative weight of this pose (1 = nominal; from the tracker uncertainty model or IRLS).
+    pub weight: f64,
+}
+
+/// Modelled observation quantities at one pose.
+#[derive(Debug, Clone, Copy)]
+pub struct Predicted {
+    /// Ball position in the measurement frame (mm).
+    pub p: Vector3<f64>,
+    /// Flange rotation in the measurement frame.
+    pub r: Matrix3<f64>,
+}
+
+/// Model prediction of the point and the flange rotation at joints `q`.
+pub fn predict(model: &RobotModel, q: &[f64]) -> Predicted {
+    let f = forward(model, q);
+    let fl = f.flange();
+    Predicted {
+        p: model.base_rotation * fl.transform_point(&model.tool) + model.base_translation,
+        r: model.base_rotation * fl.r,
+    }
+}
+
+/// Weighted residual (`rows` entries) and Jacobian (`rows × params.len()`, row-major) of one pose.
+///
+/// `jac` may be empty to skip the Jacobian.
+pub fn residual_jacobian(
+    model: &RobotModel,
+    meas: &Measured,
+    cfg: &ObsConfig,
+    params: &[ParamId],
+    res: &mut [f64],
+    jac: &mut [f64],
+) {
+    let f = forward(model, &meas.q);
+    let fl = f.flange();
+    let rb = model.base_rotation;
+    let pb = fl.transform_point(&model.tool); // ball, robot base frame
+    let p = rb * pb + model.base_translation;
+    let w = meas.weight;
+    let wd = cfg.direction_weight_mm * w;
+
+    // direction quantities in the robot base frame, and their measured values
+    let mut dirs: [(Vector3<f64>, Vector3<f64>); 3] = [(Vector3::zeros(), Vector3::zeros()); 3];
+    let ndir = match cfg.model {
+        ObsModel::Position => 0,
+        ObsModel::Np | ObsModel::Op => {
+            let d = meas.direction.unwrap_or_else(Vector3::zeros);
+            dirs[0] = (fl.r * cfg.stage_axis, d);
+            1
+        }
+        ObsModel::Full => {
+            let r = meas.rotation.unwrap_or_else(Matrix3::zeros);
+            for (k, dir) in dirs.iter_mut().enumerate() {
+                *dir = (fl.r.column(k).into_owned(), r.column(k).into_owned());
+            }
+            3
+        }
+    };
+    let pr = w * (p - meas.p1);
+    res[..3].copy_from_slice(pr.as_slice());
+    for k in 0..ndir {
+        let v = wd * (rb * dirs[k].0 - dirs[k].1);
+        res[3 + 3 * k..6 + 3 * k].copy_from_slice(v.as_slice());
+    }
+    if jac.is_empty() {
+        return;
+    }
+    let np = params.len();
+    let screws: Vec<Screw> = if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
+        f.screws(&model.joints)
+    } else {
+        Vec::new()
+    };
+    let rows = 3 + 3 * ndir;
+    for (c, par) in params.iter().enumerate() {
+        let (dp, dd): (Vector3<f64>, [Vector3<f64>; 3]) = match par {
+            ParamId::Mdh { joint, kind } => {
+                let s = &screws[5 * joint + *kind as usize];
+                let mut dd = [Vector3::zeros(); 3];
+                for k in 0..ndir {
+                    dd[k] = rb * s.direction_rate(&dirs[k].0);
+                }
+                (rb * s.point_rate(&pb), dd)
+            }
+            ParamId::BaseTranslation(i) => {
+                let mut e = Vector3::zeros();
+                e[*i] = 1.0;
+                (e, [Vector3::zeros(); 3])
+            }
+            ParamId::BaseRotation(i) => {
+                let mut e = Vector3::zeros();
+                e[*i] = 1.0;
+                let mut dd = [Vector3::zeros(); 3];
+                for k in 0..ndir {
+                    dd[k] = e.cross(&(rb * dirs[k].0));
+                }
+                (e.cross(&(rb * pb)), dd)
+            }
+            ParamId::Tool(i) => (rb * fl.r.column(*i), [Vector3::zeros(); 3]),
+        };
+        for r in 0..3 {
+            jac[r * np + c] = w * dp[r];
+        }
+        for k in 0..ndir {
+            for r in 0..3 {
+                jac[(3 + 3 * k + r) * np + c] = wd * dd[k][r];
+            }
+        }
+    }
+    debug_assert!(rows * np <= jac.len());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::params::{all_params, retract};
+    use crate::model::file::parse_robot;
+    use crate::model::rotation::from_rotation_vector;
+    use proptest::prelude::*;
+
+    fn tx60_with_frames() -> RobotModel {
+        let mut m = parse_robot(
+            include_str!("../../config/robots/staubli_tx60.toml"),
+            std::path::Path::new("tx60"),
+        )
+        .unwrap();
+        m.base_rotation = from_rotation_vector(&Vector3::new(0.3, -0.2, 2.0));
+        m.base_translation = Vector3::new(2000.0, 300.0, -100.0);
+        m.tool = Vector3::new(5.0, -12.0, 40.0);
+        m.joints[2].beta = 0.01;
+        m
+    }
+
+    fn check(model: ObsModel, q: Vec<f64>) {
+        let m = tx60_with_frames();
+        let params = all_params(6, true, true);
+        let cfg = ObsConfig {
+            stage_axis: Vector3::new(0.6, 0.8, 0.0),
+            direction_weight_mm: 7.0,
+            model,
+        };
+        let meas = Measured {
+            q,
+            p1: Vector3::new(1.0, 2.0, 3.0),
+            direction: Some(Vector3::x()),
+            rotation: Some(Matrix3::identity()),
+            weight: 1.3,
+        };
+        let rows = model.rows();
+        let n = params.len();
+        let mut r0 = vec![0.0; rows];
+        let mut jac = vec![0.0; rows * n];
+        residual_jacobian(&m, &meas, &cfg, &params, &mut r0, &mut jac);
+        for (c, _) in params.iter().enumerate() {
+            let h = 1e-6;
+            let mut d = vec![0.0; n];
+            d[c] = h;
+            let mut rp = vec![0.0; rows];
+            residual_jacobian(
+                &retract(&m, &params, &d),
+                &meas,
+                &cfg,
+                &params,
+                &mut rp,
+                &mut [],
+            );
+            d[c] = -h;
+            let mut rm = vec![0.0; rows];
+            residual_jacobian(
+                &retract(&m, &params, &d),
+                &meas,
+                &cfg,
+                &params,
+                &mut rm,
+                &mut [],
+            );
+            for r in 0..rows {
+                let fd = (rp[r] - rm[r]) / (2.0 * h);
+                let an = jac[r * n + c];
+                assert!(
+                    (fd - an).abs() <= 1e-5 * (1.0 + an.abs()),
+                    "{model:?} param {} row {r}: fd {fd} analytic {an}",
+                    params[c].name()
+                );
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        #[test]
+        fn jacobian_matches_central_differences(
+            q in proptest::collection::vec(-3.0f64..3.0, 6),
+            which in 0usize..4,
+        ) {
+            let model = [ObsModel::Position, ObsModel::Np, ObsModel::Op, ObsModel::Full][which];
+            check(model, q);
+        }
+    }
+}

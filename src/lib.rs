@@ -1,0 +1,22 @@
+//! cellcal: industrial-robot calibration from partial-pose laser-tracker measurements.
+//!
+//! Module map (see ARCHITECTURE.md):
+//! - [`model`]: robot model files, MDH chain, forward kinematics, parameter screws (Jacobians).
+//! - [`identify`]: observation models, identifiability, Levenberg–Marquardt, robust refit.
+//! - [`analysis`]: accuracy metrics and significance indices.
+//! - [`measure`]: measurement geometry (rigid registration).
+//! - [`plan`]: pose sampling in the workspace box.
+//! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
+//! - [`dataset`]: the identify CSV format and its conversion to observations.
+//! - [`report`]: the identify JSON contract and the printed summary.
+//!
+//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file.
+
+pub mod analysis;
+pub mod dataset;
+pub mod identify;
+pub mod measure;
+pub mod model;
+pub mod plan;
+pub mod report;
+pub mod simulate;

@@ -1,0 +1,497 @@
+//! `cellcal` command line: thin clap layer over the library. Exit code 2 = bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{anyhow, Context};
+use clap::{Parser, Subcommand, ValueEnum};
+use nalgebra::Vector3;
+
+use cellcal::analysis::significance;
+use cellcal::dataset::{parse_csv, write_csv, Required};
+use cellcal::identify::solver::Options;
+use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
+use cellcal::model::load_robot;
+use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
+use cellcal::report::{calibrate, summary_text};
+use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
+
+#[derive(Parser)]
+#[command(
+    name = "cellcal",
+    version,
+    about = "Robot calibration cell: identify MDH errors from laser-tracker data"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ModelArg {
+    Position,
+    Np,
+    Op,
+    Full,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum AxisArg {
+    #[value(name = "+x")]
+    PlusX,
+    #[value(name = "-x")]
+    MinusX,
+    #[value(name = "+y")]
+    PlusY,
+    #[value(name = "-y")]
+    MinusY,
+}
+
+impl AxisArg {
+    fn vector(self) -> Vector3<f64> {
+        match self {
+            AxisArg::PlusX => Vector3::x(),
+            AxisArg::MinusX => -Vector3::x(),
+            AxisArg::PlusY => Vector3::y(),
+            AxisArg::MinusY => -Vector3::y(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum RobustArg {
+    Huber,
+    Cauchy,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Identify MDH parameter errors from a measurement CSV.
+    Identify {
+        /// Robot model file (TOML).
+        #[arg(long)]
+        robot: PathBuf,
+        /// Measurement CSV.
+        #[arg(long)]
+        data: PathBuf,
+        /// Observation model.
+        #[arg(long, value_enum)]
+        model: ModelArg,
+        /// Stage axis in the flange frame (default +x for np, +y for op).
+        #[arg(long, value_enum, allow_hyphen_values = true)]
+        stage_axis: Option<AxisArg>,
+        /// Stage travel between P1 and P2 (mm).
+        #[arg(long, default_value_t = 10.0)]
+        stage_travel_mm: f64,
+        /// Ball position in the flange frame, X,Y,Z (mm).
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        tool_mm: Option<Vector3<f64>>,
+        /// Identify the base transform (data in the tracker frame).
+        #[arg(long)]
+        identify_base: bool,
+        /// Identify the ball position in the flange frame.
+        #[arg(long)]
+        identify_tool: bool,
+        /// Down-weight gross outliers (default loss: Huber).
+        #[arg(long, num_args = 0..=1, default_missing_value = "huber", value_enum)]
+        robust: Option<RobustArg>,
+        /// Weight of direction rows (mm); default stage travel/√2.
+        #[arg(long)]
+        direction_weight_mm: Option<f64>,
+        /// Write the JSON result here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Significance indices of the MDH parameters (paper §2.2).
+    Significance {
+        /// Robot model file (TOML).
+        #[arg(long)]
+        robot: PathBuf,
+        /// Random joint configurations.
+        #[arg(long, default_value_t = 50)]
+        samples: usize,
+        /// RNG seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Write the JSON result here.
+        #[arg(long, default_value = "significance.json")]
+        json: PathBuf,
+    },
+    /// Simulate a measurement campaign (CSV + truth JSON) for dry runs and tests.
+    SimulateData(Box<SimArgs>),
+}
+
+#[derive(clap::Args)]
+struct SimArgs {
+    /// Robot model file (TOML), the nominal model.
+    #[arg(long)]
+    robot: PathBuf,
+    /// Output CSV.
+    #[arg(long)]
+    out: PathBuf,
+    /// Output truth JSON (default: OUT with .truth.json).
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// Total poses.
+    #[arg(long, default_value_t = 300)]
+    poses: usize,
+    /// Identification poses (the rest verify).
+    #[arg(long, default_value_t = 100)]
+    ident: usize,
+    /// RNG seed.
+    #[arg(long, default_value_t = 4802)]
+    seed: u64,
+    /// True errors: `paper` (METHOD.md §7), `random`, or a JSON/TOML file of name = value.
+    #[arg(long, default_value = "paper")]
+    errors: String,
+    /// Seed of `--errors random`.
+    #[arg(long, default_value_t = 1)]
+    error_seed: u64,
+    /// Stage axis in the flange frame.
+    #[arg(long, value_enum, default_value = "+y", allow_hyphen_values = true)]
+    stage_axis: AxisArg,
+    /// Stage travel (mm).
+    #[arg(long, default_value_t = 10.0)]
+    stage_travel_mm: f64,
+    /// Stage axis misalignment, rotation vector X,Y,Z (mrad).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    stage_misalignment_mrad: Option<Vector3<f64>>,
+    /// Systematic cross-travel deviation (mm per mm of travel).
+    #[arg(long, default_value_t = 0.0)]
+    stage_cross_mm_per_mm: f64,
+    /// Stage repeatability σ (mm).
+    #[arg(long, default_value_t = 0.0)]
+    stage_repeatability_mm: f64,
+    /// True ball position in the flange frame X,Y,Z (mm).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tool_mm: Option<Vector3<f64>>,
+    /// True base translation (robot base origin in the measurement frame) X,Y,Z (mm).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    base_translation_mm: Option<Vector3<f64>>,
+    /// True base rotation vector X,Y,Z (deg).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    base_rotvec_deg: Option<Vector3<f64>>,
+    /// Tracker position in the measurement frame X,Y,Z (mm); default (2550,0,0), or the origin when a base is given.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tracker_pos_mm: Option<Vector3<f64>>,
+    /// Joint jitter σ (rad).
+    #[arg(long, default_value_t = 1.2746e-5)]
+    joint_jitter_rad: f64,
+    /// No tracker noise and no joint jitter.
+    #[arg(long)]
+    no_noise: bool,
+    /// Fraction of poses that are gross outliers.
+    #[arg(long, default_value_t = 0.0)]
+    outliers: f64,
+    /// Gross outlier size (mm).
+    #[arg(long, default_value_t = 1.0)]
+    outlier_mm: f64,
+    /// Workspace box centre X,Y,Z (mm, robot base frame).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    box_center_mm: Option<Vector3<f64>>,
+    /// Workspace box edge (mm).
+    #[arg(long, default_value_t = 1000.0)]
+    box_size_mm: f64,
+}
+
+fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{x}` is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("`{s}`: expected three finite numbers X,Y,Z"));
+    }
+    Ok(Vector3::new(v[0], v[1], v[2]))
+}
+
+/// A failure and its exit code.
+struct Failure(u8, anyhow::Error);
+
+fn input<E: Into<anyhow::Error>>(e: E) -> Failure {
+    Failure(2, e.into())
+}
+
+fn other<E: Into<anyhow::Error>>(e: E) -> Failure {
+    Failure(1, e.into())
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Identify {
+            robot,
+            data,
+            model,
+            stage_axis,
+            stage_travel_mm,
+            tool_mm,
+            identify_base,
+            identify_tool,
+            robust,
+            direction_weight_mm,
+            json,
+        } => run_identify(
+            &robot,
+            &data,
+            model,
+            stage_axis,
+            stage_travel_mm,
+            tool_mm,
+            identify_base,
+            identify_tool,
+            robust,
+            direction_weight_mm,
+            json.as_deref(),
+        ),
+        Command::Significance {
+            robot,
+            samples,
+            seed,
+            json,
+        } => run_significance(&robot, samples, seed, &json),
+        Command::SimulateData(args) => run_simulate(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failure(code, e)) => {
+            eprintln!("cellcal: error: {e:#}");
+            ExitCode::from(code)
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_identify(
+    robot: &Path,
+    data: &Path,
+    model: ModelArg,
+    stage_axis: Option<AxisArg>,
+    stage_travel_mm: f64,
+    tool_mm: Option<Vector3<f64>>,
+    identify_base: bool,
+    identify_tool: bool,
+    robust: Option<RobustArg>,
+    direction_weight_mm: Option<f64>,
+    json: Option<&Path>,
+) -> Result<(), Failure> {
+    let model = match model {
+        ModelArg::Position => ObsModel::Position,
+        ModelArg::Np => ObsModel::Np,
+        ModelArg::Op => ObsModel::Op,
+        ModelArg::Full => ObsModel::Full,
+    };
+    if !(stage_travel_mm.is_finite() && stage_travel_mm > 0.0) {
+        return Err(input(anyhow!(
+            "--stage-travel-mm must be a positive number"
+        )));
+    }
+    let mut robot_model = load_robot(robot).map_err(input)?;
+    if let Some(t) = tool_mm {
+        robot_model.tool = t;
+    }
+    let text = std::fs::read_to_string(data)
+        .with_context(|| format!("{}: cannot read", data.display()))
+        .map_err(input)?;
+    let required = Required {
+        p2: matches!(model, ObsModel::Np | ObsModel::Op),
+        rotation: model == ObsModel::Full,
+    };
+    let rows = parse_csv(&text, robot_model.dof(), required)
+        .with_context(|| data.display().to_string())
+        .map_err(input)?;
+    let mut obs = ObsConfig::new(model, stage_travel_mm);
+    if let Some(a) = stage_axis {
+        obs.stage_axis = a.vector();
+    }
+    if let Some(w) = direction_weight_mm {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(input(anyhow!("--direction-weight-mm must be ≥ 0")));
+        }
+        obs.direction_weight_mm = w;
+    }
+    let opts = IdentifyOptions {
+        obs,
+        identify_base,
+        identify_tool,
+        robust: robust.map(|r| match r {
+            RobustArg::Huber => RobustLoss::Huber,
+            RobustArg::Cauchy => RobustLoss::Cauchy,
+        }),
+        solver: Options::default(),
+    };
+    let (report, _) = calibrate(&robot_model, &rows, &opts, stage_travel_mm)
+        .with_context(|| data.display().to_string())
+        .map_err(input)?;
+    print!("{}", summary_text(&report));
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&report).map_err(other)?;
+        std::fs::write(path, text)
+            .with_context(|| format!("{}: cannot write", path.display()))
+            .map_err(other)?;
+    }
+    Ok(())
+}
+
+fn run_significance(robot: &Path, samples: usize, seed: u64, json: &Path) -> Result<(), Failure> {
+    if samples == 0 {
+        return Err(input(anyhow!("--samples must be at least 1")));
+    }
+    let m = load_robot(robot).map_err(input)?;
+    let rows = significance(&m, samples, seed);
+    println!("Significance indices over {samples} random poses (perturbation 0.1 mm / 0.1 rad)");
+    println!(
+        "{:<8} {:>12} {:>12} {:>12} {:>12}",
+        "param", "ē_p (mm)", "ē_n", "ē_o", "ē_a"
+    );
+    for r in &rows {
+        println!(
+            "{:<8} {:>12.5} {:>12.5} {:>12.5} {:>12.5}",
+            r.name, r.e_p_mm, r.e_n, r.e_o, r.e_a
+        );
+    }
+    let doc = serde_json::json!({ "samples": samples, "seed": seed, "parameters": rows });
+    std::fs::write(json, serde_json::to_string_pretty(&doc).map_err(other)?)
+        .with_context(|| format!("{}: cannot write", json.display()))
+        .map_err(other)?;
+    Ok(())
+}
+
+fn load_errors(spec: &str, dof: usize, seed: u64) -> anyhow::Result<truth::ErrorTable> {
+    match spec {
+        "paper" => {
+            if dof != 6 {
+                return Err(anyhow!("--errors paper needs a six-joint robot"));
+            }
+            Ok(truth::paper_errors())
+        }
+        "random" => Ok(truth::random_errors(dof, seed)),
+        path => {
+            let text =
+                std::fs::read_to_string(path).with_context(|| format!("{path}: cannot read"))?;
+            let table: truth::ErrorTable = if path.ends_with(".json") {
+                serde_json::from_str(&text).with_context(|| path.to_owned())?
+            } else {
+                toml::from_str(&text).with_context(|| path.to_owned())?
+            };
+            Ok(table)
+        }
+    }
+}
+
+fn run_simulate(a: &SimArgs) -> Result<(), Failure> {
+    let nominal = load_robot(&a.robot).map_err(input)?;
+    if a.ident == 0 || a.ident > a.poses {
+        return Err(input(anyhow!("--ident must be between 1 and --poses")));
+    }
+    if !(0.0..=0.5).contains(&a.outliers) {
+        return Err(input(anyhow!(
+            "--outliers must be a fraction between 0 and 0.5"
+        )));
+    }
+    let errors = load_errors(&a.errors, nominal.dof(), a.error_seed).map_err(input)?;
+    let mut true_model = truth::apply_errors(&nominal, &errors)
+        .map_err(|e| input(anyhow!("--errors {}: {e}", a.errors)))?;
+    let has_base = a.base_translation_mm.is_some() || a.base_rotvec_deg.is_some();
+    if let Some(t) = a.tool_mm {
+        true_model.tool = t;
+    }
+    if let Some(t) = a.base_translation_mm {
+        true_model.base_translation = t;
+    }
+    if let Some(r) = a.base_rotvec_deg {
+        true_model.base_rotation = from_rotation_vector(&(r * std::f64::consts::PI / 180.0));
+    }
+    let tracker_pos = a.tracker_pos_mm.unwrap_or(if has_base {
+        Vector3::zeros()
+    } else {
+        Vector3::new(2550.0, 0.0, 0.0)
+    });
+    let mut cfg = SimConfig {
+        poses: a.poses,
+        ident: a.ident,
+        seed: a.seed,
+        tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
+        joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
+        stage_travel_mm: a.stage_travel_mm,
+        stage_axis: a.stage_axis.vector(),
+        stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
+        stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
+        stage_repeatability_mm: a.stage_repeatability_mm,
+        outlier_fraction: a.outliers,
+        outlier_mm: a.outlier_mm,
+        ..SimConfig::default()
+    };
+    if let Some(c) = a.box_center_mm {
+        cfg.workspace.center_mm = c;
+    }
+    cfg.workspace.size_mm = Vector3::repeat(a.box_size_mm);
+    let sim = simulate::simulate(&nominal, &true_model, &cfg).map_err(input)?;
+    let comment = format!(
+        "cellcal simulate-data: robot {}, seed {}, errors {}, stage axis {:?} travel {} mm\nP2 = P1 + travel * R * u; q in rad; positions in mm (measurement frame)",
+        nominal.name,
+        a.seed,
+        a.errors,
+        cfg.stage_axis.as_slice(),
+        cfg.stage_travel_mm
+    );
+    std::fs::write(
+        &a.out,
+        write_csv(&sim.observations, nominal.dof(), &comment),
+    )
+    .with_context(|| format!("{}: cannot write", a.out.display()))
+    .map_err(other)?;
+    let truth_path = a
+        .truth
+        .clone()
+        .unwrap_or_else(|| a.out.with_extension("truth.json"));
+    let doc = serde_json::json!({
+        "robot": nominal.name,
+        "seed": a.seed,
+        "errors": errors,
+        "true_mdh": true_model.joints.iter().map(|j| [j.theta, j.d, j.a, j.alpha, j.beta]).collect::<Vec<_>>(),
+        "base": {
+            "translation_mm": true_model.base_translation.as_slice(),
+            "rotation_vector_rad": to_rotation_vector(&true_model.base_rotation).as_slice(),
+        },
+        "tool": { "translation_mm": true_model.tool.as_slice() },
+        "noise": {
+            "tracker_position_mm": tracker_pos.as_slice(),
+            "tracker_sigma": if a.no_noise { "none".to_owned() } else { "(15 um + 6 um/m * range)/2 per axis".to_owned() },
+            "joint_jitter_rad": cfg.joint_jitter_rad,
+        },
+        "stage": {
+            "axis": cfg.stage_axis.as_slice(),
+            "travel_mm": cfg.stage_travel_mm,
+            "misalignment_rad": cfg.stage_misalignment_rad.as_slice(),
+            "cross_mm_per_mm": cfg.stage_cross_mm_per_mm,
+            "repeatability_mm": cfg.stage_repeatability_mm,
+        },
+        "outlier_poses": sim.outliers.iter().map(|i| i.to_string()).collect::<Vec<_>>(),
+        "poses": a.poses,
+        "ident": a.ident,
+    });
+    std::fs::write(
+        &truth_path,
+        serde_json::to_string_pretty(&doc).map_err(other)?,
+    )
+    .with_context(|| format!("{}: cannot write", truth_path.display()))
+    .map_err(other)?;
+    println!(
+        "wrote {} poses ({} ident, {} verify) to {} and the truth to {}",
+        a.poses,
+        a.ident,
+        a.poses - a.ident,
+        a.out.display(),
+        truth_path.display()
+    );
+    Ok(())
+}

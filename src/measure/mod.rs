@@ -1,0 +1,5 @@
+//! Partial-pose measurement geometry: rigid registration of point sets (base frame).
+
+pub mod rigid;
+
+pub use rigid::{fit_rigid, RigidFitError};

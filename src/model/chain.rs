@@ -1,0 +1,152 @@
+//! The modified Denavit–Hartenberg (Hayati) chain with base and tool transforms.
+//!
+//! Link transform: `A_i = RotZ(θ_i + q_i) · TransZ(d_i) · TransX(a_i) · RotX(α_i) · RotY(β_i)`;
+//! measured point: `T_meas = T_base · A_1 ⋯ A_n · T_tool` (tool = translation of the ball in
+//! the flange frame). Units: mm and rad.
+
+use nalgebra::{Matrix3, Vector3};
+
+/// One joint's MDH parameters (θ offset and angles in rad, lengths in mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mdh {
+    /// Joint-zero offset θ (rad).
+    pub theta: f64,
+    /// Offset along the previous z axis (mm).
+    pub d: f64,
+    /// Length along the common normal (mm).
+    pub a: f64,
+    /// Twist about x (rad).
+    pub alpha: f64,
+    /// Hayati twist about y (rad).
+    pub beta: f64,
+}
+
+impl Mdh {
+    /// Parameter value by kind.
+    pub fn get(&self, kind: ParamKind) -> f64 {
+        match kind {
+            ParamKind::Theta => self.theta,
+            ParamKind::D => self.d,
+            ParamKind::A => self.a,
+            ParamKind::Alpha => self.alpha,
+            ParamKind::Beta => self.beta,
+        }
+    }
+
+    /// Mutable parameter by kind.
+    pub fn get_mut(&mut self, kind: ParamKind) -> &mut f64 {
+        match kind {
+            ParamKind::Theta => &mut self.theta,
+            ParamKind::D => &mut self.d,
+            ParamKind::A => &mut self.a,
+            ParamKind::Alpha => &mut self.alpha,
+            ParamKind::Beta => &mut self.beta,
+        }
+    }
+}
+
+/// The five MDH parameter kinds, in the per-joint order `[θ, d, a, α, β]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ParamKind {
+    /// Joint-zero offset (rad).
+    Theta,
+    /// Offset along z (mm).
+    D,
+    /// Length along x (mm).
+    A,
+    /// Twist about x (rad).
+    Alpha,
+    /// Twist about y (rad).
+    Beta,
+}
+
+impl ParamKind {
+    /// All kinds in the per-joint order.
+    pub const ALL: [ParamKind; 5] = [
+        ParamKind::Theta,
+        ParamKind::D,
+        ParamKind::A,
+        ParamKind::Alpha,
+        ParamKind::Beta,
+    ];
+
+    /// Name stem used in parameter names (`theta`, `d`, `a`, `alpha`, `beta`).
+    pub fn stem(self) -> &'static str {
+        match self {
+            ParamKind::Theta => "theta",
+            ParamKind::D => "d",
+            ParamKind::A => "a",
+            ParamKind::Alpha => "alpha",
+            ParamKind::Beta => "beta",
+        }
+    }
+
+    /// Whether the parameter is an angle (rad) rather than a length (mm).
+    pub fn is_angle(self) -> bool {
+        !matches!(self, ParamKind::D | ParamKind::A)
+    }
+
+    /// Unit of the parameter.
+    pub fn unit(self) -> &'static str {
+        if self.is_angle() {
+            "rad"
+        } else {
+            "mm"
+        }
+    }
+}
+
+/// Joint limits (rad).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointLimit {
+    /// Lower limit (rad).
+    pub min: f64,
+    /// Upper limit (rad).
+    pub max: f64,
+}
+
+impl JointLimit {
+    /// Whether `q` (rad) lies inside the limits.
+    pub fn contains(&self, q: f64) -> bool {
+        q >= self.min && q <= self.max
+    }
+}
+
+/// A serial robot: MDH chain, joint limits, base and tool transforms.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotModel {
+    /// Display name.
+    pub name: String,
+    /// MDH parameters per joint.
+    pub joints: Vec<Mdh>,
+    /// Joint limits per joint.
+    pub limits: Vec<JointLimit>,
+    /// Rotation of the base transform (robot base → measurement frame).
+    pub base_rotation: Matrix3<f64>,
+    /// Translation of the base transform (mm).
+    pub base_translation: Vector3<f64>,
+    /// Target ball position in the flange frame (mm).
+    pub tool: Vector3<f64>,
+}
+
+impl RobotModel {
+    /// Number of joints.
+    pub fn dof(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Whether every joint value lies inside its limits.
+    pub fn within_limits(&self, q: &[f64]) -> bool {
+        q.len() == self.dof() && q.iter().zip(&self.limits).all(|(v, l)| l.contains(*v))
+    }
+
+    /// The same model with the base set to identity and the tool at the flange origin.
+    pub fn bare(&self) -> RobotModel {
+        RobotModel {
+            base_rotation: Matrix3::identity(),
+            base_translation: Vector3::zeros(),
+            tool: Vector3::zeros(),
+            ..self.clone()
+        }
+    }
+}

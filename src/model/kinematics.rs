@@ -1,0 +1,230 @@
+//! Forward kinematics of the MDH chain and the parameter screws behind the analytic Jacobians.
+//!
+//! A change of one MDH parameter moves everything after it rigidly: a rotation parameter turns
+//! the rest of the chain about a spatial axis through a point (so a point `p` moves by
+//! `axis × (p − point)` and a direction `v` by `axis × v`), a length parameter translates it
+//! along an axis. [`Frames::screws`] returns these axes for all 5n parameters in the robot base
+//! frame; the identification builds every Jacobian from them.
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::chain::{Mdh, RobotModel};
+
+/// A rigid transform: rotation and translation (mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Rotation; columns are the frame's x (n), y (o), z (a) axes.
+    pub r: Matrix3<f64>,
+    /// Origin (mm).
+    pub p: Vector3<f64>,
+}
+
+impl Pose {
+    /// The identity transform.
+    pub fn identity() -> Pose {
+        Pose {
+            r: Matrix3::identity(),
+            p: Vector3::zeros(),
+        }
+    }
+
+    /// Composition `self · other`.
+    pub fn compose(&self, other: &Pose) -> Pose {
+        Pose {
+            r: self.r * other.r,
+            p: self.r * other.p + self.p,
+        }
+    }
+
+    /// Apply to a point.
+    pub fn transform_point(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        self.r * x + self.p
+    }
+}
+
+/// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
+pub fn link(m: &Mdh, q: f64) -> Pose {
+    let (st, ct) = (m.theta + q).sin_cos();
+    let (sa, ca) = m.alpha.sin_cos();
+    let (sb, cb) = m.beta.sin_cos();
+    // RotZ·RotX
+    let (r00, r01, r02) = (ct, -st * ca, st * sa);
+    let (r10, r11, r12) = (st, ct * ca, -ct * sa);
+    let (r20, r21, r22) = (0.0, sa, ca);
+    // · RotY(β)
+    let r = Matrix3::new(
+        r00 * cb - r02 * sb,
+        r01,
+        r00 * sb + r02 * cb,
+        r10 * cb - r12 * sb,
+        r11,
+        r10 * sb + r12 * cb,
+        r20 * cb - r22 * sb,
+        r21,
+        r20 * sb + r22 * cb,
+    );
+    Pose {
+        r,
+        p: Vector3::new(m.a * ct, m.a * st, m.d),
+    }
+}
+
+/// One parameter's effect: a rotation about `axis` through `point`, or a translation along `axis`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Screw {
+    /// Unit axis in the robot base frame.
+    pub axis: Vector3<f64>,
+    /// A point on the rotation axis (unused for translations).
+    pub point: Vector3<f64>,
+    /// Rotation (true) or translation (false).
+    pub rotation: bool,
+}
+
+impl Screw {
+    /// Derivative of a point attached to the moving part.
+    #[inline]
+    pub fn point_rate(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        if self.rotation {
+            self.axis.cross(&(p - self.point))
+        } else {
+            self.axis
+        }
+    }
+
+    /// Derivative of a direction attached to the moving part.
+    #[inline]
+    pub fn direction_rate(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        if self.rotation {
+            self.axis.cross(v)
+        } else {
+            Vector3::zeros()
+        }
+    }
+}
+
+/// All frames of the chain at one joint configuration (robot base frame, no base/tool).
+#[derive(Debug, Clone)]
+pub struct Frames {
+    /// Frames 0 (base) … n (flange).
+    pub frames: Vec<Pose>,
+    /// θ_i + q_i per joint (rad).
+    pub angles: Vec<f64>,
+}
+
+impl Frames {
+    /// The flange frame `A_1 ⋯ A_n`.
+    pub fn flange(&self) -> &Pose {
+        &self.frames[self.frames.len() - 1]
+    }
+
+    /// The 5n parameter screws, in the per-joint order `[θ, d, a, α, β]`.
+    pub fn screws(&self, joints: &[Mdh]) -> Vec<Screw> {
+        let mut out = Vec::with_capacity(5 * joints.len());
+        for (i, _) in joints.iter().enumerate() {
+            let prev = &self.frames[i];
+            let next = &self.frames[i + 1];
+            let z0 = prev.r.column(2).into_owned();
+            let (s, c) = self.angles[i].sin_cos();
+            let xp = prev.r.column(0) * c + prev.r.column(1) * s;
+            out.push(Screw {
+                axis: z0,
+                point: prev.p,
+                rotation: true,
+            });
+            out.push(Screw {
+                axis: z0,
+                point: prev.p,
+                rotation: false,
+            });
+            out.push(Screw {
+                axis: xp,
+                point: prev.p,
+                rotation: false,
+            });
+            out.push(Screw {
+                axis: xp,
+                point: next.p,
+                rotation: true,
+            });
+            out.push(Screw {
+                axis: next.r.column(1).into_owned(),
+                point: next.p,
+                rotation: true,
+            });
+        }
+        out
+    }
+}
+
+/// Forward kinematics: every frame of the chain (robot base frame, base and tool not applied).
+pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
+    forward_joints(&model.joints, q)
+}
+
+/// Forward kinematics from bare MDH parameters.
+pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
+    let mut frames = Vec::with_capacity(joints.len() + 1);
+    let mut angles = Vec::with_capacity(joints.len());
+    let mut t = Pose::identity();
+    frames.push(t);
+    for (m, qi) in joints.iter().zip(q) {
+        angles.push(m.theta + qi);
+        t = t.compose(&link(m, *qi));
+        frames.push(t);
+    }
+    Frames { frames, angles }
+}
+
+/// Position of the target ball in the measurement frame: `T_base · T(q) · tool`.
+pub fn measured_point(model: &RobotModel, q: &[f64]) -> Vector3<f64> {
+    let f = forward(model, q);
+    let fl = f.flange();
+    model.base_rotation * fl.transform_point(&model.tool) + model.base_translation
+}
+
+/// Flange rotation in the measurement frame: `R_base · R(q)`.
+pub fn measured_rotation(model: &RobotModel, q: &[f64]) -> Matrix3<f64> {
+    model.base_rotation * forward(model, q).flange().r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::file::parse_robot;
+
+    fn tx60() -> RobotModel {
+        parse_robot(
+            include_str!("../../config/robots/staubli_tx60.toml"),
+            std::path::Path::new("tx60"),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn candle_pose() {
+        let m = tx60();
+        let f = forward(&m, &[0.0; 6]);
+        let p = f.flange().p;
+        assert!((p - Vector3::new(0.0, 20.0, 670.0)).norm() < 1e-12, "{p}");
+    }
+
+    #[test]
+    fn link_matches_factor_product() {
+        let m = Mdh {
+            theta: 0.3,
+            d: 12.0,
+            a: 40.0,
+            alpha: -0.7,
+            beta: 0.2,
+        };
+        let q = 1.1;
+        let rz = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), m.theta + q);
+        let rx = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), m.alpha);
+        let ry = nalgebra::Rotation3::from_axis_angle(&Vector3::y_axis(), m.beta);
+        let r = (rz * rx * ry).into_inner();
+        let p = rz * Vector3::new(m.a, 0.0, m.d);
+        let l = link(&m, q);
+        assert!((l.r - r).norm() < 1e-14);
+        assert!((l.p - p).norm() < 1e-12);
+    }
+}

@@ -1,0 +1,12 @@
+//! Robot model: MDH chain, robot model files, forward kinematics and analytic Jacobians.
+//!
+//! Pure code: no I/O except [`file::load_robot`], which reads one TOML file.
+
+pub mod chain;
+pub mod file;
+pub mod kinematics;
+pub mod rotation;
+
+pub use chain::{JointLimit, Mdh, ParamKind, RobotModel};
+pub use file::{load_robot, parse_robot, RobotFileError};
+pub use kinematics::{forward, Frames, Pose};

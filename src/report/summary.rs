@@ -1,0 +1,134 @@
+//! The printed summary of an identification: the parameter-error table (like the paper's
+//! Tables 3–5) and the before/after accuracy table.
+
+use std::fmt::Write;
+
+use super::identify_json::IdentifyReport;
+use crate::analysis::metrics::Metrics;
+
+fn cell(r: &IdentifyReport, name: &str) -> String {
+    match r.parameters.iter().find(|p| p.name == name) {
+        Some(p) if p.identified => format!("{:+.6e}", p.error),
+        Some(_) => "—".to_owned(),
+        None => String::new(),
+    }
+}
+
+fn metric_line(out: &mut String, set: &str, state: &str, m: &Metrics) {
+    let att = |v: Option<f64>| v.map_or("—".to_owned(), |x| format!("{x:.6}"));
+    let _ = writeln!(
+        out,
+        "{set:<7} {state:<7} {:>5} {:>10.4} {:>10.4} {:>10.4} {:>10.4}  {:>7.4}/{:>7.4}/{:>7.4} {:>12} {:>12}",
+        m.poses,
+        m.position_mean_mm,
+        m.position_max_mm,
+        m.position_rms_mm,
+        m.position_p95_mm,
+        m.position_axial_mean_mm[0],
+        m.position_axial_mean_mm[1],
+        m.position_axial_mean_mm[2],
+        att(m.attitude_mean_rad),
+        att(m.attitude_max_rad),
+    );
+}
+
+/// Human summary of an identify report.
+pub fn summary_text(r: &IdentifyReport) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "model {}: {} parameters identified, condition number {:.1}, σ0 = {:.4} mm",
+        r.model,
+        r.identified.len(),
+        r.condition_number,
+        r.sigma0_mm
+    );
+    let _ = writeln!(
+        out,
+        "solver: {} iterations, {} ({}), final cost {:.6e} mm²",
+        r.solver.iterations,
+        if r.solver.converged {
+            "converged"
+        } else {
+            "NOT converged"
+        },
+        r.solver.termination,
+        r.solver.final_cost
+    );
+    let _ = writeln!(
+        out,
+        "\nParameter errors (identified − nominal; — = not identifiable)"
+    );
+    let _ = writeln!(
+        out,
+        "{:<5} {:>14} {:>14} {:>14} {:>14} {:>14}",
+        "joint", "Δθ (rad)", "Δd (mm)", "Δa (mm)", "Δα (rad)", "Δβ (rad)"
+    );
+    let dof = r
+        .parameters
+        .iter()
+        .filter_map(|p| p.joint)
+        .max()
+        .unwrap_or(0);
+    for j in 1..=dof {
+        let _ = writeln!(
+            out,
+            "{:<5} {:>14} {:>14} {:>14} {:>14} {:>14}",
+            j,
+            cell(r, &format!("theta{j}")),
+            cell(r, &format!("d{j}")),
+            cell(r, &format!("a{j}")),
+            cell(r, &format!("alpha{j}")),
+            cell(r, &format!("beta{j}")),
+        );
+    }
+    for p in r
+        .parameters
+        .iter()
+        .filter(|p| p.joint.is_none() && p.identified)
+    {
+        let _ = writeln!(
+            out,
+            "{:<12} {:+.6e} {} (± {:.2e})",
+            p.name,
+            p.error,
+            p.unit,
+            p.std.unwrap_or(f64::NAN)
+        );
+    }
+    if !r.not_identifiable.is_empty() {
+        let _ = writeln!(out, "\nNot identifiable:");
+        for d in &r.not_identifiable {
+            let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
+        }
+    }
+    if !r.rejected_poses.is_empty() {
+        let _ = writeln!(
+            out,
+            "\nRejected as outliers (--robust): {}",
+            r.rejected_poses.join(", ")
+        );
+    }
+    let _ = writeln!(out, "\nAccuracy (position mm, attitude rad)");
+    let _ = writeln!(
+        out,
+        "{:<7} {:<7} {:>5} {:>10} {:>10} {:>10} {:>10}  {:>23} {:>12} {:>12}",
+        "set",
+        "state",
+        "poses",
+        "mean",
+        "max",
+        "rms",
+        "p95",
+        "axial mean x/y/z",
+        "att mean",
+        "att max"
+    );
+    metric_line(&mut out, "ident", "before", &r.metrics.ident.before);
+    metric_line(&mut out, "ident", "after", &r.metrics.ident.after);
+    if let Some(v) = &r.metrics.verify {
+        metric_line(&mut out, "verify", "before", &v.before);
+        metric_line(&mut out, "verify", "after", &v.after);
+    }
+    out
+}
