@@ -1,1 +1,104 @@
-fn main() {}
+//! Criterion benchmarks: identification at 100 / 1 000 / 10 000 poses for each model, and
+//! forward kinematics + Jacobian per pose. Run with `cargo bench`.
+
+use std::hint::black_box;
+use std::path::Path;
+
+use cellcal::dataset::to_measured;
+use cellcal::identify::observation::residual_jacobian;
+use cellcal::identify::solver::Options;
+use cellcal::identify::{all_params, identify, IdentifyOptions, ObsConfig, ObsModel};
+use cellcal::model::parse_robot;
+use cellcal::simulate::{self, truth, SimConfig};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use nalgebra::Vector3;
+
+fn setup(
+    n: usize,
+    axis: Vector3<f64>,
+) -> (
+    cellcal::model::RobotModel,
+    Vec<cellcal::dataset::Observation>,
+) {
+    let nominal = parse_robot(
+        include_str!("../config/robots/staubli_tx60.toml"),
+        Path::new("tx60"),
+    )
+    .expect("robot");
+    let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
+    let cfg = SimConfig {
+        poses: n,
+        ident: n,
+        seed: 4812,
+        stage_axis: axis,
+        ..SimConfig::default()
+    };
+    let data = simulate::simulate(&nominal, &truth, &cfg).expect("sim");
+    (nominal, data.observations)
+}
+
+fn bench_identify(c: &mut Criterion) {
+    let mut g = c.benchmark_group("identify");
+    g.sample_size(10);
+    for model in [
+        ObsModel::Position,
+        ObsModel::Np,
+        ObsModel::Op,
+        ObsModel::Full,
+    ] {
+        let axis = if model == ObsModel::Np {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let (nominal, rows) = setup(10_000, axis);
+        for n in [100usize, 1000, 10_000] {
+            let mut obs = ObsConfig::new(model, 10.0);
+            obs.stage_axis = axis;
+            let opts = IdentifyOptions {
+                obs,
+                identify_base: false,
+                identify_tool: false,
+                robust: None,
+                solver: Options::default(),
+            };
+            let meas = to_measured(&rows[..n], model, 10.0).expect("convert");
+            g.bench_with_input(BenchmarkId::new(model.name(), n), &meas, |b, m| {
+                b.iter(|| identify(&nominal, black_box(m), &opts).expect("identify"))
+            });
+        }
+    }
+    g.finish();
+}
+
+fn bench_pose(c: &mut Criterion) {
+    let (nominal, rows) = setup(100, Vector3::y());
+    let meas = to_measured(&rows, ObsModel::Full, 10.0).expect("convert");
+    let params = all_params(6, false, false);
+    let mut g = c.benchmark_group("per_pose");
+    for model in [ObsModel::Position, ObsModel::Op, ObsModel::Full] {
+        let cfg = ObsConfig::new(model, 10.0);
+        let rows = model.rows();
+        let mut res = vec![0.0; rows];
+        let mut jac = vec![0.0; rows * params.len()];
+        g.bench_function(format!("fk_jacobian_30_{}", model.name()), |b| {
+            let mut i = 0;
+            b.iter(|| {
+                i = (i + 1) % meas.len();
+                residual_jacobian(&nominal, &meas[i], &cfg, &params, &mut res, &mut jac);
+                black_box(&jac);
+            })
+        });
+    }
+    g.bench_function("fk_only", |b| {
+        let mut i = 0;
+        b.iter(|| {
+            i = (i + 1) % meas.len();
+            black_box(cellcal::model::forward(&nominal, &meas[i].q));
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_identify, bench_pose);
+criterion_main!(benches);

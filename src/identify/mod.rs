@@ -172,13 +172,7 @@ pub fn identify(
     // generic structure first: how many parameters can this model identify at all?
     let generic: Vec<Measured> = generic_poses(nominal, 64)
         .into_iter()
-        .map(|q| Measured {
-            q,
-            p1: Vector3::zeros(),
-            direction: None,
-            rotation: None,
-            weight: 1.0,
-        })
+        .map(Measured::joints_only)
         .collect();
     let structural = identifiability::analyze(nominal, &generic, &opts.obs, &candidates);
     let k = structural.identified.len();

@@ -107,6 +107,19 @@ pub struct Measured {
     pub weight: f64,
 }
 
+impl Measured {
+    /// A pose with joint values only (for structural analyses; nothing measured, weight 1).
+    pub fn joints_only(q: Vec<f64>) -> Measured {
+        Measured {
+            q,
+            p1: Vector3::zeros(),
+            direction: None,
+            rotation: None,
+            weight: 1.0,
+        }
+    }
+}
+
 /// Modelled observation quantities at one pose.
 #[derive(Debug, Clone, Copy)]
 pub struct Predicted {

@@ -1,1 +1,9 @@
+//! The one integration-test binary: modules per capability.
 
+mod cli;
+mod common;
+mod frames;
+mod identifiability;
+mod paper;
+mod robust;
+mod significance;

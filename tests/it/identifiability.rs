@@ -1,0 +1,152 @@
+//! The identifiable sets of METHOD.md §2, with and without base and tool, and the errors for
+//! too few or too similar poses.
+
+use cellcal::identify::identifiability::analyze;
+use cellcal::identify::{all_params, identify, IdentifyError, Measured, ObsConfig, ObsModel};
+use cellcal::plan::{sample_poses, Workspace};
+use nalgebra::Vector3;
+use rand::SeedableRng;
+
+use super::common::*;
+
+fn poses(n: usize) -> Vec<Measured> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4804);
+    sample_poses(&tx60(), &Workspace::default(), n, &mut rng)
+        .expect("sampled")
+        .into_iter()
+        .map(Measured::joints_only)
+        .collect()
+}
+
+fn dropped(model: ObsModel, base: bool, tool: bool) -> Vec<(String, String)> {
+    let m = tx60();
+    let cfg = ObsConfig::new(model, 10.0);
+    let cfg = ObsConfig {
+        stage_axis: if model == ObsModel::Np {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        },
+        ..cfg
+    };
+    let r = analyze(&m, &poses(100), &cfg, &all_params(6, base, tool));
+    assert!(
+        r.condition_number() < 100.0,
+        "cond {}",
+        r.condition_number()
+    );
+    r.dropped
+        .iter()
+        .map(|d| (d.param.name(), d.reason.clone()))
+        .collect()
+}
+
+fn names(v: &[(String, String)]) -> Vec<&str> {
+    v.iter().map(|(n, _)| n.as_str()).collect()
+}
+
+#[test]
+fn method_table_without_base_and_tool() {
+    assert_eq!(
+        names(&dropped(ObsModel::Position, false, false)),
+        ["beta1", "d2", "beta3", "beta4", "a5", "alpha5", "beta5", "theta6", "alpha6", "beta6"]
+    );
+    assert_eq!(
+        names(&dropped(ObsModel::Np, false, false)),
+        ["beta1", "d2", "beta3", "beta4", "beta5", "alpha6"]
+    );
+    assert_eq!(
+        names(&dropped(ObsModel::Op, false, false)),
+        ["beta1", "d2", "beta3", "beta4", "beta5", "beta6"]
+    );
+    assert_eq!(
+        names(&dropped(ObsModel::Full, false, false)),
+        ["beta1", "d2", "beta3", "beta4", "beta5"]
+    );
+}
+
+#[test]
+fn reasons_are_given() {
+    let d = dropped(ObsModel::Op, false, false);
+    let reason = |n: &str| {
+        d.iter()
+            .find(|(x, _)| x == n)
+            .map(|(_, r)| r.as_str())
+            .unwrap_or("")
+    };
+    assert_eq!(reason("d2"), "dependent on d3");
+    assert_eq!(reason("beta1"), "dependent on theta1");
+    assert_eq!(reason("beta6"), "no effect on this measurement");
+    let np = dropped(ObsModel::Np, false, false);
+    assert!(np
+        .iter()
+        .any(|(n, r)| n == "alpha6" && r == "no effect on this measurement"));
+}
+
+#[test]
+fn base_and_tool_gauge_redundancies_removed_by_the_jacobian() {
+    for model in [ObsModel::Np, ObsModel::Op, ObsModel::Full] {
+        let d = dropped(model, true, true);
+        let extra: Vec<_> = d
+            .iter()
+            .filter(|(n, _)| n.starts_with("base") || n.starts_with("tool"))
+            .cloned()
+            .collect();
+        assert_eq!(
+            extra,
+            vec![
+                ("base_tz".to_owned(), "dependent on d1".to_owned()),
+                ("base_rz".to_owned(), "dependent on theta1".to_owned()),
+                ("tool_x".to_owned(), "dependent on a6".to_owned()),
+                ("tool_z".to_owned(), "dependent on d6".to_owned()),
+            ],
+            "{model:?}"
+        );
+    }
+    // position only: the tool also meets a5/alpha5/theta6 effects
+    let d = dropped(ObsModel::Position, true, true);
+    assert!(names(&d).contains(&"base_tz") && names(&d).contains(&"tool_z"));
+    assert!(!names(&d).contains(&"tool_y"));
+}
+
+#[test]
+fn deterministic() {
+    let a = dropped(ObsModel::Full, true, true);
+    let b = dropped(ObsModel::Full, true, true);
+    assert_eq!(a, b);
+}
+
+#[test]
+fn too_few_poses_is_an_error() {
+    let opts = options(ObsModel::Op, Vector3::y());
+    let mut p = poses(4);
+    for m in &mut p {
+        m.direction = Some(Vector3::y());
+    }
+    match identify(&tx60(), &p, &opts) {
+        Err(IdentifyError::TooFewPoses {
+            poses: 4,
+            parameters: 24,
+            needed: 5,
+            ..
+        }) => {}
+        other => panic!("expected TooFewPoses, got {other:?}"),
+    }
+}
+
+#[test]
+fn rank_deficient_poses_are_an_error() {
+    let opts = options(ObsModel::Op, Vector3::y());
+    // 40 poses that only move joint 1: nothing separates the rest
+    let mut p = poses(40);
+    let q0 = p[0].q.clone();
+    for (i, m) in p.iter_mut().enumerate() {
+        m.q = q0.clone();
+        m.q[0] = -1.0 + 0.05 * i as f64;
+        m.direction = Some(Vector3::y());
+    }
+    match identify(&tx60(), &p, &opts) {
+        Err(IdentifyError::RankDeficient { missing }) => assert!(!missing.is_empty()),
+        other => panic!("expected RankDeficient, got {other:?}"),
+    }
+}
