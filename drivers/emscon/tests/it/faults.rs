@@ -1,0 +1,437 @@
+//! Every injected fault surfaces as the right typed error; recovery where a device allows it.
+
+use std::time::Duration;
+
+use emscon::types::{cmd, status, status_change};
+use emscon::{ClientConfig, EmsconError, Event, ForcedStatus, Malformed};
+
+use crate::common::{fast_config, Sim};
+
+fn events_until_quiet(rx: &mut tokio::sync::broadcast::Receiver<Event>) -> Vec<Event> {
+    let mut out = Vec::new();
+    while let Ok(e) = rx.try_recv() {
+        out.push(e);
+    }
+    out
+}
+
+#[tokio::test]
+async fn beam_break_before_measurement_then_find_reflector() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().beam_break_before_measure = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    // The ReflectorFound bit is now cleared and stays so until a search.
+    assert!(!c.measurement_status().await.unwrap().reflector_found());
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    c.find_reflector(2000.0).await.unwrap();
+    assert!(c.measurement_status().await.unwrap().reflector_found());
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn beam_break_rt_status_without_precheck_then_go_last_point() {
+    let sim = Sim::start().await;
+    let cfg = ClientConfig {
+        check_reflector_before_measure: false,
+        ..fast_config()
+    };
+    let c = sim.ready_client_with(cfg).await;
+    c.measure_stationary().await.unwrap();
+    sim.faults().beam_break_before_measure = 1;
+    // Non-OK StartMeasurement RT (10004) is a beam break.
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    c.go_last_measured_point().await.unwrap();
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn beam_break_during_measurement_relocks_after_delay() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    let mut ev = c.subscribe();
+    {
+        let mut f = sim.faults();
+        f.beam_break_during_measure = 1;
+        f.relock_after_ms = Some(60);
+    }
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let evs = events_until_quiet(&mut ev);
+    assert!(
+        evs.iter()
+            .any(|e| matches!(e, Event::Error(x) if x.status == status::NO_STATIONARY_RESULT)),
+        "{evs:?}"
+    );
+    assert!(
+        evs.contains(&Event::StatusChange(status_change::MEAS_STATUS_NOT_READY)),
+        "{evs:?}"
+    );
+    // Still broken right after, re-locked by itself later.
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    tokio::time::sleep(Duration::from_millis(80)).await;
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn status_change_not_ready_alone_is_beam_break() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    {
+        let mut f = sim.faults();
+        f.beam_break_during_measure = 1;
+        f.beam_break_sends_error = false;
+    }
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    c.find_reflector(2000.0).await.unwrap();
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn backend_target_lost_is_beam_break() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.backend.state().target_lost_next = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    c.find_reflector(2000.0).await.unwrap();
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn configurable_beam_break_code() {
+    let sim = Sim::start().await;
+    let code = 108_710;
+    let plain = ClientConfig {
+        check_reflector_before_measure: false,
+        ..fast_config()
+    };
+    {
+        let c = sim.ready_client_with(plain.clone()).await;
+        {
+            let mut f = sim.faults();
+            f.beam_break_status = code;
+            f.beam_break_before_measure = 1;
+        }
+        assert!(matches!(
+            c.measure_stationary().await,
+            Err(EmsconError::Device {
+                command: 49,
+                status: 108_710
+            })
+        ));
+        c.find_reflector(1000.0).await.unwrap();
+    }
+    let c = sim
+        .ready_client_with(ClientConfig {
+            beam_break_code: Some(code),
+            ..plain
+        })
+        .await;
+    sim.faults().beam_break_before_measure = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+}
+
+#[tokio::test]
+async fn no_target_visible_is_target_not_found() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.backend.state().reflector_found = false;
+    assert!(matches!(
+        c.find_reflector(2000.0).await,
+        Err(EmsconError::TargetNotFound)
+    ));
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    sim.backend.state().reflector_found = true;
+    c.find_reflector(2000.0).await.unwrap();
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn no_reply_times_out_then_client_recovers() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().no_reply = 1;
+    let err = c.system_status().await.unwrap_err();
+    assert!(
+        matches!(
+            err,
+            EmsconError::Timeout {
+                what: "GetSystemStatus reply"
+            }
+        ),
+        "{err:?}"
+    );
+    c.system_status().await.unwrap();
+    {
+        let mut f = sim.faults();
+        f.no_reply = 1;
+        f.no_reply_command = Some(cmd::START_MEASUREMENT);
+    }
+    c.system_status().await.unwrap();
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::Timeout {
+            what: "StartMeasurement reply"
+        })
+    ));
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn rt_without_result_times_out() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().rt_without_result = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::Timeout {
+            what: "measurement result"
+        })
+    ));
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn result_without_rt_and_result_before_rt_are_accepted() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().result_without_rt = 1;
+    assert_eq!(c.measure_stationary().await.unwrap().x_mm, 1000.0);
+    c.system_status().await.unwrap();
+    sim.faults().result_before_rt = 2;
+    c.measure_stationary().await.unwrap();
+    // The late RT must not be taken as the answer to the next command.
+    c.system_status().await.unwrap();
+    c.measure_stationary().await.unwrap();
+    c.measure_stationary().await.unwrap();
+    c.reflectors().await.unwrap();
+}
+
+#[tokio::test]
+async fn stream_shaping_coalesce_dribble_interleave() {
+    let sim = Sim::start().await;
+    sim.faults().coalesce = true;
+    let c = sim.ready_client().await;
+    c.measure_stationary().await.unwrap();
+    c.reflectors().await.unwrap();
+    drop(c);
+    {
+        let mut f = sim.faults();
+        f.coalesce = false;
+        f.dribble = true;
+    }
+    let c = sim.ready_client().await;
+    c.measure_stationary().await.unwrap();
+    {
+        let mut f = sim.faults();
+        f.dribble = false;
+        f.interleave_unsolicited = true;
+    }
+    let mut ev = c.subscribe();
+    c.measure_stationary().await.unwrap();
+    let evs = events_until_quiet(&mut ev);
+    assert!(
+        evs.contains(&Event::StatusChange(status_change::MEAS_STATUS_BUSY)),
+        "{evs:?}"
+    );
+    assert!(
+        evs.iter().any(|e| matches!(e, Event::ReflectorPos(_))),
+        "{evs:?}"
+    );
+    // All at once: coalesced, dribbled, interleaved, result first.
+    {
+        let mut f = sim.faults();
+        f.coalesce = true;
+        f.dribble = true;
+        f.result_before_rt = 1;
+    }
+    c.measure_stationary().await.unwrap();
+    c.system_status().await.unwrap();
+}
+
+async fn expect_recoverable(sim: &Sim, m: Malformed) {
+    let c = sim.ready_client().await;
+    sim.faults().malformed.push_back(m);
+    let err = c.system_status().await.unwrap_err();
+    assert!(matches!(err, EmsconError::Protocol(_)), "{m:?}: {err:?}");
+    assert!(c.is_connected(), "{m:?}");
+    c.system_status().await.unwrap();
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn malformed_recoverable_packets_are_protocol_errors() {
+    let sim = Sim::start().await;
+    for m in [
+        Malformed::SizeMismatch,
+        Malformed::UnknownType,
+        Malformed::WrongCommandEcho,
+    ] {
+        expect_recoverable(&sim, m).await;
+    }
+}
+
+#[tokio::test]
+async fn malformed_framing_is_fatal_then_reconnect() {
+    let sim = Sim::start().await;
+    for m in [Malformed::SizeTooSmall, Malformed::SizeTooLarge] {
+        let c = sim.ready_client().await;
+        sim.faults().malformed.push_back(m);
+        let err = c.system_status().await.unwrap_err();
+        assert!(matches!(err, EmsconError::Protocol(_)), "{m:?}: {err:?}");
+        assert!(!c.is_connected());
+        assert!(matches!(
+            c.system_status().await,
+            Err(EmsconError::Disconnected)
+        ));
+        drop(c);
+        let c = sim.ready_client().await;
+        c.measure_stationary().await.unwrap();
+    }
+}
+
+#[tokio::test]
+async fn nan_result_is_protocol_error() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().malformed.push_back(Malformed::NanResult);
+    c.system_status().await.unwrap(); // NaN fault waits for a result
+    let err = c.measure_stationary().await.unwrap_err();
+    assert!(
+        matches!(&err, EmsconError::Protocol(s) if s.contains("NaN")),
+        "{err:?}"
+    );
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn disconnect_mid_packet_then_reconnect() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.faults().disconnect_mid_packet = 1;
+    assert!(matches!(
+        c.system_status().await,
+        Err(EmsconError::Disconnected)
+    ));
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::Disconnected)
+    ));
+    assert!(!c.is_connected());
+    let c2 = c.reconnect().await.unwrap();
+    drop(c);
+    c2.setup_stationary(&crate::common::setup()).await.unwrap();
+    c2.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn tp_connection_closing_then_close() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    let mut ev = c.subscribe();
+    sim.faults().closing_then_close = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::Disconnected)
+    ));
+    let evs = events_until_quiet(&mut ev);
+    assert!(
+        evs.contains(&Event::StatusChange(status_change::TP_CONNECTION_CLOSING)),
+        "{evs:?}"
+    );
+    assert!(evs.contains(&Event::Disconnected));
+    assert!(matches!(
+        c.system_status().await,
+        Err(EmsconError::Disconnected)
+    ));
+    let c = sim.ready_client().await;
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn forced_statuses_map_to_typed_errors() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    type Check = fn(&EmsconError) -> bool;
+    let cases: [(i32, Check); 4] = [
+        (status::TRACKER_NOT_INITIALIZED, |e| {
+            matches!(e, EmsconError::NotInitialized)
+        }),
+        (status::SENSOR_NOT_WARMED_UP, |e| {
+            matches!(e, EmsconError::NotWarmedUp)
+        }),
+        (status::SERVER_BUSY, |e| matches!(e, EmsconError::Busy)),
+        (status::METEO_DATA_OUT_OF_RANGE, |e| {
+            matches!(
+                e,
+                EmsconError::Device {
+                    command: 49,
+                    status: 57
+                }
+            )
+        }),
+    ];
+    for (st, check) in cases {
+        sim.faults().forced_status = Some(ForcedStatus {
+            command: Some(cmd::START_MEASUREMENT),
+            status: st,
+            count: 1,
+        });
+        let err = c.measure_stationary().await.unwrap_err();
+        assert!(check(&err), "status {st}: {err:?}");
+        assert_eq!(err.status(), Some(st));
+        c.measure_stationary().await.unwrap();
+    }
+    // Forced onto any command, with a full-size (56-byte) failed reply.
+    sim.faults().forced_status = Some(ForcedStatus {
+        command: None,
+        status: status::SERVER_BUSY,
+        count: 1,
+    });
+    assert!(matches!(c.system_status().await, Err(EmsconError::Busy)));
+    c.system_status().await.unwrap();
+}
+
+#[tokio::test]
+async fn not_warmed_up_backend() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    sim.backend.state().warmed_up = false;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::NotWarmedUp)
+    ));
+    sim.backend.state().warmed_up = true;
+    c.measure_stationary().await.unwrap();
+}

@@ -1,0 +1,19 @@
+//! robotlink: driver for the cellcal robot line protocol (see `PROTOCOL.md`).
+//!
+//! * [`codec`]: pure parse/format of request, reply and event lines.
+//! * [`client`]: async [`RobotClient`] over TCP (or any async stream).
+//! * [`server`]: protocol server over a [`RobotBackend`], with fault injection for tests.
+//! * [`sim`]: [`SimpleBackend`], a joint-space-only simulated arm.
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod client;
+pub mod codec;
+mod lineio;
+pub mod server;
+pub mod sim;
+
+pub use client::{ClientConfig, RobotClient, RobotError};
+pub use codec::{ErrorCode, Event, EventName, Identity, Pose, RobotState};
+pub use server::{serve, serve_connection, BackendError, FaultConfig, FaultHandle, RobotBackend};
+pub use sim::{SimpleBackend, SimpleConfig};

@@ -1,0 +1,7 @@
+//! Integration tests for robotlink (single test binary).
+
+mod common;
+mod corpus;
+mod faults;
+mod props;
+mod session;

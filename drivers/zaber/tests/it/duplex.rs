@@ -1,0 +1,92 @@
+//! In-memory tests (in addition to the pty tests): scripted device behaviour.
+
+use std::time::Duration;
+
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use zaber::ascii::{append_checksum, parse_command};
+use zaber::sim::serve_stage;
+use zaber::{GaugeClient, GaugeConfig, GaugeError, StageError, ZaberStage};
+
+use crate::common::{sim, stage_cfg};
+
+#[tokio::test]
+async fn stage_sim_over_duplex() {
+    let (a, b) = tokio::io::duplex(1024);
+    let s = sim(false);
+    tokio::spawn(serve_stage(b, s.clone()));
+    let mut st = ZaberStage::from_stream(a, stage_cfg());
+    st.home().await.unwrap();
+    assert!((st.move_abs_mm(7.0).await.unwrap() - 7.0).abs() < 1e-9);
+}
+
+/// Scripted device: skips info/alert lines and a stale reply, answers with checksums.
+#[tokio::test]
+async fn client_skips_info_alert_and_stale_replies() {
+    let (a, b) = tokio::io::duplex(1024);
+    tokio::spawn(async move {
+        let (rd, mut wr) = tokio::io::split(b);
+        let mut rd = BufReader::new(rd);
+        let mut line = String::new();
+        rd.read_line(&mut line).await.unwrap();
+        let (cmd, had_cs) = parse_command(&line).unwrap();
+        assert!(had_cs);
+        assert_eq!(cmd.text, "get pos");
+        let id = cmd.id.unwrap();
+        let stale = append_checksum(&format!("@01 1 {} OK IDLE -- 1", (id + 99) % 100));
+        let info = "#01 1 some info text";
+        let alert = "!01 1 IDLE --";
+        let other_dev = "@02 1 0 OK IDLE -- 5";
+        let good = append_checksum(&format!("@01 1 {id} OK IDLE -- -2500"));
+        for l in [stale.as_str(), info, alert, other_dev, good.as_str()] {
+            wr.write_all(format!("{l}\r\n").as_bytes()).await.unwrap();
+        }
+        let _ = rd.read_line(&mut line).await;
+    });
+    let mut st = ZaberStage::from_stream(a, stage_cfg());
+    let p = st.position_mm().await.unwrap();
+    assert!((p + 2.5).abs() < 1e-12);
+}
+
+#[tokio::test]
+async fn disconnected_after_eof() {
+    let (a, b) = tokio::io::duplex(64);
+    drop(b);
+    let mut st = ZaberStage::from_stream(a, stage_cfg());
+    let e = st.position_mm().await.unwrap_err();
+    assert!(
+        matches!(e, StageError::Io(_) | StageError::Disconnected),
+        "{e:?}"
+    );
+    assert!(matches!(
+        st.position_mm().await,
+        Err(StageError::Disconnected)
+    ));
+}
+
+#[tokio::test]
+async fn gauge_configurable_request_and_mitutoyo_format() {
+    let (a, b) = tokio::io::duplex(256);
+    tokio::spawn(async move {
+        let (rd, mut wr) = tokio::io::split(b);
+        let mut rd = BufReader::new(rd);
+        let mut buf = Vec::new();
+        rd.read_until(b'\r', &mut buf).await.unwrap();
+        assert_eq!(buf, b"1\r");
+        wr.write_all(b"01A+00012.345\r").await.unwrap();
+        let _ = rd.read_until(b'\r', &mut buf).await;
+        // Stay connected but silent.
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        drop(wr);
+    });
+    let mut g = GaugeClient::from_stream(
+        a,
+        GaugeConfig {
+            request: "1\r".into(),
+            reply_timeout: Duration::from_millis(200),
+            ..Default::default()
+        },
+    );
+    assert_eq!(g.read_mm().await.unwrap(), 12.345);
+    // Second request gets no answer.
+    assert!(matches!(g.read_mm().await, Err(GaugeError::Timeout)));
+}

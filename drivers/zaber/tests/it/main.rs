@@ -1,0 +1,8 @@
+//! Integration tests for zaber (single test binary).
+
+mod common;
+mod corpus;
+mod duplex;
+mod gauge_pty;
+mod props;
+mod stage_pty;
