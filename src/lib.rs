@@ -2,6 +2,7 @@
 //!
 //! Module map (see ARCHITECTURE.md):
 //! - [`model`]: robot model files, MDH chain, forward kinematics, parameter screws (Jacobians).
+//! - [`cell`]: device traits (Tracker, Robot, Stage, Prompter) and their adapters.
 //! - [`identify`]: observation models, identifiability, Levenberg–Marquardt, robust refit.
 //! - [`analysis`]: accuracy metrics and significance indices.
 //! - [`measure`]: measurement geometry (rigid registration).
@@ -13,6 +14,7 @@
 //! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file.
 
 pub mod analysis;
+pub mod cell;
 pub mod dataset;
 pub mod identify;
 pub mod measure;

@@ -1,0 +1,184 @@
+//! Device traits of the cell (Tracker, Robot, Stage, Prompter) and their adapters over the
+//! protocol crates in `drivers/`.
+//!
+//! The campaign only sees these traits. Units at this boundary are mm and rad; adapters
+//! convert at the protocol edge (robotlink speaks degrees, Zaber microsteps).
+
+use std::time::{Duration, SystemTime};
+
+use async_trait::async_trait;
+use nalgebra::Vector3;
+
+/// Which device a fault came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DeviceKind {
+    /// The laser tracker.
+    Tracker,
+    /// The robot controller.
+    Robot,
+    /// The 1D stage (motorised, gauge or manual).
+    Stage,
+    /// The technician (prompts).
+    Operator,
+}
+
+impl DeviceKind {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceKind::Tracker => "tracker",
+            DeviceKind::Robot => "robot",
+            DeviceKind::Stage => "stage",
+            DeviceKind::Operator => "operator",
+        }
+    }
+}
+
+/// Classified fault, as the campaign needs it to decide what to do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum FaultKind {
+    /// Tracker beam broken / target lost: discard, re-lock, measure again.
+    BeamBroken,
+    /// No answer in time.
+    Timeout,
+    /// The connection is gone: reconnect.
+    Disconnected,
+    /// The device refused the command (limit, unreachable, bad data, not homed …).
+    Rejected,
+    /// Emergency stop or power loss: the operator must intervene.
+    EmergencyStop,
+    /// The device is not ready (not initialised, not warmed up, busy).
+    NotReady,
+    /// The device spoke nonsense.
+    Protocol,
+    /// The operator aborted.
+    Aborted,
+    /// Anything else reported by the device.
+    Device,
+}
+
+/// An error from a cell device.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{} {kind:?}: {message}", device.name())]
+pub struct CellError {
+    /// Which device.
+    pub device: DeviceKind,
+    /// What kind of fault.
+    pub kind: FaultKind,
+    /// Detail from the driver.
+    pub message: String,
+}
+
+impl CellError {
+    /// Build an error.
+    pub fn new(device: DeviceKind, kind: FaultKind, message: impl Into<String>) -> CellError {
+        CellError {
+            device,
+            kind,
+            message: message.into(),
+        }
+    }
+
+    /// Whether retrying (after a re-lock or reconnect) may help.
+    pub fn is_transient(&self) -> bool {
+        matches!(
+            self.kind,
+            FaultKind::BeamBroken
+                | FaultKind::Timeout
+                | FaultKind::Disconnected
+                | FaultKind::NotReady
+                | FaultKind::Protocol
+        )
+    }
+}
+
+/// One stationary tracker measurement (measurement frame, mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerPoint {
+    /// Position (mm).
+    pub p_mm: Vector3<f64>,
+    /// Per-axis standard deviation (mm).
+    pub std_mm: [f64; 3],
+    /// Total standard deviation (mm).
+    pub std_total_mm: f64,
+    /// Air temperature (°C).
+    pub temperature_c: f64,
+    /// Air pressure (mbar).
+    pub pressure_mbar: f64,
+    /// Relative humidity (%).
+    pub humidity_pct: f64,
+    /// Local time the measurement was requested.
+    pub sent_at: SystemTime,
+    /// Local time the result arrived.
+    pub received_at: SystemTime,
+}
+
+/// A laser tracker.
+#[async_trait]
+pub trait Tracker: Send {
+    /// Connect if needed and configure for stationary measurement (units, mode, reflector).
+    async fn prepare(&mut self) -> Result<(), CellError>;
+    /// One stationary measurement of the reflector.
+    async fn measure(&mut self) -> Result<TrackerPoint, CellError>;
+    /// Re-acquire the target after a beam break (go to last point / find reflector).
+    async fn relock(&mut self) -> Result<(), CellError>;
+    /// Drop and re-establish the connection, then prepare again.
+    async fn reconnect(&mut self) -> Result<(), CellError>;
+}
+
+/// A robot controller.
+#[async_trait]
+pub trait Robot: Send {
+    /// Connect if needed, identify, power on and set the speed (percent of maximum).
+    async fn prepare(&mut self, speed_pct: f64) -> Result<(), CellError>;
+    /// Start a joint move to `q_rad` (returns when accepted, not when finished).
+    async fn move_joints(&mut self, q_rad: &[f64]) -> Result<(), CellError>;
+    /// Wait until the robot has settled; returns the joints read after settling (rad).
+    async fn wait_settled(&mut self, timeout: Duration) -> Result<Vec<f64>, CellError>;
+    /// Current joints (rad).
+    async fn joints(&mut self) -> Result<Vec<f64>, CellError>;
+    /// Stop any motion now.
+    async fn stop(&mut self) -> Result<(), CellError>;
+    /// Drop and re-establish the connection.
+    async fn reconnect(&mut self) -> Result<(), CellError>;
+}
+
+/// The 1D stage carrying the target ball.
+#[async_trait]
+pub trait Stage: Send {
+    /// Whether a person moves it (prompts).
+    fn is_manual(&self) -> bool;
+    /// Prepare (home a motorised stage).
+    async fn prepare(&mut self) -> Result<(), CellError>;
+    /// Move to `position_mm`; returns the read-back or confirmed position (mm).
+    async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError>;
+}
+
+/// A question to the technician.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prompt {
+    /// Short id for front ends (`stage_p2`, `drift_ok`, …).
+    pub id: String,
+    /// The text shown to the technician.
+    pub text: String,
+    /// Expected numeric answer (mm), if a number is asked for.
+    pub expected_mm: Option<f64>,
+}
+
+/// The technician's answer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Answer {
+    /// A number (e.g. the micrometer reading, mm).
+    Number(f64),
+    /// Confirmed without a number.
+    Confirmed,
+    /// Abort the campaign.
+    Abort,
+}
+
+/// Asks the technician (terminal, web page, or a scripted answerer in headless runs).
+#[async_trait]
+pub trait Prompter: Send + Sync {
+    /// Ask and wait for an answer.
+    async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError>;
+}
