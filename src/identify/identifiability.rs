@@ -2,25 +2,28 @@
 //!
 //! The stacked Jacobian over the actual poses is scaled as METHOD.md §2 fixes (direction rows
 //! ×1000 mm, angle columns ÷1000 so every column is in mm per mm-at-one-metre), reduced to its
-//! triangular factor `R` by a streaming QR (so 10 000 poses cost no big matrix), and the
-//! columns are taken greedily in a fixed priority order: a column is kept when its component
-//! orthogonal to the columns already kept is more than `1e-8` of its length. The priority order
+//! column-normalised Gram matrix (accumulated pose by pose, so 10 000 poses cost no big
+//! matrix), and the columns are taken greedily in a fixed priority order by an incremental
+//! Cholesky factorisation: a column is kept when the squared sine of its angle to the span of
+//! the columns already kept exceeds `1e-10` (kept columns of the TX60 are above 1e-4, dependent
+//! ones at round-off, ~1e-15). The priority order
 //! is the four classic DH parameters per joint, with β replacing d at a joint whose next axis is
 //! nominally parallel (Hayati), then the remaining β/d, then base and tool. The gap in the
 //! spectrum is clean (kept ≥ 0.3, dropped ≤ 1e-14 for the TX60), so the result is structural.
 //! Each dropped parameter carries its reason: no effect on the measurement, or the kept
 //! parameters it is a combination of.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 
 use super::observation::{residual_jacobian, Measured, ObsConfig};
 use super::params::ParamId;
+use super::problem::split_map;
 use crate::model::{ParamKind, RobotModel};
 
 /// Scale of direction rows and angle columns for the rank test (mm).
 pub const RANK_SCALE_MM: f64 = 1000.0;
-/// Relative orthogonal residual below which a column is dependent.
-pub const DEPENDENCE_TOL: f64 = 1e-8;
+/// Squared sine of the angle to the kept span below which a column is dependent.
+pub const DEPENDENCE_TOL: f64 = 1e-10;
 /// Relative column norm below which a parameter has no effect.
 pub const NO_EFFECT_TOL: f64 = 1e-9;
 
@@ -105,8 +108,8 @@ pub fn priority_order(model: &RobotModel, candidates: &[ParamId]) -> Vec<ParamId
     out
 }
 
-/// Triangular factor of the scaled stacked Jacobian (columns = `params`).
-pub fn scaled_r_factor(
+/// Gram matrix `JᵀJ` (k×k) of the scaled stacked Jacobian (columns = `params`).
+pub fn scaled_gram(
     model: &RobotModel,
     poses: &[Measured],
     cfg: &ObsConfig,
@@ -126,30 +129,43 @@ pub fn scaled_r_factor(
             }
         })
         .collect();
-    let block_poses = (4 * k / rows).max(16);
-    let mut r = DMatrix::<f64>::zeros(0, k);
-    let mut res = vec![0.0; rows];
-    let mut jac = vec![0.0; rows * k];
-    for chunk in poses.chunks(block_poses) {
-        let mut stack = DMatrix::<f64>::zeros(r.nrows() + rows * chunk.len(), k);
-        stack.rows_mut(0, r.nrows()).copy_from(&r);
-        for (pi, pose) in chunk.iter().enumerate() {
-            let unit = Measured {
-                weight: 1.0,
-                ..pose.clone()
-            };
-            residual_jacobian(model, &unit, &scfg, params, &mut res, &mut jac);
-            for rr in 0..rows {
-                for c in 0..k {
-                    stack[(r.nrows() + pi * rows + rr, c)] = jac[rr * k + c] * colscale[c];
+    let parts = split_map(poses, |chunk| {
+        let mut res = vec![0.0; rows];
+        let mut jac = vec![0.0; rows * k];
+        let mut g = vec![0.0; k * k];
+        // pose weights only scale rows: they change no rank; zero-weight poses are left out
+        for pose in chunk.iter().filter(|p| p.weight != 0.0) {
+            residual_jacobian(model, pose, &scfg, params, &mut res, &mut jac);
+            for r in 0..rows {
+                let row = &mut jac[r * k..(r + 1) * k];
+                row.iter_mut().zip(&colscale).for_each(|(x, s)| *x *= s);
+                for a in 0..k {
+                    let ja = row[a];
+                    if ja == 0.0 {
+                        continue;
+                    }
+                    for b in a..k {
+                        g[a * k + b] += ja * row[b];
+                    }
                 }
             }
         }
-        let qr = stack.qr();
-        let full = qr.r();
-        r = full.rows(0, full.nrows().min(k)).into_owned();
+        g
+    });
+    let mut g = DMatrix::<f64>::zeros(k, k);
+    for part in parts {
+        for a in 0..k {
+            for b in a..k {
+                g[(a, b)] += part[a * k + b];
+            }
+        }
     }
-    r
+    for a in 0..k {
+        for b in 0..a {
+            g[(a, b)] = g[(b, a)];
+        }
+    }
+    g
 }
 
 /// Analyse which of `candidates` the poses can identify.
@@ -160,35 +176,46 @@ pub fn analyze(
     candidates: &[ParamId],
 ) -> Identifiability {
     let order = priority_order(model, candidates);
-    let r = scaled_r_factor(model, poses, cfg, &order);
-    let cols: Vec<DVector<f64>> = (0..order.len()).map(|c| r.column(c).into_owned()).collect();
-    let max_norm = cols.iter().map(|c| c.norm()).fold(0.0, f64::max);
-    let mut basis: Vec<DVector<f64>> = Vec::new();
+    let g = scaled_gram(model, poses, cfg, &order);
+    let n = order.len();
+    let max_diag = (0..n).map(|c| g[(c, c)]).fold(0.0, f64::max);
+    // column-normalised Gram matrix: entries are cosines between columns
+    let norm: Vec<f64> = (0..n).map(|c| g[(c, c)].sqrt()).collect();
     let mut kept: Vec<usize> = Vec::new();
     let mut no_effect: Vec<usize> = Vec::new();
     let mut dependent: Vec<usize> = Vec::new();
-    for (c, col) in cols.iter().enumerate() {
-        let norm = col.norm();
-        if norm <= NO_EFFECT_TOL * max_norm || norm == 0.0 {
+    // incremental Cholesky factor of the kept block (rows of L)
+    let mut l: Vec<Vec<f64>> = Vec::new();
+    for c in 0..n {
+        if g[(c, c)] <= (NO_EFFECT_TOL * NO_EFFECT_TOL) * max_diag || g[(c, c)] == 0.0 {
             no_effect.push(c);
             continue;
         }
-        let mut v = col.clone();
-        for _ in 0..2 {
-            for b in &basis {
-                let d = b.dot(&v);
-                v -= b * d;
-            }
+        let v: Vec<f64> = kept
+            .iter()
+            .map(|&j| g[(j, c)] / (norm[j] * norm[c]))
+            .collect();
+        let mut y = vec![0.0; kept.len()];
+        for i in 0..kept.len() {
+            let s: f64 = (0..i).map(|j| l[i][j] * y[j]).sum();
+            y[i] = (v[i] - s) / l[i][i];
         }
-        let rn = v.norm();
-        if rn > DEPENDENCE_TOL * norm {
-            basis.push(v / rn);
+        let r2 = 1.0 - y.iter().map(|x| x * x).sum::<f64>();
+        if r2 > DEPENDENCE_TOL {
+            let mut row = y;
+            row.push(r2.sqrt());
+            l.push(row);
             kept.push(c);
         } else {
             dependent.push(c);
         }
     }
-    let a = DMatrix::from_columns(&kept.iter().map(|&c| cols[c].clone()).collect::<Vec<_>>());
+    let sub = |rows: &[usize], cols: &[usize]| {
+        DMatrix::from_fn(rows.len(), cols.len(), |i, j| {
+            g[(rows[i], cols[j])] / (norm[rows[i]] * norm[cols[j]])
+        })
+    };
+    let gk = sub(&kept, &kept);
     let mut dropped: Vec<Dropped> = no_effect
         .iter()
         .map(|&c| Dropped {
@@ -196,16 +223,14 @@ pub fn analyze(
             reason: "no effect on this measurement".to_owned(),
         })
         .collect();
-    if !kept.is_empty() {
-        let svd = a.clone().svd(true, true);
+    if let Some(chol) = gk.clone().cholesky() {
         for &c in &dependent {
-            let coef = svd
-                .solve(&cols[c], 1e-14)
-                .unwrap_or_else(|_| DVector::zeros(kept.len()));
+            // normalised coefficients: the dropped column as a combination of kept columns
+            let coef = chol.solve(&sub(&kept, &[c]));
             let mut parts: Vec<(f64, ParamId)> = kept
                 .iter()
                 .enumerate()
-                .map(|(j, &kc)| (coef[j].abs() * cols[kc].norm() / cols[c].norm(), order[kc]))
+                .map(|(j, &kc)| (coef[j].abs(), order[kc]))
                 .filter(|(w, _)| *w > 0.05)
                 .collect();
             parts.sort_by(|x, y| y.0.total_cmp(&x.0));
@@ -228,13 +253,17 @@ pub fn analyze(
         .copied()
         .collect();
     dropped.sort_by_key(|d| candidates.iter().position(|p| *p == d.param));
-    let singular_values = if kept.is_empty() {
+    // singular values of the scaled (not normalised) identified Jacobian
+    let gs = DMatrix::from_fn(kept.len(), kept.len(), |i, j| g[(kept[i], kept[j])]);
+    let mut singular_values: Vec<f64> = if kept.is_empty() {
         Vec::new()
     } else {
-        let mut s: Vec<f64> = a.singular_values().iter().copied().collect();
-        s.sort_by(|x, y| y.total_cmp(x));
-        s
+        gs.symmetric_eigenvalues()
+            .iter()
+            .map(|e| e.max(0.0).sqrt())
+            .collect()
     };
+    singular_values.sort_by(|x, y| y.total_cmp(x));
     Identifiability {
         identified,
         dropped,

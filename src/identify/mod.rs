@@ -170,7 +170,7 @@ pub fn identify(
     let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
     let rows = opts.obs.model.rows();
     // generic structure first: how many parameters can this model identify at all?
-    let generic: Vec<Measured> = generic_poses(nominal, 64)
+    let generic: Vec<Measured> = generic_poses(nominal, 32)
         .into_iter()
         .map(Measured::joints_only)
         .collect();

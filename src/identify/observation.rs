@@ -8,9 +8,19 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use std::cell::RefCell;
+
 use super::params::ParamId;
-use crate::model::kinematics::{forward, Screw};
+use crate::model::kinematics::{forward, forward_into, Frames, Screw};
 use crate::model::RobotModel;
+
+thread_local! {
+    /// Per-thread scratch for frames and screws, so the hot loop does not allocate.
+    static SCRATCH: RefCell<(Frames, Vec<Screw>)> = RefCell::new((
+        Frames { frames: Vec::new(), angles: Vec::new() },
+        Vec::new(),
+    ));
+}
 
 /// Which quantities the identification uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -150,27 +160,47 @@ pub fn residual_jacobian(
     res: &mut [f64],
     jac: &mut [f64],
 ) {
-    let f = forward(model, &meas.q);
-    let fl = f.flange();
+    SCRATCH.with(|cell| {
+        let mut guard = cell.borrow_mut();
+        let (frames, screws) = &mut *guard;
+        residual_jacobian_with(model, meas, cfg, params, res, jac, frames, screws);
+    });
+}
+
+#[allow(clippy::too_many_arguments)]
+fn residual_jacobian_with(
+    model: &RobotModel,
+    meas: &Measured,
+    cfg: &ObsConfig,
+    params: &[ParamId],
+    res: &mut [f64],
+    jac: &mut [f64],
+    f: &mut Frames,
+    screws: &mut Vec<Screw>,
+) {
+    forward_into(&model.joints, &meas.q, f);
+    let fl = *f.flange();
     let rb = model.base_rotation;
+    let tb = model.base_translation;
     let pb = fl.transform_point(&model.tool); // ball, robot base frame
-    let p = rb * pb + model.base_translation;
+    let p = rb * pb + tb; // ball, measurement frame
     let w = meas.weight;
     let wd = cfg.direction_weight_mm * w;
 
-    // direction quantities in the robot base frame, and their measured values
+    // modelled directions (measurement frame) and their measured values
     let mut dirs: [(Vector3<f64>, Vector3<f64>); 3] = [(Vector3::zeros(), Vector3::zeros()); 3];
     let ndir = match cfg.model {
         ObsModel::Position => 0,
         ObsModel::Np | ObsModel::Op => {
             let d = meas.direction.unwrap_or_else(Vector3::zeros);
-            dirs[0] = (fl.r * cfg.stage_axis, d);
+            dirs[0] = (rb * (fl.r * cfg.stage_axis), d);
             1
         }
         ObsModel::Full => {
             let r = meas.rotation.unwrap_or_else(Matrix3::zeros);
+            let rm = rb * fl.r;
             for (k, dir) in dirs.iter_mut().enumerate() {
-                *dir = (fl.r.column(k).into_owned(), r.column(k).into_owned());
+                *dir = (rm.column(k).into_owned(), r.column(k).into_owned());
             }
             3
         }
@@ -178,45 +208,19 @@ pub fn residual_jacobian(
     let pr = w * (p - meas.p1);
     res[..3].copy_from_slice(pr.as_slice());
     for k in 0..ndir {
-        let v = wd * (rb * dirs[k].0 - dirs[k].1);
+        let v = wd * (dirs[k].0 - dirs[k].1);
         res[3 + 3 * k..6 + 3 * k].copy_from_slice(v.as_slice());
     }
     if jac.is_empty() {
         return;
     }
     let np = params.len();
-    let screws: Vec<Screw> = if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
-        f.screws(&model.joints)
-    } else {
-        Vec::new()
-    };
+    if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
+        f.screws_into(&model.joints, screws);
+    }
     let rows = 3 + 3 * ndir;
-    for (c, par) in params.iter().enumerate() {
-        let (dp, dd): (Vector3<f64>, [Vector3<f64>; 3]) = match par {
-            ParamId::Mdh { joint, kind } => {
-                let s = &screws[5 * joint + *kind as usize];
-                let mut dd = [Vector3::zeros(); 3];
-                for k in 0..ndir {
-                    dd[k] = rb * s.direction_rate(&dirs[k].0);
-                }
-                (rb * s.point_rate(&pb), dd)
-            }
-            ParamId::BaseTranslation(i) => {
-                let mut e = Vector3::zeros();
-                e[*i] = 1.0;
-                (e, [Vector3::zeros(); 3])
-            }
-            ParamId::BaseRotation(i) => {
-                let mut e = Vector3::zeros();
-                e[*i] = 1.0;
-                let mut dd = [Vector3::zeros(); 3];
-                for k in 0..ndir {
-                    dd[k] = e.cross(&(rb * dirs[k].0));
-                }
-                (e.cross(&(rb * pb)), dd)
-            }
-            ParamId::Tool(i) => (rb * fl.r.column(*i), [Vector3::zeros(); 3]),
-        };
+    debug_assert!(rows * np <= jac.len());
+    let mut put = |c: usize, dp: Vector3<f64>, dd: &[Vector3<f64>; 3]| {
         for r in 0..3 {
             jac[r * np + c] = w * dp[r];
         }
@@ -225,8 +229,34 @@ pub fn residual_jacobian(
                 jac[(3 + 3 * k + r) * np + c] = wd * dd[k][r];
             }
         }
+    };
+    for (c, par) in params.iter().enumerate() {
+        let mut dd = [Vector3::zeros(); 3];
+        let dp = match par {
+            ParamId::Mdh { joint, kind } => {
+                let s = &screws[5 * joint + *kind as usize];
+                let axis = rb * s.axis;
+                if s.rotation {
+                    for k in 0..ndir {
+                        dd[k] = axis.cross(&dirs[k].0);
+                    }
+                    axis.cross(&(p - (rb * s.point + tb)))
+                } else {
+                    axis
+                }
+            }
+            ParamId::BaseTranslation(i) => Vector3::ith(*i, 1.0),
+            ParamId::BaseRotation(i) => {
+                let e = Vector3::ith(*i, 1.0);
+                for k in 0..ndir {
+                    dd[k] = e.cross(&dirs[k].0);
+                }
+                e.cross(&(p - tb))
+            }
+            ParamId::Tool(i) => rb * fl.r.column(*i),
+        };
+        put(c, dp, &dd);
     }
-    debug_assert!(rows * np <= jac.len());
 }
 
 #[cfg(test)]

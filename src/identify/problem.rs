@@ -33,6 +33,79 @@ impl<'a> CalibProblem<'a> {
     }
 }
 
+/// Poses per block of Jacobian rows folded into `JᵀJ` at once.
+pub const BLOCK_POSES: usize = 64;
+
+/// Poses above which the work is split over two threads.
+pub const PARALLEL_MIN_POSES: usize = 256;
+
+/// Apply `f` to two fixed halves of `items` on two threads (or to all of them on this thread
+/// when there are few). The split does not depend on the machine, so sums are bit-for-bit
+/// reproducible.
+pub fn split_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&[T]) -> R + Sync) -> Vec<R> {
+    if items.len() < PARALLEL_MIN_POSES {
+        return vec![f(items)];
+    }
+    let (a, b) = items.split_at(items.len() / 2);
+    std::thread::scope(|s| {
+        let hb = s.spawn(|| f(b));
+        let ra = f(a);
+        match hb.join() {
+            Ok(rb) => vec![ra, rb],
+            Err(_) => vec![ra, f(b)],
+        }
+    })
+}
+
+impl CalibProblem<'_> {
+    /// Cost, gradient and `JᵀJ` (row-major) over a chunk of poses.
+    ///
+    /// Jacobian rows are gathered in blocks of [`BLOCK_POSES`] poses and folded into `JᵀJ` by
+    /// one matrix product per block (cache-friendly GEMM instead of a scalar loop per row).
+    fn accumulate(&self, state: &RobotModel, chunk: &[Measured]) -> (f64, Vec<f64>, Vec<f64>) {
+        let k = self.params.len();
+        let rows = self.cfg.model.rows();
+        let mut res = vec![0.0; rows];
+        let mut jac = vec![0.0; rows * k];
+        let cap = BLOCK_POSES * rows;
+        let mut jb = DMatrix::<f64>::zeros(cap, k);
+        let mut rb = DVector::<f64>::zeros(cap);
+        let mut h = DMatrix::<f64>::zeros(k, k);
+        let mut g = DVector::<f64>::zeros(k);
+        let mut cost = 0.0;
+        let mut filled = 0;
+        let flush = |jb: &DMatrix<f64>,
+                     rb: &DVector<f64>,
+                     n: usize,
+                     h: &mut DMatrix<f64>,
+                     g: &mut DVector<f64>| {
+            let jv = jb.rows(0, n);
+            h.gemm_tr(1.0, &jv, &jv, 1.0);
+            g.gemv_tr(1.0, &jv, &rb.rows(0, n), 1.0);
+        };
+        for p in chunk.iter().filter(|p| p.weight != 0.0) {
+            residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut jac);
+            for r in 0..rows {
+                rb[filled + r] = res[r];
+                cost += res[r] * res[r];
+                for c in 0..k {
+                    jb[(filled + r, c)] = jac[r * k + c];
+                }
+            }
+            filled += rows;
+            if filled == cap {
+                flush(&jb, &rb, filled, &mut h, &mut g);
+                filled = 0;
+            }
+        }
+        if filled > 0 {
+            flush(&jb, &rb, filled, &mut h, &mut g);
+        }
+        let h_rows: Vec<f64> = (0..k * k).map(|i| h[(i / k, i % k)]).collect();
+        (cost, g.as_slice().to_vec(), h_rows)
+    }
+}
+
 impl Problem for CalibProblem<'_> {
     type State = RobotModel;
 
@@ -46,38 +119,14 @@ impl Problem for CalibProblem<'_> {
 
     fn linearize(&self, state: &RobotModel) -> (f64, DVector<f64>, DMatrix<f64>) {
         let k = self.params.len();
-        let rows = self.cfg.model.rows();
-        let mut res = vec![0.0; rows];
-        let mut jac = vec![0.0; rows * k];
-        let mut h = vec![0.0; k * k];
-        let mut g = vec![0.0; k];
+        let parts = split_map(self.poses, |chunk| self.accumulate(state, chunk));
         let mut cost = 0.0;
-        for p in self.poses {
-            if p.weight == 0.0 {
-                continue;
-            }
-            residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut jac);
-            for r in 0..rows {
-                let row = &jac[r * k..(r + 1) * k];
-                let rv = res[r];
-                cost += rv * rv;
-                for a in 0..k {
-                    let ja = row[a];
-                    if ja == 0.0 {
-                        continue;
-                    }
-                    g[a] += ja * rv;
-                    let ha = &mut h[a * k..(a + 1) * k];
-                    for b in a..k {
-                        ha[b] += ja * row[b];
-                    }
-                }
-            }
-        }
-        for a in 0..k {
-            for b in 0..a {
-                h[a * k + b] = h[b * k + a];
-            }
+        let mut g = vec![0.0; k];
+        let mut h = vec![0.0; k * k];
+        for (c, gp, hp) in parts {
+            cost += c;
+            g.iter_mut().zip(&gp).for_each(|(a, b)| *a += b);
+            h.iter_mut().zip(&hp).for_each(|(a, b)| *a += b);
         }
         (
             0.5 * cost,
@@ -87,16 +136,16 @@ impl Problem for CalibProblem<'_> {
     }
 
     fn cost(&self, state: &RobotModel) -> f64 {
-        let mut res = vec![0.0; self.cfg.model.rows()];
-        let mut cost = 0.0;
-        for p in self.poses {
-            if p.weight == 0.0 {
-                continue;
+        let parts = split_map(self.poses, |chunk| {
+            let mut res = vec![0.0; self.cfg.model.rows()];
+            let mut cost = 0.0;
+            for p in chunk.iter().filter(|p| p.weight != 0.0) {
+                residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
+                cost += res.iter().map(|r| r * r).sum::<f64>();
             }
-            residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
-            cost += res.iter().map(|r| r * r).sum::<f64>();
-        }
-        0.5 * cost
+            cost
+        });
+        0.5 * parts.iter().sum::<f64>()
     }
 
     fn retract(&self, state: &RobotModel, step: &[f64]) -> RobotModel {

@@ -141,7 +141,9 @@ pub fn solve<P: Problem>(problem: &P, x0: P::State, opts: &Options) -> Solution<
             };
             let step = chol.solve(&(-&g));
             let trial = problem.retract(&state, step.as_slice());
-            let new_cost = problem.cost(&trial);
+            // linearise at the trial point at once: almost every trial is accepted near the
+            // solution, so this saves a pass over the data per iteration
+            let (new_cost, new_g, new_h) = problem.linearize(&trial);
             evaluations += 1;
             // predicted reduction of the quadratic model
             let pred = -(g.dot(&step)) - 0.5 * step.dot(&(&h * &step));
@@ -156,8 +158,7 @@ pub fn solve<P: Problem>(problem: &P, x0: P::State, opts: &Options) -> Solution<
                 nu = 2.0;
                 state = trial;
                 let old = cost;
-                (cost, g, h) = problem.linearize(&state);
-                evaluations += 1;
+                (cost, g, h) = (new_cost, new_g, new_h);
                 iterations += 1;
                 accepted = true;
                 if actual <= opts.ftol * old && pred <= opts.ftol * old {

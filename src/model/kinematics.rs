@@ -120,6 +120,13 @@ impl Frames {
     /// The 5n parameter screws, in the per-joint order `[θ, d, a, α, β]`.
     pub fn screws(&self, joints: &[Mdh]) -> Vec<Screw> {
         let mut out = Vec::with_capacity(5 * joints.len());
+        self.screws_into(joints, &mut out);
+        out
+    }
+
+    /// The 5n parameter screws written into `out` (cleared first; no allocation once grown).
+    pub fn screws_into(&self, joints: &[Mdh], out: &mut Vec<Screw>) {
+        out.clear();
         for (i, _) in joints.iter().enumerate() {
             let prev = &self.frames[i];
             let next = &self.frames[i + 1];
@@ -152,7 +159,6 @@ impl Frames {
                 rotation: true,
             });
         }
-        out
     }
 }
 
@@ -163,16 +169,25 @@ pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
 
 /// Forward kinematics from bare MDH parameters.
 pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
-    let mut frames = Vec::with_capacity(joints.len() + 1);
-    let mut angles = Vec::with_capacity(joints.len());
+    let mut f = Frames {
+        frames: Vec::with_capacity(joints.len() + 1),
+        angles: Vec::with_capacity(joints.len()),
+    };
+    forward_into(joints, q, &mut f);
+    f
+}
+
+/// Forward kinematics into reusable storage (no allocation once grown).
+pub fn forward_into(joints: &[Mdh], q: &[f64], f: &mut Frames) {
+    f.frames.clear();
+    f.angles.clear();
     let mut t = Pose::identity();
-    frames.push(t);
+    f.frames.push(t);
     for (m, qi) in joints.iter().zip(q) {
-        angles.push(m.theta + qi);
+        f.angles.push(m.theta + qi);
         t = t.compose(&link(m, *qi));
-        frames.push(t);
+        f.frames.push(t);
     }
-    Frames { frames, angles }
 }
 
 /// Position of the target ball in the measurement frame: `T_base · T(q) · tool`.
