@@ -15,6 +15,7 @@
 
 pub mod analysis;
 pub mod cell;
+pub mod config;
 pub mod dataset;
 pub mod identify;
 pub mod measure;
