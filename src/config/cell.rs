@@ -335,7 +335,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
             "must be in (0, 180]".into(),
         ));
     }
-    if !(c.drift_max_mm > 0.0) {
+    if !(c.drift_max_mm.is_finite() && c.drift_max_mm > 0.0) {
         return Err(invalid("campaign.drift_max_mm", "must be positive".into()));
     }
     if f.stage.axis_vector().is_none() {
@@ -359,7 +359,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     if f.tracker.measure_ms == 0 {
         return Err(invalid("tracker.measure_ms", "must be positive".into()));
     }
-    if !(f.tracker.max_std_total_mm > 0.0) {
+    if !(f.tracker.max_std_total_mm.is_finite() && f.tracker.max_std_total_mm > 0.0) {
         return Err(invalid(
             "tracker.max_std_total_mm",
             "must be positive".into(),
