@@ -10,8 +10,11 @@
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
+//! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
+//!   results); the only module that knows SQL.
 //!
-//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file.
+//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file
+//! and [`store`] (file I/O by design).
 
 pub mod analysis;
 pub mod cell;
@@ -23,3 +26,4 @@ pub mod model;
 pub mod plan;
 pub mod report;
 pub mod simulate;
+pub mod store;

@@ -7,3 +7,4 @@ mod identifiability;
 mod paper;
 mod robust;
 mod significance;
+mod store;

@@ -1,0 +1,285 @@
+//! Campaigns, plans, state, events and results.
+
+use std::collections::HashSet;
+
+use rusqlite::{params, OptionalExtension, Row, Transaction, TransactionBehavior};
+
+use super::error::{Ctx, StoreError};
+use super::records::{
+    decode_joints, encode_joints, from_sql_index, parse_set, to_sql_index, CampaignRow,
+    EventRecord, NewCampaign, PlannedPose,
+};
+use super::Store;
+
+/// State of a freshly created campaign.
+pub const INITIAL_STATE: &str = "created";
+
+const CAMPAIGN_COLUMNS: &str =
+    "id, name, created_at_ms, state, model, seed, config_toml, robot_toml";
+
+fn campaign_row(r: &Row<'_>) -> rusqlite::Result<CampaignRow> {
+    Ok(CampaignRow {
+        id: r.get(0)?,
+        name: r.get(1)?,
+        created_at_ms: r.get(2)?,
+        state: r.get(3)?,
+        model: r.get(4)?,
+        // The u64 seed is stored as the i64 with the same bits.
+        seed: r.get::<_, i64>(5)? as u64,
+        config_toml: r.get(6)?,
+        robot_toml: r.get(7)?,
+    })
+}
+
+/// Check a plan before writing it: not empty, indices and orders unique, one joint count,
+/// finite joints. Returns the encoded joint vectors.
+pub(crate) fn check_plan(plan: &[PlannedPose]) -> Result<Vec<String>, StoreError> {
+    if plan.is_empty() {
+        return Err(StoreError::Invalid("the plan has no poses".into()));
+    }
+    let dof = plan[0].q_rad.len();
+    let mut indices = HashSet::new();
+    let mut orders = HashSet::new();
+    plan.iter()
+        .map(|p| {
+            if !indices.insert(p.index) {
+                return Err(StoreError::Invalid(format!(
+                    "pose index {} twice in the plan",
+                    p.index
+                )));
+            }
+            if !orders.insert(p.order) {
+                return Err(StoreError::Invalid(format!(
+                    "move order {} twice in the plan",
+                    p.order
+                )));
+            }
+            if p.q_rad.len() != dof {
+                return Err(StoreError::Invalid(format!(
+                    "plan pose {} has {} joints, pose {} has {dof}",
+                    p.index,
+                    p.q_rad.len(),
+                    plan[0].index
+                )));
+            }
+            encode_joints(&p.q_rad, &format!("plan pose {}", p.index))
+        })
+        .collect()
+}
+
+impl Store {
+    /// Create a campaign and its whole plan in one transaction (state [`INITIAL_STATE`]).
+    /// The plan must be non-empty with unique pose indices and move orders and one joint
+    /// count. Returns the new campaign id.
+    pub fn create_campaign(
+        &mut self,
+        campaign: &NewCampaign,
+        plan: &[PlannedPose],
+    ) -> Result<i64, StoreError> {
+        let encoded = check_plan(plan)?;
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin create campaign")?;
+        let id = insert_campaign(&tx, campaign, plan, &encoded)?;
+        tx.commit().ctx("commit create campaign")?;
+        Ok(id)
+    }
+
+    /// The campaign `id`.
+    pub fn campaign(&self, id: i64) -> Result<CampaignRow, StoreError> {
+        self.conn
+            .query_row(
+                &format!("SELECT {CAMPAIGN_COLUMNS} FROM campaigns WHERE id = ?1"),
+                [id],
+                campaign_row,
+            )
+            .optional()
+            .ctx("read a campaign")?
+            .ok_or(StoreError::NoCampaign(id))
+    }
+
+    /// Id of the most recently created campaign, if any.
+    pub fn latest_campaign(&self) -> Result<Option<i64>, StoreError> {
+        self.conn
+            .query_row("SELECT max(id) FROM campaigns", [], |r| r.get(0))
+            .ctx("find the latest campaign")
+    }
+
+    /// All campaigns, oldest first.
+    pub fn list_campaigns(&self) -> Result<Vec<CampaignRow>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {CAMPAIGN_COLUMNS} FROM campaigns ORDER BY id"
+            ))
+            .ctx("list campaigns")?;
+        let rows = st
+            .query_map([], campaign_row)
+            .ctx("list campaigns")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("list campaigns")?;
+        Ok(rows)
+    }
+
+    /// The campaign's plan, sorted by move order.
+    pub fn plan(&self, id: i64) -> Result<Vec<PlannedPose>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT pose_index, set_name, move_order, q_rad FROM plan_poses \
+                 WHERE campaign_id = ?1 ORDER BY move_order",
+            )
+            .ctx("read the plan")?;
+        let raw = st
+            .query_map([id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, String>(3)?,
+                ))
+            })
+            .ctx("read the plan")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("read the plan")?;
+        raw.into_iter()
+            .map(|(index, set, order, q)| {
+                Ok(PlannedPose {
+                    index: from_sql_index(index, "pose index")?,
+                    set: parse_set(&set)?,
+                    order: from_sql_index(order, "move order")?,
+                    q_rad: decode_joints(&q)?,
+                })
+            })
+            .collect()
+    }
+
+    /// Record the campaign's state (free text chosen by the campaign engine).
+    pub fn set_state(&mut self, id: i64, state: &str) -> Result<(), StoreError> {
+        let n = self
+            .conn
+            .execute(
+                "UPDATE campaigns SET state = ?2 WHERE id = ?1",
+                params![id, state],
+            )
+            .ctx("set the campaign state")?;
+        if n == 0 {
+            return Err(StoreError::NoCampaign(id));
+        }
+        Ok(())
+    }
+
+    /// Append an event to the campaign's journal.
+    pub fn add_event(&mut self, id: i64, event: &EventRecord) -> Result<(), StoreError> {
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin add event")?;
+        Store::ensure_campaign(&tx, id)?;
+        tx.execute(
+            "INSERT INTO events (campaign_id, at_ms, kind, message) VALUES (?1, ?2, ?3, ?4)",
+            params![id, event.at_ms, event.kind, event.message],
+        )
+        .ctx("add an event")?;
+        tx.commit().ctx("commit add event")
+    }
+
+    /// The campaign's events in the order they were added.
+    pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let mut st = self
+            .conn
+            .prepare("SELECT at_ms, kind, message FROM events WHERE campaign_id = ?1 ORDER BY id")
+            .ctx("read events")?;
+        let rows = st
+            .query_map([id], |r| {
+                Ok(EventRecord {
+                    at_ms: r.get(0)?,
+                    kind: r.get(1)?,
+                    message: r.get(2)?,
+                })
+            })
+            .ctx("read events")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("read events")?;
+        Ok(rows)
+    }
+
+    /// Store an identification result (`json` must be valid JSON; `model` names the
+    /// observation model). The row is time-stamped by SQLite with the wall clock.
+    pub fn save_result(&mut self, id: i64, model: &str, json: &str) -> Result<(), StoreError> {
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin save result")?;
+        Store::ensure_campaign(&tx, id)?;
+        let valid: bool = tx
+            .query_row("SELECT json_valid(?1)", [json], |r| r.get(0))
+            .ctx("check the result JSON")?;
+        if !valid {
+            return Err(StoreError::Invalid("the result is not valid JSON".into()));
+        }
+        tx.execute(
+            "INSERT INTO results (campaign_id, model, json) VALUES (?1, ?2, ?3)",
+            params![id, model, json],
+        )
+        .ctx("save a result")?;
+        tx.commit().ctx("commit save result")
+    }
+
+    /// The JSON of the campaign's most recently saved result, if any.
+    pub fn latest_result(&self, id: i64) -> Result<Option<String>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        self.conn
+            .query_row(
+                "SELECT json FROM results WHERE campaign_id = ?1 ORDER BY id DESC LIMIT 1",
+                [id],
+                |r| r.get(0),
+            )
+            .optional()
+            .ctx("read the latest result")
+    }
+}
+
+/// Insert the campaign row and its plan inside `tx`; `encoded[i]` is `plan[i]`'s joints.
+pub(crate) fn insert_campaign(
+    tx: &Transaction<'_>,
+    campaign: &NewCampaign,
+    plan: &[PlannedPose],
+    encoded: &[String],
+) -> Result<i64, StoreError> {
+    tx.execute(
+        "INSERT INTO campaigns (name, created_at_ms, state, model, seed, config_toml, robot_toml) \
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+        params![
+            campaign.name,
+            campaign.created_at_ms,
+            INITIAL_STATE,
+            campaign.model,
+            campaign.seed as i64,
+            campaign.config_toml,
+            campaign.robot_toml
+        ],
+    )
+    .ctx("insert a campaign")?;
+    let id = tx.last_insert_rowid();
+    let mut st = tx
+        .prepare(
+            "INSERT INTO plan_poses (campaign_id, pose_index, set_name, move_order, q_rad) \
+             VALUES (?1, ?2, ?3, ?4, ?5)",
+        )
+        .ctx("insert the plan")?;
+    for (p, q) in plan.iter().zip(encoded) {
+        st.execute(params![
+            id,
+            to_sql_index(p.index, "pose index")?,
+            p.set.as_str(),
+            to_sql_index(p.order, "move order")?,
+            q
+        ])
+        .ctx("insert a plan pose")?;
+    }
+    Ok(id)
+}

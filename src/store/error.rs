@@ -1,0 +1,67 @@
+//! The store's typed errors.
+
+/// What can go wrong in the campaign store.
+///
+/// Display strings are short; the SQLite cause is the error's `source()` (print with `{:#}`
+/// through anyhow to see the chain).
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// SQLite failed while doing `op`.
+    #[error("campaign store: {op}")]
+    Sqlite {
+        /// The operation that failed (e.g. "commit pose").
+        op: &'static str,
+        /// The SQLite error.
+        #[source]
+        source: rusqlite::Error,
+    },
+    /// No campaign has this id.
+    #[error("no campaign with id {0}")]
+    NoCampaign(i64),
+    /// The pose was already committed; nothing was written.
+    #[error("campaign {campaign}: pose {pose} is already measured")]
+    AlreadyMeasured {
+        /// Campaign id.
+        campaign: i64,
+        /// Pose index.
+        pose: usize,
+    },
+    /// The pose index is not part of the campaign's plan; nothing was written.
+    #[error("campaign {campaign}: pose {pose} is not in the plan")]
+    NotInPlan {
+        /// Campaign id.
+        campaign: i64,
+        /// Pose index.
+        pose: usize,
+    },
+    /// The database was written by a newer cellcal.
+    #[error(
+        "the campaign database has schema version {found}, newer than the {known} this cellcal \
+         knows; use a newer cellcal"
+    )]
+    SchemaTooNew {
+        /// `PRAGMA user_version` of the file.
+        found: i64,
+        /// Number of migrations this code knows.
+        known: i64,
+    },
+    /// A stored value cannot be parsed back (edited or damaged database).
+    #[error("corrupt value in the campaign database: {0}")]
+    Corrupt(String),
+    /// The caller passed a value the store refuses (e.g. a non-finite coordinate, a joint
+    /// vector of the wrong length, duplicated pose indices); nothing was written.
+    #[error("refused by the campaign store: {0}")]
+    Invalid(String),
+}
+
+/// Attach the operation name to a rusqlite result.
+pub(crate) trait Ctx<T> {
+    /// Map a rusqlite error to [`StoreError::Sqlite`] naming `op`.
+    fn ctx(self, op: &'static str) -> Result<T, StoreError>;
+}
+
+impl<T> Ctx<T> for Result<T, rusqlite::Error> {
+    fn ctx(self, op: &'static str) -> Result<T, StoreError> {
+        self.map_err(|source| StoreError::Sqlite { op, source })
+    }
+}

@@ -1,0 +1,372 @@
+//! Raw tracker points, completed poses, and the observation view of a campaign.
+
+use std::collections::HashSet;
+
+use nalgebra::Vector3;
+use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
+
+use super::campaigns::{check_plan, insert_campaign};
+use super::error::{Ctx, StoreError};
+use super::records::{
+    decode_joints, encode_joints, from_sql_index, opt, parse_set, to_sql_index, NewCampaign,
+    PlannedPose, PointKind, PointRecord, PoseMeasurement,
+};
+use super::Store;
+use crate::dataset::{Observation, PoseSet};
+
+/// State given to campaigns made by [`Store::import_observations`].
+pub const IMPORTED_STATE: &str = "imported";
+
+const POINT_COLUMNS: &str = "x_mm, y_mm, z_mm, std_x_mm, std_y_mm, std_z_mm, std_total_mm, \
+     temperature_c, pressure_mbar, humidity_pct, stage_mm, sent_at_ms, received_at_ms, joints_rad";
+
+/// Insert one measurement row; returns its id.
+fn insert_point(
+    tx: &Transaction<'_>,
+    campaign: i64,
+    pose: Option<i64>,
+    kind: &str,
+    joints: Option<&str>,
+    p: &PointRecord,
+    note: &str,
+) -> Result<i64, StoreError> {
+    let mut st = tx
+        .prepare_cached(&format!(
+            "INSERT INTO measurements (campaign_id, pose_index, kind, {POINT_COLUMNS}, note) \
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, \
+             ?18)"
+        ))
+        .ctx("insert a measurement")?;
+    st.execute(params![
+        campaign,
+        pose,
+        kind,
+        p.x_mm,
+        p.y_mm,
+        p.z_mm,
+        opt(p.std_mm[0]),
+        opt(p.std_mm[1]),
+        opt(p.std_mm[2]),
+        opt(p.std_total_mm),
+        opt(p.temperature_c),
+        opt(p.pressure_mbar),
+        opt(p.humidity_pct),
+        opt(p.stage_mm),
+        p.sent_at_ms,
+        p.received_at_ms,
+        joints,
+        note
+    ])
+    .ctx("insert a measurement")?;
+    Ok(tx.last_insert_rowid())
+}
+
+/// Read one measurement row by id: the point and its joints (if stored).
+fn read_point(
+    conn: &rusqlite::Connection,
+    row_id: i64,
+) -> Result<(PointRecord, Option<Vec<f64>>), StoreError> {
+    let mut st = conn
+        .prepare_cached(&format!(
+            "SELECT {POINT_COLUMNS} FROM measurements WHERE id = ?1"
+        ))
+        .ctx("read a measurement")?;
+    let nan = |v: Option<f64>| v.unwrap_or(f64::NAN);
+    let (point, joints) = st
+        .query_row([row_id], |r| {
+            Ok((
+                PointRecord {
+                    x_mm: r.get(0)?,
+                    y_mm: r.get(1)?,
+                    z_mm: r.get(2)?,
+                    std_mm: [nan(r.get(3)?), nan(r.get(4)?), nan(r.get(5)?)],
+                    std_total_mm: nan(r.get(6)?),
+                    temperature_c: nan(r.get(7)?),
+                    pressure_mbar: nan(r.get(8)?),
+                    humidity_pct: nan(r.get(9)?),
+                    stage_mm: nan(r.get(10)?),
+                    sent_at_ms: r.get(11)?,
+                    received_at_ms: r.get(12)?,
+                },
+                r.get::<_, Option<String>>(13)?,
+            ))
+        })
+        .optional()
+        .ctx("read a measurement")?
+        .ok_or_else(|| StoreError::Corrupt(format!("measurement row {row_id} is missing")))?;
+    Ok((point, joints.as_deref().map(decode_joints).transpose()?))
+}
+
+/// The planned joint count of a pose, or `NotInPlan`.
+fn planned_dof(tx: &Transaction<'_>, campaign: i64, pose: usize) -> Result<usize, StoreError> {
+    let q: Option<String> = tx
+        .query_row(
+            "SELECT q_rad FROM plan_poses WHERE campaign_id = ?1 AND pose_index = ?2",
+            params![campaign, to_sql_index(pose, "pose index")?],
+            |r| r.get(0),
+        )
+        .optional()
+        .ctx("look up a plan pose")?;
+    match q {
+        Some(q) => Ok(decode_joints(&q)?.len()),
+        None => Err(StoreError::NotInPlan { campaign, pose }),
+    }
+}
+
+/// Write P1, P2 and the done mark of one pose inside `tx` (checks already done).
+fn write_pose(
+    tx: &Transaction<'_>,
+    campaign: i64,
+    m: &PoseMeasurement,
+    joints: &str,
+    note: &str,
+) -> Result<(), StoreError> {
+    let pose = to_sql_index(m.index, "pose index")?;
+    let p1 = insert_point(tx, campaign, Some(pose), "p1", Some(joints), &m.p1, note)?;
+    #[cfg(test)]
+    super::tests::crash_point("after_p1");
+    let p2 = match &m.p2 {
+        Some(p2) => Some(insert_point(
+            tx,
+            campaign,
+            Some(pose),
+            "p2",
+            Some(joints),
+            p2,
+            note,
+        )?),
+        None => None,
+    };
+    tx.execute(
+        "INSERT INTO pose_done (campaign_id, pose_index, p1_id, p2_id) VALUES (?1, ?2, ?3, ?4)",
+        params![campaign, pose, p1, p2],
+    )
+    .ctx("mark a pose done")?;
+    Ok(())
+}
+
+/// Check a measurement's values; returns the encoded joints.
+fn check_measurement(m: &PoseMeasurement) -> Result<String, StoreError> {
+    let what = format!("pose {}", m.index);
+    m.p1.check(&format!("{what} P1"))?;
+    if let Some(p2) = &m.p2 {
+        p2.check(&format!("{what} P2"))?;
+    }
+    encode_joints(&m.joints_rad, &what)
+}
+
+impl Store {
+    /// Commit a completely measured plan pose: its P1 row, P2 row (if any) and done mark in
+    /// one transaction. When this returns `Ok` the pose is on disk (WAL, `synchronous=FULL`).
+    ///
+    /// Errors, all writing nothing: [`StoreError::AlreadyMeasured`] if the pose is already
+    /// done, [`StoreError::NotInPlan`], [`StoreError::NoCampaign`], [`StoreError::Invalid`]
+    /// (non-finite values, joint count differing from the plan's).
+    pub fn commit_pose(&mut self, id: i64, m: &PoseMeasurement) -> Result<(), StoreError> {
+        let joints = check_measurement(m)?;
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin commit pose")?;
+        Store::ensure_campaign(&tx, id)?;
+        let dof = planned_dof(&tx, id, m.index)?;
+        if dof != m.joints_rad.len() {
+            return Err(StoreError::Invalid(format!(
+                "pose {}: {} joints read, the plan has {dof}",
+                m.index,
+                m.joints_rad.len()
+            )));
+        }
+        let done: Option<i64> = tx
+            .query_row(
+                "SELECT 1 FROM pose_done WHERE campaign_id = ?1 AND pose_index = ?2",
+                params![id, to_sql_index(m.index, "pose index")?],
+                |r| r.get(0),
+            )
+            .optional()
+            .ctx("check whether a pose is done")?;
+        if done.is_some() {
+            return Err(StoreError::AlreadyMeasured {
+                campaign: id,
+                pose: m.index,
+            });
+        }
+        write_pose(&tx, id, m, &joints, "")?;
+        tx.commit().ctx("commit a pose")
+    }
+
+    /// Append a tracker point that is not a pose's P1/P2 (drift check, setup, discarded).
+    /// `pose_index`, when given, must be a plan pose. Returns the measurement row id.
+    pub fn add_point(
+        &mut self,
+        id: i64,
+        kind: PointKind,
+        pose_index: Option<usize>,
+        joints_rad: Option<&[f64]>,
+        point: &PointRecord,
+        note: &str,
+    ) -> Result<i64, StoreError> {
+        point.check(kind.as_str())?;
+        let joints = joints_rad
+            .map(|q| encode_joints(q, kind.as_str()))
+            .transpose()?;
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin add point")?;
+        Store::ensure_campaign(&tx, id)?;
+        let pose = match pose_index {
+            Some(p) => {
+                planned_dof(&tx, id, p)?;
+                Some(to_sql_index(p, "pose index")?)
+            }
+            None => None,
+        };
+        let row = insert_point(&tx, id, pose, kind.as_str(), joints.as_deref(), point, note)?;
+        tx.commit().ctx("commit add point")?;
+        Ok(row)
+    }
+
+    /// Indices of the campaign's completely measured poses, ascending.
+    pub fn done_poses(&self, id: i64) -> Result<Vec<usize>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let mut st = self
+            .conn
+            .prepare("SELECT pose_index FROM pose_done WHERE campaign_id = ?1 ORDER BY pose_index")
+            .ctx("read done poses")?;
+        let raw = st
+            .query_map([id], |r| r.get::<_, i64>(0))
+            .ctx("read done poses")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("read done poses")?;
+        raw.into_iter()
+            .map(|i| from_sql_index(i, "pose index"))
+            .collect()
+    }
+
+    /// The campaign's measured poses with their set, in plan (move) order.
+    pub fn measured_poses(&self, id: i64) -> Result<Vec<(PoseSet, PoseMeasurement)>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT d.pose_index, p.set_name, d.p1_id, d.p2_id FROM pose_done d \
+                 JOIN plan_poses p ON p.campaign_id = d.campaign_id AND p.pose_index = d.pose_index \
+                 WHERE d.campaign_id = ?1 ORDER BY p.move_order",
+            )
+            .ctx("read measured poses")?;
+        let raw = st
+            .query_map([id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, Option<i64>>(3)?,
+                ))
+            })
+            .ctx("read measured poses")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("read measured poses")?;
+        raw.into_iter()
+            .map(|(index, set, p1_id, p2_id)| {
+                let index = from_sql_index(index, "pose index")?;
+                let (p1, joints) = read_point(&self.conn, p1_id)?;
+                let joints_rad = joints.ok_or_else(|| {
+                    StoreError::Corrupt(format!("pose {index}: P1 row {p1_id} has no joints"))
+                })?;
+                let p2 = p2_id
+                    .map(|r| read_point(&self.conn, r).map(|(p, _)| p))
+                    .transpose()?;
+                Ok((
+                    parse_set(&set)?,
+                    PoseMeasurement {
+                        index,
+                        joints_rad,
+                        p1,
+                        p2,
+                    },
+                ))
+            })
+            .collect()
+    }
+
+    /// The campaign's measured poses as data-set rows, in plan (move) order: `id` = pose
+    /// index, `set` from the plan, `q` = joints read after settling, `p1`, `p2` (when
+    /// measured), no rotation, `line` 0. This is what `cellcal export` writes and what
+    /// identification consumes.
+    pub fn observations(&self, id: i64) -> Result<Vec<Observation>, StoreError> {
+        Ok(self
+            .measured_poses(id)?
+            .into_iter()
+            .map(|(set, m)| Observation {
+                line: 0,
+                id: m.index.to_string(),
+                set,
+                q: m.joints_rad,
+                p1: Vector3::new(m.p1.x_mm, m.p1.y_mm, m.p1.z_mm),
+                p2: m.p2.map(|p| Vector3::new(p.x_mm, p.y_mm, p.z_mm)),
+                rotation: None,
+            })
+            .collect())
+    }
+
+    /// Create a campaign from data-set rows (`cellcal import`), in one transaction: the plan
+    /// is the rows' joints, in row order, with their sets; every pose is done, with P1/P2
+    /// rows that carry only positions (other values not recorded, note `imported`). Pose
+    /// indices are the rows' ids when all are distinct non-negative integers (so an export
+    /// imports back unchanged), else the row numbers 0, 1, …. State is [`IMPORTED_STATE`].
+    /// Rows with a rotation are refused (the store keeps tracker points only).
+    pub fn import_observations(
+        &mut self,
+        campaign: &NewCampaign,
+        rows: &[Observation],
+    ) -> Result<i64, StoreError> {
+        if let Some(r) = rows.iter().find(|r| r.rotation.is_some()) {
+            return Err(StoreError::Invalid(format!(
+                "row {} has a measured rotation, which the campaign store cannot keep",
+                r.id
+            )));
+        }
+        let parsed: Vec<Option<usize>> = rows.iter().map(|r| r.id.trim().parse().ok()).collect();
+        let distinct: HashSet<usize> = parsed.iter().flatten().copied().collect();
+        let use_ids = parsed.iter().all(Option::is_some) && distinct.len() == rows.len();
+        let at = campaign.created_at_ms;
+        let point = |v: &Vector3<f64>| PointRecord::position_only(v.x, v.y, v.z, at);
+        let mut plan = Vec::with_capacity(rows.len());
+        let mut poses = Vec::with_capacity(rows.len());
+        for (i, r) in rows.iter().enumerate() {
+            let index = if use_ids { parsed[i].unwrap_or(i) } else { i };
+            plan.push(PlannedPose {
+                index,
+                set: r.set,
+                order: i,
+                q_rad: r.q.clone(),
+            });
+            poses.push(PoseMeasurement {
+                index,
+                joints_rad: r.q.clone(),
+                p1: point(&r.p1),
+                p2: r.p2.as_ref().map(point),
+            });
+        }
+        let encoded = check_plan(&plan)?;
+        for m in &poses {
+            check_measurement(m)?;
+        }
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin import")?;
+        let id = insert_campaign(&tx, campaign, &plan, &encoded)?;
+        tx.execute(
+            "UPDATE campaigns SET state = ?2 WHERE id = ?1",
+            params![id, IMPORTED_STATE],
+        )
+        .ctx("set the imported state")?;
+        for (m, q) in poses.iter().zip(&encoded) {
+            write_pose(&tx, id, m, q, "imported")?;
+        }
+        tx.commit().ctx("commit import")?;
+        Ok(id)
+    }
+}

@@ -1,0 +1,111 @@
+//! The campaign store: an SQLite journal of campaigns, their plans, every raw tracker point,
+//! completed poses, events and identification results. Only this module knows SQL.
+//!
+//! # Durability
+//! The database runs in WAL mode with `synchronous=FULL` and foreign keys on. A pose is
+//! committed by [`Store::commit_pose`] in one transaction (P1 row, P2 row, done mark): when it
+//! returns `Ok`, the pose survives a crash or power loss; if the process dies before, nothing
+//! of the pose is visible. A pose can be done only once (`pose_done` primary key), so a
+//! resumed campaign never measures a pose twice: it measures the plan minus
+//! [`Store::done_poses`].
+//!
+//! # Invariants
+//! - The plan (poses, order and ident/verify split) is written with the campaign in one
+//!   transaction, before any measurement, and never changes.
+//! - Measurements are append-only: the store has no API to change or delete them, and
+//!   triggers refuse `UPDATE` and `DELETE`. Corrections are new rows (e.g. a `discarded`
+//!   point).
+//! - Every table is `STRICT`; schema versions follow `PRAGMA user_version` (see [`schema`]);
+//!   a file from a newer cellcal is refused ([`StoreError::SchemaTooNew`]).
+//!
+//! A `Store` is one connection: `Send`, not `Sync`. Use it from one writer thread.
+
+mod campaigns;
+mod error;
+mod measurements;
+pub mod records;
+pub mod schema;
+
+#[cfg(test)]
+mod tests;
+
+use std::path::Path;
+use std::time::Duration;
+
+use rusqlite::{Connection, OptionalExtension};
+
+pub use campaigns::INITIAL_STATE;
+pub use error::StoreError;
+pub use measurements::IMPORTED_STATE;
+pub use records::{
+    CampaignRow, EventRecord, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement,
+};
+
+use error::Ctx;
+
+/// How long a statement waits for another connection's lock before failing.
+pub const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The schema version this build writes (number of migrations).
+pub fn schema_version() -> i64 {
+    schema::known_version()
+}
+
+/// An open campaign database.
+#[derive(Debug)]
+pub struct Store {
+    conn: Connection,
+}
+
+impl Store {
+    /// Create or open the database at `path`, set WAL, `synchronous=FULL`, foreign keys and
+    /// the busy timeout, and apply pending migrations.
+    pub fn open(path: &Path) -> Result<Store, StoreError> {
+        let conn = Connection::open(path).ctx("open the database file")?;
+        Store::init(conn)
+    }
+
+    /// A private in-memory database (tests, dry runs). Journal mode is `memory` there.
+    pub fn open_in_memory() -> Result<Store, StoreError> {
+        let conn = Connection::open_in_memory().ctx("open an in-memory database")?;
+        Store::init(conn)
+    }
+
+    fn init(mut conn: Connection) -> Result<Store, StoreError> {
+        conn.busy_timeout(BUSY_TIMEOUT)
+            .ctx("set the busy timeout")?;
+        // Returns the resulting mode ("wal", or "memory" for in-memory databases).
+        let _mode: String = conn
+            .pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get(0))
+            .ctx("set journal_mode=WAL")?;
+        conn.pragma_update(None, "synchronous", "FULL")
+            .ctx("set synchronous=FULL")?;
+        conn.pragma_update(None, "foreign_keys", "ON")
+            .ctx("enable foreign keys")?;
+        schema::migrate(&mut conn)?;
+        Ok(Store { conn })
+    }
+
+    /// The file's `PRAGMA user_version` (equals [`schema_version`] once open).
+    pub fn user_version(&self) -> Result<i64, StoreError> {
+        schema::user_version(&self.conn)
+    }
+
+    /// `NoCampaign` unless the campaign exists.
+    fn ensure_campaign(conn: &Connection, id: i64) -> Result<(), StoreError> {
+        let found: Option<i64> = conn
+            .query_row("SELECT id FROM campaigns WHERE id = ?1", [id], |r| r.get(0))
+            .optional()
+            .ctx("look up a campaign")?;
+        match found {
+            Some(_) => Ok(()),
+            None => Err(StoreError::NoCampaign(id)),
+        }
+    }
+
+    /// Raw connection for tests that must bypass the API (STRICT, triggers, crashes).
+    #[cfg(test)]
+    pub(crate) fn raw(&mut self) -> &mut Connection {
+        &mut self.conn
+    }
+}

@@ -1,0 +1,148 @@
+//! Schema migrations, versioned by `PRAGMA user_version`.
+//!
+//! `MIGRATIONS[i]` takes the schema from version `i` to `i + 1`. Each one is applied inside its
+//! own transaction together with the new `user_version`, so a crash mid-migration leaves the
+//! previous version. Never edit a released migration: append a new one.
+//!
+//! Schema (version 1), every table `STRICT`:
+//! - `campaigns(id, name, created_at_ms, state, model, seed, config_toml, robot_toml)`; the
+//!   `u64` seed is stored as the `i64` with the same bits.
+//! - `plan_poses(campaign_id, pose_index, set_name 'ident'|'verify', move_order, q_rad)`,
+//!   primary key `(campaign_id, pose_index)`, `move_order` unique per campaign; `q_rad` is a
+//!   JSON array of numbers (any number of joints).
+//! - `measurements`: one row per raw tracker point, append-only (triggers refuse `UPDATE` and
+//!   `DELETE`); `kind` in `p1, p2, drift, setup, discarded`; `pose_index` `NULL` for
+//!   non-plan points, else a plan pose; statistics, weather and stage `NULL` when not recorded;
+//!   `joints_rad` JSON array of the joints read after settling (or `NULL`).
+//! - `pose_done(campaign_id, pose_index, p1_id, p2_id)`: primary key `(campaign_id,
+//!   pose_index)`, so a pose is done at most once; names the measurement rows that are the
+//!   pose's P1 and P2.
+//! - `events(id, campaign_id, at_ms, kind, message)`.
+//! - `results(id, campaign_id, created_at_ms, model, json)`; `created_at_ms` is stamped by
+//!   SQLite (wall clock) on insert.
+
+use rusqlite::{Connection, TransactionBehavior};
+
+use super::error::{Ctx, StoreError};
+
+/// The migrations, in order. `MIGRATIONS.len()` is the schema version this code writes.
+pub(crate) const MIGRATIONS: &[&str] = &[
+    // 0 -> 1: initial schema.
+    r#"
+CREATE TABLE campaigns (
+    id            INTEGER PRIMARY KEY,
+    name          TEXT    NOT NULL,
+    created_at_ms INTEGER NOT NULL,
+    state         TEXT    NOT NULL,
+    model         TEXT    NOT NULL,
+    seed          INTEGER NOT NULL,
+    config_toml   TEXT    NOT NULL,
+    robot_toml    TEXT    NOT NULL
+) STRICT;
+
+CREATE TABLE plan_poses (
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    pose_index  INTEGER NOT NULL CHECK (pose_index >= 0),
+    set_name    TEXT    NOT NULL CHECK (set_name IN ('ident', 'verify')),
+    move_order  INTEGER NOT NULL CHECK (move_order >= 0),
+    q_rad       TEXT    NOT NULL CHECK (json_valid(q_rad) AND json_type(q_rad) = 'array'),
+    PRIMARY KEY (campaign_id, pose_index),
+    UNIQUE (campaign_id, move_order)
+) STRICT;
+
+CREATE TABLE measurements (
+    id             INTEGER PRIMARY KEY,
+    campaign_id    INTEGER NOT NULL REFERENCES campaigns(id),
+    pose_index     INTEGER,
+    kind           TEXT    NOT NULL CHECK (kind IN ('p1', 'p2', 'drift', 'setup', 'discarded')),
+    x_mm           REAL    NOT NULL,
+    y_mm           REAL    NOT NULL,
+    z_mm           REAL    NOT NULL,
+    std_x_mm       REAL,
+    std_y_mm       REAL,
+    std_z_mm       REAL,
+    std_total_mm   REAL,
+    temperature_c  REAL,
+    pressure_mbar  REAL,
+    humidity_pct   REAL,
+    stage_mm       REAL,
+    sent_at_ms     INTEGER NOT NULL,
+    received_at_ms INTEGER NOT NULL,
+    joints_rad     TEXT CHECK (joints_rad IS NULL
+                               OR (json_valid(joints_rad) AND json_type(joints_rad) = 'array')),
+    note           TEXT    NOT NULL DEFAULT '',
+    CHECK (kind NOT IN ('p1', 'p2') OR (pose_index IS NOT NULL AND joints_rad IS NOT NULL)),
+    FOREIGN KEY (campaign_id, pose_index) REFERENCES plan_poses(campaign_id, pose_index)
+) STRICT;
+CREATE INDEX measurements_by_campaign ON measurements(campaign_id, pose_index);
+
+CREATE TRIGGER measurements_no_update BEFORE UPDATE ON measurements
+BEGIN SELECT RAISE(ABORT, 'measurements are append-only'); END;
+CREATE TRIGGER measurements_no_delete BEFORE DELETE ON measurements
+BEGIN SELECT RAISE(ABORT, 'measurements are append-only'); END;
+
+CREATE TABLE pose_done (
+    campaign_id INTEGER NOT NULL,
+    pose_index  INTEGER NOT NULL,
+    p1_id       INTEGER NOT NULL REFERENCES measurements(id),
+    p2_id       INTEGER REFERENCES measurements(id),
+    PRIMARY KEY (campaign_id, pose_index),
+    FOREIGN KEY (campaign_id, pose_index) REFERENCES plan_poses(campaign_id, pose_index)
+) STRICT;
+
+CREATE TABLE events (
+    id          INTEGER PRIMARY KEY,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    at_ms       INTEGER NOT NULL,
+    kind        TEXT    NOT NULL,
+    message     TEXT    NOT NULL
+) STRICT;
+CREATE INDEX events_by_campaign ON events(campaign_id, id);
+
+CREATE TABLE results (
+    id            INTEGER PRIMARY KEY,
+    campaign_id   INTEGER NOT NULL REFERENCES campaigns(id),
+    created_at_ms INTEGER NOT NULL DEFAULT (CAST(unixepoch('subsec') * 1000 AS INTEGER)),
+    model         TEXT    NOT NULL,
+    json          TEXT    NOT NULL CHECK (json_valid(json))
+) STRICT;
+CREATE INDEX results_by_campaign ON results(campaign_id, id);
+"#,
+];
+
+/// The schema version this code writes.
+pub(crate) fn known_version() -> i64 {
+    MIGRATIONS.len() as i64
+}
+
+/// Read `PRAGMA user_version`.
+pub(crate) fn user_version(conn: &Connection) -> Result<i64, StoreError> {
+    conn.pragma_query_value(None, "user_version", |r| r.get(0))
+        .ctx("read the schema version")
+}
+
+/// Bring the schema up to [`known_version`]; refuse a newer file.
+pub(crate) fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
+    let known = known_version();
+    loop {
+        // Immediate: a concurrent opener waits (busy timeout) instead of migrating twice.
+        let tx = conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin migration")?;
+        let found = user_version(&tx)?;
+        if found > known {
+            return Err(StoreError::SchemaTooNew { found, known });
+        }
+        if found == known {
+            return Ok(());
+        }
+        let sql = usize::try_from(found)
+            .ok()
+            .and_then(|i| MIGRATIONS.get(i))
+            .ok_or_else(|| StoreError::Corrupt(format!("schema version {found}")))?;
+        tx.execute_batch(sql).ctx("apply a schema migration")?;
+        tx.pragma_update(None, "user_version", found + 1)
+            .ctx("set the schema version")?;
+        tx.commit().ctx("commit a schema migration")?;
+    }
+}
