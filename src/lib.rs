@@ -2,6 +2,7 @@
 //!
 //! Module map (see ARCHITECTURE.md):
 //! - [`model`]: robot model files, MDH chain, forward kinematics, parameter screws (Jacobians).
+//! - [`campaign`]: the campaign engine (commands in, events out; measure, store, identify).
 //! - [`cell`]: device traits (Tracker, Robot, Stage, Prompter) and their adapters.
 //! - [`identify`]: observation models, identifiability, Levenberg–Marquardt, robust refit.
 //! - [`analysis`]: accuracy metrics and significance indices.
@@ -17,6 +18,7 @@
 //! and [`store`] (file I/O by design).
 
 pub mod analysis;
+pub mod campaign;
 pub mod cell;
 pub mod config;
 pub mod dataset;

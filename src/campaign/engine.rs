@@ -1,0 +1,583 @@
+//! The measurement loop and its fault policy.
+//!
+//! Fault policy: a beam break discards the point in progress, re-locks and measures again (a
+//! point is never averaged across a break); a point above the quality gate is stored as
+//! `discarded` and measured again; a disconnect or timeout reconnects and retries; after
+//! `max_attempts` the campaign stops in `failed` (resumable) and says why. An emergency stop or a
+//! rejected move stops at once. Abort cancels every wait, stops the robot and leaves the
+//! campaign resumable at the first unmeasured pose.
+
+use std::future::Future;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use nalgebra::Vector3;
+
+use super::events::{CampaignEvent, CampaignState, Control};
+use crate::cell::{CellError, DeviceKind, FaultKind, Robot, Stage, Tracker, TrackerPoint};
+use crate::config::CellConfig;
+use crate::identify::solver::Options;
+use crate::identify::{IdentifyOptions, ObsConfig};
+use crate::model::RobotModel;
+use crate::plan::{target_ok, Plan, PlanRequest};
+use crate::report::{calibrate, CalibrateError, IdentifyReport};
+use crate::store::{PointKind, PointRecord, PoseMeasurement, Store, StoreError};
+
+/// The three devices of the cell.
+pub struct Devices {
+    /// Laser tracker.
+    pub tracker: Box<dyn Tracker>,
+    /// Robot controller.
+    pub robot: Box<dyn Robot>,
+    /// Stage.
+    pub stage: Box<dyn Stage>,
+}
+
+/// Everything a campaign run needs besides the devices.
+pub struct CampaignContext {
+    /// Cell configuration.
+    pub cfg: CellConfig,
+    /// Nominal robot model (with the configured tool).
+    pub nominal: RobotModel,
+    /// Planning constraints (re-checked before every move).
+    pub plan_request: PlanRequest,
+    /// The plan (drift reference included).
+    pub plan: Plan,
+    /// The store.
+    pub store: Arc<Mutex<Store>>,
+    /// Campaign id in the store.
+    pub campaign_id: i64,
+    /// Commands and events.
+    pub control: Control,
+}
+
+/// How a run ended.
+#[derive(Debug, Clone)]
+pub enum Outcome {
+    /// Every pose measured and identified.
+    Done(Box<IdentifyReport>),
+    /// Aborted by the operator; resumable.
+    Aborted,
+    /// Stopped by a fault; resumable.
+    Failed(String),
+}
+
+/// An error that ends a run without a resumable state change.
+#[derive(Debug, thiserror::Error)]
+pub enum CampaignError {
+    /// The store failed.
+    #[error("store: {0}")]
+    Store(#[from] StoreError),
+    /// The identification failed.
+    #[error("identification: {0}")]
+    Identify(#[from] CalibrateError),
+    /// A store task panicked or was cancelled.
+    #[error("store task failed: {0}")]
+    Task(String),
+}
+
+enum Stop {
+    Aborted,
+    Failed(String),
+    Store(CampaignError),
+}
+
+impl From<CampaignError> for Stop {
+    fn from(e: CampaignError) -> Stop {
+        Stop::Store(e)
+    }
+}
+
+fn ms(t: SystemTime) -> i64 {
+    t.duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
+}
+
+fn record(p: &TrackerPoint, stage_mm: f64) -> PointRecord {
+    PointRecord {
+        x_mm: p.p_mm.x,
+        y_mm: p.p_mm.y,
+        z_mm: p.p_mm.z,
+        std_mm: p.std_mm,
+        std_total_mm: p.std_total_mm,
+        temperature_c: p.temperature_c,
+        pressure_mbar: p.pressure_mbar,
+        humidity_pct: p.humidity_pct,
+        stage_mm,
+        sent_at_ms: ms(p.sent_at),
+        received_at_ms: ms(p.received_at),
+    }
+}
+
+/// Await a device call unless the campaign is aborted first.
+async fn guarded<T>(
+    abort: &tokio_util::sync::CancellationToken,
+    fut: impl Future<Output = Result<T, CellError>>,
+) -> Result<Result<T, CellError>, Stop> {
+    tokio::select! {
+        r = fut => Ok(r),
+        _ = abort.cancelled() => Err(Stop::Aborted),
+    }
+}
+
+struct Run<'a> {
+    ctx: &'a CampaignContext,
+    dev: &'a mut Devices,
+}
+
+impl Run<'_> {
+    fn ctl(&self) -> &Control {
+        &self.ctx.control
+    }
+
+    async fn store<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut Store) -> Result<T, StoreError> + Send + 'static,
+    ) -> Result<T, CampaignError> {
+        let store = Arc::clone(&self.ctx.store);
+        tokio::task::spawn_blocking(move || {
+            let mut s = store
+                .lock()
+                .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
+            f(&mut s).map_err(CampaignError::Store)
+        })
+        .await
+        .map_err(|e| CampaignError::Task(e.to_string()))?
+    }
+
+    async fn set_state(&self, state: CampaignState) -> Result<(), CampaignError> {
+        let id = self.ctx.campaign_id;
+        let name = state.name();
+        self.store(move |s| s.set_state(id, name)).await?;
+        self.ctl().emit(CampaignEvent::State { state });
+        Ok(())
+    }
+
+    /// Recover from a transient fault; returns the action taken.
+    async fn recover(&mut self, e: &CellError) -> Result<&'static str, Stop> {
+        let action = match (e.device, e.kind) {
+            (DeviceKind::Tracker, FaultKind::BeamBroken) => "relock",
+            (_, FaultKind::Disconnected | FaultKind::Protocol | FaultKind::Timeout) => "reconnect",
+            (_, FaultKind::NotReady) => "wait",
+            _ => "pause",
+        };
+        self.ctl().fault(e.device, e.kind, &e.message, action);
+        let r = match (action, e.device) {
+            ("relock", _) => {
+                let t = &mut self.dev.tracker;
+                self.ctx.control.abort.run_until_cancelled(t.relock()).await
+            }
+            ("reconnect", DeviceKind::Tracker) => {
+                let t = &mut self.dev.tracker;
+                self.ctx
+                    .control
+                    .abort
+                    .run_until_cancelled(t.reconnect())
+                    .await
+            }
+            ("reconnect", DeviceKind::Robot) => {
+                let r = &mut self.dev.robot;
+                let speed = self.ctx.cfg.robot_controller.speed_pct;
+                match self
+                    .ctx
+                    .control
+                    .abort
+                    .run_until_cancelled(r.reconnect())
+                    .await
+                {
+                    Some(Ok(())) => {
+                        self.ctx
+                            .control
+                            .abort
+                            .run_until_cancelled(r.prepare(speed))
+                            .await
+                    }
+                    other => other,
+                }
+            }
+            ("wait", _) => {
+                tokio::time::sleep(Duration::from_millis(200)).await;
+                Some(Ok(()))
+            }
+            _ => return Err(Stop::Failed(e.to_string())),
+        };
+        match r {
+            None => Err(Stop::Aborted),
+            // a failed recovery counts as another attempt; the caller's loop decides
+            Some(Err(re)) => {
+                self.ctl().fault(re.device, re.kind, &re.message, "retry");
+                Ok(action)
+            }
+            Some(Ok(())) => Ok(action),
+        }
+    }
+
+    /// One accepted tracker point (beam breaks and gate failures are measured again).
+    async fn measure_point(
+        &mut self,
+        pose: Option<usize>,
+        joints: &[f64],
+        stage_mm: f64,
+    ) -> Result<TrackerPoint, Stop> {
+        let max = self.ctx.cfg.tracker.max_attempts;
+        let gate = self.ctx.cfg.tracker.max_std_total_mm;
+        let mut last = String::new();
+        for _ in 0..max {
+            let r = {
+                let t = &mut self.dev.tracker;
+                tokio::select! {
+                    r = t.measure() => r,
+                    _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
+                }
+            };
+            match r {
+                Ok(p) if p.std_total_mm.is_finite() && p.std_total_mm > gate => {
+                    let id = self.ctx.campaign_id;
+                    let rec = record(&p, stage_mm);
+                    let q = joints.to_vec();
+                    let note = format!(
+                        "std_total {:.4} mm above the gate {gate} mm",
+                        p.std_total_mm
+                    );
+                    last = note.clone();
+                    self.ctl()
+                        .fault(DeviceKind::Tracker, FaultKind::Device, &note, "retry");
+                    self.store(move |s| {
+                        s.add_point(id, PointKind::Discarded, pose, Some(&q), &rec, &note)
+                            .map(|_| ())
+                    })
+                    .await?;
+                }
+                Ok(p) => return Ok(p),
+                Err(e) if e.is_transient() => {
+                    last = e.to_string();
+                    self.recover(&e).await?;
+                }
+                Err(e) => {
+                    self.ctl().fault(e.device, e.kind, &e.message, "pause");
+                    return Err(Stop::Failed(e.to_string()));
+                }
+            }
+        }
+        Err(Stop::Failed(format!(
+            "tracker: no acceptable point after {max} attempts ({last})"
+        )))
+    }
+
+    /// Move to a joint target after the safety checks; returns the joints read after settling.
+    async fn move_to(&mut self, q: &[f64]) -> Result<Vec<f64>, Stop> {
+        if !self.ctx.control.is_armed() {
+            return Err(Stop::Failed("the campaign is not armed: no motion".into()));
+        }
+        if !self.ctx.nominal.within_limits(q)
+            || !target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
+        {
+            return Err(Stop::Failed(format!(
+                "target {q:?} fails the joint-limit/workspace check: not sent"
+            )));
+        }
+        let max = self.ctx.cfg.robot_controller.max_attempts;
+        let timeout = Duration::from_millis(self.ctx.cfg.robot_controller.settle_timeout_ms);
+        let mut last = String::new();
+        for _ in 0..max {
+            let r = {
+                let robot = &mut self.dev.robot;
+                guarded(&self.ctx.control.abort, async {
+                    robot.move_joints(q).await?;
+                    robot.wait_settled(timeout).await
+                })
+                .await?
+            };
+            match r {
+                Ok(joints) => return Ok(joints),
+                Err(e) if e.is_transient() => {
+                    last = e.to_string();
+                    self.recover(&e).await?;
+                }
+                Err(e) => {
+                    self.ctl().fault(e.device, e.kind, &e.message, "pause");
+                    let _ =
+                        tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
+                    return Err(Stop::Failed(e.to_string()));
+                }
+            }
+        }
+        Err(Stop::Failed(format!(
+            "robot: move failed after {max} attempts ({last})"
+        )))
+    }
+
+    async fn stage_to(&mut self, mm: f64) -> Result<f64, Stop> {
+        let r = {
+            let stage = &mut self.dev.stage;
+            guarded(&self.ctx.control.abort, stage.move_to(mm)).await?
+        };
+        r.map_err(|e| {
+            let action = if e.kind == FaultKind::Aborted {
+                "abort"
+            } else {
+                "pause"
+            };
+            self.ctl().fault(e.device, e.kind, &e.message, action);
+            if e.kind == FaultKind::Aborted {
+                Stop::Aborted
+            } else {
+                Stop::Failed(e.to_string())
+            }
+        })
+    }
+
+    /// Measure the drift reference; returns the point.
+    async fn drift_point(&mut self) -> Result<Vector3<f64>, Stop> {
+        let q = self.ctx.plan.drift_reference.clone();
+        let joints = self.move_to(&q).await?;
+        let s1 = self.ctx.cfg.stage.p1_mm;
+        let s = self.stage_to(s1).await?;
+        let p = self.measure_point(None, &joints, s).await?;
+        let id = self.ctx.campaign_id;
+        let rec = record(&p, s);
+        self.store(move |st| {
+            st.add_point(
+                id,
+                PointKind::Drift,
+                None,
+                Some(&joints),
+                &rec,
+                "drift reference",
+            )
+            .map(|_| ())
+        })
+        .await?;
+        Ok(p.p_mm)
+    }
+
+    async fn check_drift(&mut self, baseline: &Vector3<f64>) -> Result<(), Stop> {
+        let p = self.drift_point().await?;
+        let drift = (p - baseline).norm();
+        let max = self.ctx.cfg.campaign.drift_max_mm;
+        self.ctl().emit(CampaignEvent::Drift {
+            drift_mm: drift,
+            max_mm: max,
+        });
+        if drift > max {
+            return Err(Stop::Failed(format!(
+                "drift {drift:.4} mm at the reference pose exceeds {max} mm: check the tracker and the mounting, then resume"
+            )));
+        }
+        Ok(())
+    }
+
+    async fn wait_start(&self) -> Result<(), Stop> {
+        let mut start = self.ctx.control.start.subscribe();
+        loop {
+            if *start.borrow() && self.ctx.control.is_armed() {
+                return Ok(());
+            }
+            tokio::select! {
+                _ = start.changed() => {}
+                _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+                _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
+            }
+        }
+    }
+
+    async fn wait_unpaused(&self) -> Result<(), Stop> {
+        let mut pause = self.ctx.control.pause.subscribe();
+        if !*pause.borrow() {
+            return Ok(());
+        }
+        self.set_state(CampaignState::Paused {
+            reason: "paused by the operator".into(),
+        })
+        .await?;
+        while *pause.borrow() {
+            tokio::select! {
+                r = pause.changed() => if r.is_err() { return Err(Stop::Aborted) },
+                _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
+            }
+        }
+        self.set_state(CampaignState::Running).await?;
+        Ok(())
+    }
+
+    async fn prepare(&mut self) -> Result<(), Stop> {
+        let speed = self.ctx.cfg.robot_controller.speed_pct;
+        for device in [DeviceKind::Robot, DeviceKind::Tracker, DeviceKind::Stage] {
+            let r = match device {
+                DeviceKind::Robot => {
+                    let r = &mut self.dev.robot;
+                    guarded(&self.ctx.control.abort, r.prepare(speed)).await?
+                }
+                DeviceKind::Tracker => {
+                    let t = &mut self.dev.tracker;
+                    guarded(&self.ctx.control.abort, t.prepare()).await?
+                }
+                _ => {
+                    let s = &mut self.dev.stage;
+                    guarded(&self.ctx.control.abort, s.prepare()).await?
+                }
+            };
+            if let Err(e) = r {
+                self.ctl().fault(e.device, e.kind, &e.message, "pause");
+                return Err(Stop::Failed(format!(
+                    "{} could not be prepared: {e}",
+                    device.name()
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    async fn measure_all(&mut self) -> Result<(), Stop> {
+        let id = self.ctx.campaign_id;
+        let done: Vec<usize> = self.store(move |s| s.done_poses(id)).await?;
+        let total = self.ctx.plan.poses.len();
+        let mut count = done.len();
+        if count > 0 {
+            self.ctl().emit(CampaignEvent::Note {
+                text: format!("resuming: {count} of {total} poses already measured"),
+            });
+        }
+        self.prepare().await?;
+        let baseline = self.drift_point().await?;
+        self.ctl().emit(CampaignEvent::Drift {
+            drift_mm: 0.0,
+            max_mm: self.ctx.cfg.campaign.drift_max_mm,
+        });
+        let every = self.ctx.cfg.campaign.drift_every;
+        let s1 = self.ctx.cfg.stage.p1_mm;
+        let s2 = s1 + self.ctx.cfg.stage.travel_mm;
+        let mut since_drift = 0;
+        for entry in self.ctx.plan.poses.clone() {
+            if done.contains(&entry.index) {
+                continue;
+            }
+            self.wait_unpaused().await?;
+            let joints = self.move_to(&entry.q_rad).await?;
+            let a1 = self.stage_to(s1).await?;
+            let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
+            let a2 = self.stage_to(s2).await?;
+            let p2 = self.measure_point(Some(entry.index), &joints, a2).await?;
+            self.stage_to(s1).await?;
+            let m = PoseMeasurement {
+                index: entry.index,
+                joints_rad: joints,
+                p1: record(&p1, a1),
+                p2: Some(record(&p2, a2)),
+            };
+            // durable before the robot moves again
+            self.store(move |s| s.commit_pose(id, &m)).await?;
+            count += 1;
+            since_drift += 1;
+            self.ctl().emit(CampaignEvent::Measured {
+                pose: entry.index,
+                done: count,
+                total,
+                p1_mm: [p1.p_mm.x, p1.p_mm.y, p1.p_mm.z],
+            });
+            if every > 0 && since_drift >= every && count < total {
+                since_drift = 0;
+                self.check_drift(&baseline).await?;
+            }
+        }
+        self.check_drift(&baseline).await?;
+        Ok(())
+    }
+}
+
+/// Identification options of a campaign.
+pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
+    let mut obs = ObsConfig::new(cfg.model(), cfg.stage.travel_mm);
+    if let Some(u) = cfg.stage.axis_vector() {
+        obs.stage_axis = u;
+    }
+    IdentifyOptions {
+        obs,
+        identify_base: cfg.campaign.identify_base,
+        identify_tool: cfg.campaign.identify_tool,
+        robust: None,
+        solver: Options::default(),
+    }
+}
+
+/// Identify from the stored measurements and store the result.
+pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
+    let id = ctx.campaign_id;
+    let store = Arc::clone(&ctx.store);
+    let rows = tokio::task::spawn_blocking(move || {
+        let s = store
+            .lock()
+            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
+        s.observations(id).map_err(CampaignError::Store)
+    })
+    .await
+    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    let opts = identify_options(&ctx.cfg);
+    let nominal = ctx.nominal.clone();
+    let travel = ctx.cfg.stage.travel_mm;
+    let (report, _) =
+        tokio::task::spawn_blocking(move || calibrate(&nominal, &rows, &opts, travel))
+            .await
+            .map_err(|e| CampaignError::Task(e.to_string()))??;
+    let json =
+        serde_json::to_string_pretty(&report).map_err(|e| CampaignError::Task(e.to_string()))?;
+    let model = report.model.clone();
+    let store = Arc::clone(&ctx.store);
+    tokio::task::spawn_blocking(move || {
+        let mut s = store
+            .lock()
+            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
+        s.save_result(id, &model, &json)
+            .map_err(CampaignError::Store)
+    })
+    .await
+    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    Ok(report)
+}
+
+/// Run (or resume) a campaign until it is done, aborted or stopped by a fault.
+pub async fn run_campaign(
+    ctx: &CampaignContext,
+    devices: &mut Devices,
+) -> Result<Outcome, CampaignError> {
+    let mut run = Run { ctx, dev: devices };
+    run.set_state(if ctx.control.is_armed() {
+        CampaignState::Armed
+    } else {
+        CampaignState::Idle
+    })
+    .await?;
+    let result = match run.wait_start().await {
+        Ok(()) => {
+            run.set_state(CampaignState::Running).await?;
+            run.measure_all().await
+        }
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(()) => {
+            run.set_state(CampaignState::Identifying).await?;
+            let report = identify_stored(ctx).await?;
+            ctx.control.emit(CampaignEvent::Result {
+                json: serde_json::to_value(&report).unwrap_or(serde_json::Value::Null),
+            });
+            run.set_state(CampaignState::Done).await?;
+            Ok(Outcome::Done(Box::new(report)))
+        }
+        Err(Stop::Aborted) => {
+            let _ = tokio::time::timeout(Duration::from_secs(2), run.dev.robot.stop()).await;
+            run.set_state(CampaignState::Aborted).await?;
+            Ok(Outcome::Aborted)
+        }
+        Err(Stop::Failed(reason)) => {
+            let _ = tokio::time::timeout(Duration::from_secs(2), run.dev.robot.stop()).await;
+            run.set_state(CampaignState::Failed {
+                reason: reason.clone(),
+            })
+            .await?;
+            Ok(Outcome::Failed(reason))
+        }
+        Err(Stop::Store(e)) => Err(e),
+    }
+}

@@ -1,0 +1,195 @@
+//! Commands into and events out of the campaign engine, and the shared control state.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use serde::Serialize;
+use tokio::sync::{broadcast, watch};
+use tokio_util::sync::CancellationToken;
+
+use crate::cell::{Answer, DeviceKind, FaultKind};
+
+/// What an operator can tell the engine.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CampaignCommand {
+    /// Allow motion.
+    Arm,
+    /// Disallow motion (only while not running).
+    Disarm,
+    /// Start (or resume after a restart) the campaign; requires Arm.
+    Start,
+    /// Pause after the current pose.
+    Pause,
+    /// Resume a paused campaign.
+    Resume,
+    /// Stop the robot now; the campaign stays resumable.
+    Abort,
+    /// Answer a technician prompt.
+    Answer {
+        /// Prompt id.
+        prompt_id: String,
+        /// The answer.
+        answer: Answer,
+    },
+}
+
+/// Engine state.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum CampaignState {
+    /// Created, not armed.
+    Idle,
+    /// Armed, waiting for start.
+    Armed,
+    /// Measuring.
+    Running,
+    /// Paused (by the operator or a fault).
+    Paused {
+        /// Why.
+        reason: String,
+    },
+    /// Identifying the parameters.
+    Identifying,
+    /// Finished with a result.
+    Done,
+    /// Aborted by the operator (resumable).
+    Aborted,
+    /// Stopped by a fault that needs the operator (resumable).
+    Failed {
+        /// Why.
+        reason: String,
+    },
+}
+
+impl CampaignState {
+    /// Short name stored in the campaign row.
+    pub fn name(&self) -> &'static str {
+        match self {
+            CampaignState::Idle => "idle",
+            CampaignState::Armed => "armed",
+            CampaignState::Running => "running",
+            CampaignState::Paused { .. } => "paused",
+            CampaignState::Identifying => "identifying",
+            CampaignState::Done => "done",
+            CampaignState::Aborted => "aborted",
+            CampaignState::Failed { .. } => "failed",
+        }
+    }
+}
+
+/// What the engine reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum CampaignEvent {
+    /// State change.
+    State {
+        /// New state.
+        state: CampaignState,
+    },
+    /// A pose was measured and committed.
+    Measured {
+        /// Pose index.
+        pose: usize,
+        /// Poses done.
+        done: usize,
+        /// Poses planned.
+        total: usize,
+        /// P1 (mm, tracker frame).
+        p1_mm: [f64; 3],
+    },
+    /// A device fault and what the engine does about it.
+    Fault {
+        /// Device.
+        device: &'static str,
+        /// Fault kind.
+        kind: String,
+        /// Driver message.
+        message: String,
+        /// Action taken (`relock`, `reconnect`, `retry`, `pause`).
+        action: String,
+    },
+    /// Drift check at the reference pose.
+    Drift {
+        /// Distance from the first reference measurement (mm).
+        drift_mm: f64,
+        /// Threshold (mm).
+        max_mm: f64,
+    },
+    /// Free-text progress note.
+    Note {
+        /// Text.
+        text: String,
+    },
+    /// The identification result (the `cellcal identify` JSON).
+    Result {
+        /// The JSON document.
+        json: serde_json::Value,
+    },
+}
+
+/// Shared control state between the command listener and the engine.
+#[derive(Debug, Clone)]
+pub struct Control {
+    /// Motion allowed.
+    pub armed: Arc<AtomicBool>,
+    /// Abort requested (cancels every wait).
+    pub abort: CancellationToken,
+    /// Pause requested.
+    pub pause: watch::Sender<bool>,
+    /// Start requested.
+    pub start: watch::Sender<bool>,
+    /// Event stream.
+    pub events: broadcast::Sender<CampaignEvent>,
+}
+
+impl Control {
+    /// New control state with an event channel of `capacity`.
+    pub fn new(capacity: usize) -> Control {
+        Control {
+            armed: Arc::new(AtomicBool::new(false)),
+            abort: CancellationToken::new(),
+            pause: watch::channel(false).0,
+            start: watch::channel(false).0,
+            events: broadcast::channel(capacity).0,
+        }
+    }
+
+    /// Apply a command (answers are routed by the caller to the prompter).
+    pub fn apply(&self, cmd: &CampaignCommand) {
+        match cmd {
+            CampaignCommand::Arm => self.armed.store(true, Ordering::SeqCst),
+            CampaignCommand::Disarm => self.armed.store(false, Ordering::SeqCst),
+            CampaignCommand::Start => {
+                self.start.send_replace(true);
+            }
+            CampaignCommand::Pause => {
+                self.pause.send_replace(true);
+            }
+            CampaignCommand::Resume => {
+                self.pause.send_replace(false);
+            }
+            CampaignCommand::Abort => self.abort.cancel(),
+            CampaignCommand::Answer { .. } => {}
+        }
+    }
+
+    /// Whether motion is allowed.
+    pub fn is_armed(&self) -> bool {
+        self.armed.load(Ordering::SeqCst)
+    }
+
+    /// Emit an event (no receivers is fine).
+    pub fn emit(&self, e: CampaignEvent) {
+        let _ = self.events.send(e);
+    }
+
+    /// Emit a fault event.
+    pub fn fault(&self, device: DeviceKind, kind: FaultKind, message: &str, action: &str) {
+        self.emit(CampaignEvent::Fault {
+            device: device.name(),
+            kind: format!("{kind:?}"),
+            message: message.to_owned(),
+            action: action.to_owned(),
+        });
+    }
+}
