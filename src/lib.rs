@@ -8,10 +8,12 @@
 //! - [`measure`]: measurement geometry (rigid registration).
 //! - [`plan`]: pose sampling in the workspace box.
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
+//! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
 //!
-//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file.
+//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file,
+//! and the device code: [`cell`] adapters and the [`sim`] cell (clock, sockets, ptys; no printing).
 
 pub mod analysis;
 pub mod cell;
@@ -21,4 +23,5 @@ pub mod measure;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod sim;
 pub mod simulate;
