@@ -9,13 +9,14 @@
 //! - [`measure`]: measurement geometry (rigid registration).
 //! - [`plan`]: pose sampling in the workspace box.
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
+//! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
 //!
-//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file
-//! and [`store`] (file I/O by design).
+//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file,
+//! [`store`] (file I/O by design) and the device code: [`cell`] adapters and the [`sim`] cell (clock, sockets, ptys; no printing).
 
 pub mod analysis;
 pub mod campaign;
@@ -27,5 +28,6 @@ pub mod measure;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod sim;
 pub mod simulate;
 pub mod store;

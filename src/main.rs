@@ -119,6 +119,12 @@ enum Command {
     },
     /// Simulate a measurement campaign (CSV + truth JSON) for dry runs and tests.
     SimulateData(Box<SimArgs>),
+    /// Run the simulated cell (tracker, robot, stage) from the `[sim]` table of a config file.
+    Sim {
+        /// Cell configuration file (TOML); only `[sim]` and the top-level `robot` are read.
+        #[arg(long)]
+        config: PathBuf,
+    },
 }
 
 #[derive(clap::Args)]
@@ -259,6 +265,7 @@ fn main() -> ExitCode {
             json,
         } => run_significance(&robot, samples, seed, &json),
         Command::SimulateData(args) => run_simulate(&args),
+        Command::Sim { config } => run_sim(&config),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -494,4 +501,104 @@ fn run_simulate(a: &SimArgs) -> Result<(), Failure> {
         truth_path.display()
     );
     Ok(())
+}
+
+/// The part of a cell configuration file that `cellcal sim` reads.
+#[derive(serde::Deserialize)]
+struct SimFile {
+    #[serde(default)]
+    sim: cellcal::sim::SimWorldConfig,
+}
+
+/// The robot model path: top-level `robot = "PATH"` (or `[robot] model = "PATH"`), relative to
+/// the config file; else the TX60 file relative to the working directory.
+fn sim_robot_path(table: &toml::Table, dir: &Path, file: &Path) -> Result<PathBuf, Failure> {
+    let v = match table.get("robot") {
+        None => None,
+        Some(toml::Value::String(s)) => Some(s.as_str()),
+        Some(toml::Value::Table(t)) => match t.get("model") {
+            None => None,
+            Some(toml::Value::String(s)) => Some(s.as_str()),
+            Some(_) => {
+                return Err(input(anyhow!(
+                    "{}: key `robot.model` must be a path string",
+                    file.display()
+                )))
+            }
+        },
+        Some(_) => {
+            return Err(input(anyhow!(
+                "{}: key `robot` must be a path string",
+                file.display()
+            )))
+        }
+    };
+    Ok(match v {
+        Some(p) => dir.join(p),
+        None => PathBuf::from("config/robots/staubli_tx60.toml"),
+    })
+}
+
+async fn shutdown_signal() {
+    use tokio::signal::unix::{signal, SignalKind};
+    match signal(SignalKind::terminate()) {
+        Ok(mut term) => {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+        }
+        Err(_) => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+}
+
+fn run_sim(config: &Path) -> Result<(), Failure> {
+    use std::io::Write;
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("{}: cannot read", config.display()))
+        .map_err(input)?;
+    let table: toml::Table = toml::from_str(&text)
+        .with_context(|| format!("{}: invalid TOML", config.display()))
+        .map_err(input)?;
+    let mut cfg = toml::from_str::<SimFile>(&text)
+        .with_context(|| format!("{}: invalid [sim] table", config.display()))
+        .map_err(input)?
+        .sim;
+    let dir = config.parent().unwrap_or(Path::new("."));
+    if !matches!(cfg.errors.as_str(), "paper" | "random" | "none" | "") {
+        cfg.errors = dir.join(&cfg.errors).to_string_lossy().into_owned();
+    }
+    let robot_path = sim_robot_path(&table, dir, config)?;
+    let robot = load_robot(&robot_path).map_err(input)?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(other)?;
+    rt.block_on(async move {
+        let cell = cellcal::sim::start_cell(robot, cfg, shutdown_signal())
+            .await
+            .with_context(|| format!("{}: [sim]", config.display()))
+            .map_err(input)?;
+        let mut out = std::io::stdout().lock();
+        let mut lines = vec![
+            format!("tracker {}", cell.tracker_addr),
+            format!("robot {}", cell.robot_addr),
+            format!("stage {}", cell.stage_path.as_deref().unwrap_or("manual")),
+        ];
+        if let Some(g) = &cell.gauge_path {
+            lines.push(format!("gauge {g}"));
+        }
+        for l in lines {
+            writeln!(out, "{l}").map_err(other)?;
+        }
+        out.flush().map_err(other)?;
+        drop(out);
+        let mut stopping = cell.stopping();
+        let _ = stopping.wait_for(|v| *v).await;
+        cell.stop().await;
+        Ok(())
+    })
 }

@@ -3,6 +3,22 @@
 //!
 //! The campaign only sees these traits. Units at this boundary are mm and rad; adapters
 //! convert at the protocol edge (robotlink speaks degrees, Zaber microsteps).
+//!
+//! Adapters: [`EmsconTracker`] (Leica emScon TPI), [`LinkRobot`] (robotlink line protocol),
+//! [`ZaberStageAdapter`] (Zaber ASCII stage), [`ManualStage`] (micrometer set by the technician,
+//! optionally read by an RS-232 gauge); prompters [`ScriptedPrompter`] and [`ChannelPrompter`].
+
+pub mod prompt;
+pub mod robot_link;
+pub mod stage_manual;
+pub mod stage_zaber;
+pub mod tracker_emscon;
+
+pub use prompt::{ChannelPrompter, PendingPrompt, ScriptedPrompter};
+pub use robot_link::{LinkRobot, LinkRobotConfig};
+pub use stage_manual::{GaugeReader, ManualStage, ManualStageConfig};
+pub use stage_zaber::{ZaberStageAdapter, ZaberStageAdapterConfig};
+pub use tracker_emscon::{EmsconTracker, EmsconTrackerConfig};
 
 use std::time::{Duration, SystemTime};
 

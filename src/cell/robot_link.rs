@@ -1,0 +1,196 @@
+//! [`LinkRobot`]: the [`Robot`] trait over the robotlink line protocol (`drivers/robotlink`).
+//! Degrees on the wire, radians in the trait.
+
+use std::time::Duration;
+
+use async_trait::async_trait;
+use robotlink::{ClientConfig, RobotClient, RobotError};
+use serde::{Deserialize, Serialize};
+use tracing::info;
+
+use super::{CellError, DeviceKind, FaultKind, Robot};
+
+/// Configuration of a [`LinkRobot`] (serde: every field has a default).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LinkRobotConfig {
+    /// Server address, `host:port` (the VAL3 app listens on 11100 by default).
+    pub address: String,
+    /// TCP connect timeout (ms).
+    pub connect_timeout_ms: u64,
+    /// Reply timeout of every request except WAIT (ms).
+    pub request_timeout_ms: u64,
+    /// Extra client-side time granted to WAIT (ms).
+    pub wait_margin_ms: u64,
+}
+
+impl Default for LinkRobotConfig {
+    fn default() -> Self {
+        LinkRobotConfig {
+            address: "127.0.0.1:11100".into(),
+            connect_timeout_ms: 5000,
+            request_timeout_ms: 5000,
+            wait_margin_ms: 2000,
+        }
+    }
+}
+
+impl LinkRobotConfig {
+    /// The driver's client configuration.
+    pub fn client_config(&self) -> ClientConfig {
+        ClientConfig {
+            connect_timeout: Duration::from_millis(self.connect_timeout_ms),
+            request_timeout: Duration::from_millis(self.request_timeout_ms),
+            wait_margin: Duration::from_millis(self.wait_margin_ms),
+            ..ClientConfig::default()
+        }
+    }
+}
+
+/// Classify a driver error for the campaign.
+pub fn classify_robotlink(e: &RobotError) -> FaultKind {
+    match e {
+        RobotError::EStop(_) | RobotError::PowerOff(_) => FaultKind::EmergencyStop,
+        RobotError::Rejected { .. } => FaultKind::Rejected,
+        RobotError::NotSettled(_) | RobotError::Timeout(_) => FaultKind::Timeout,
+        RobotError::Protocol(_) => FaultKind::Protocol,
+        RobotError::Disconnected | RobotError::Io(_) => FaultKind::Disconnected,
+    }
+}
+
+fn cell_err(e: RobotError) -> CellError {
+    CellError::new(DeviceKind::Robot, classify_robotlink(&e), e.to_string())
+}
+
+fn to_rad(deg: [f64; 6]) -> Vec<f64> {
+    deg.iter().map(|d| d.to_radians()).collect()
+}
+
+/// A robot controller speaking the robotlink protocol over TCP.
+#[derive(Debug)]
+pub struct LinkRobot {
+    cfg: LinkRobotConfig,
+    client: Option<RobotClient>,
+    speed_pct: Option<f64>,
+}
+
+impl LinkRobot {
+    /// A robot adapter; nothing is connected until [`Robot::prepare`].
+    pub fn new(cfg: LinkRobotConfig) -> LinkRobot {
+        LinkRobot {
+            cfg,
+            client: None,
+            speed_pct: None,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &LinkRobotConfig {
+        &self.cfg
+    }
+
+    /// The connected driver client, if any (events, POSE, STATE).
+    pub fn client(&self) -> Option<&RobotClient> {
+        self.client.as_ref()
+    }
+
+    fn connected(&self) -> Result<&RobotClient, CellError> {
+        match &self.client {
+            Some(c) if !c.is_closed() => Ok(c),
+            _ => Err(CellError::new(
+                DeviceKind::Robot,
+                FaultKind::Disconnected,
+                "not connected",
+            )),
+        }
+    }
+
+    async fn ensure_connected(&mut self) -> Result<(), CellError> {
+        if matches!(&self.client, Some(c) if !c.is_closed()) {
+            return Ok(());
+        }
+        let client = RobotClient::connect(self.cfg.address.as_str(), self.cfg.client_config())
+            .await
+            .map_err(cell_err)?;
+        let id = client.hello().await.map_err(cell_err)?;
+        info!(address = %self.cfg.address, ctrl = %id.ctrl, arm = %id.arm, sw = %id.sw, "robot connected");
+        self.client = Some(client);
+        Ok(())
+    }
+
+    async fn power_and_speed(&mut self, speed_pct: f64) -> Result<(), CellError> {
+        let c = self.connected()?;
+        c.power(true).await.map_err(cell_err)?;
+        c.speed(speed_pct).await.map_err(cell_err)
+    }
+}
+
+#[async_trait]
+impl Robot for LinkRobot {
+    async fn prepare(&mut self, speed_pct: f64) -> Result<(), CellError> {
+        if !(speed_pct > 0.0 && speed_pct <= 100.0) {
+            return Err(CellError::new(
+                DeviceKind::Robot,
+                FaultKind::Rejected,
+                format!("speed {speed_pct} % not in (0, 100]"),
+            ));
+        }
+        self.ensure_connected().await?;
+        self.power_and_speed(speed_pct).await?;
+        self.speed_pct = Some(speed_pct);
+        Ok(())
+    }
+
+    async fn move_joints(&mut self, q_rad: &[f64]) -> Result<(), CellError> {
+        let deg: [f64; 6] = match q_rad {
+            [a, b, c, d, e, f] => [*a, *b, *c, *d, *e, *f].map(f64::to_degrees),
+            _ => {
+                return Err(CellError::new(
+                    DeviceKind::Robot,
+                    FaultKind::Rejected,
+                    format!("robotlink needs 6 joints, got {}", q_rad.len()),
+                ))
+            }
+        };
+        if deg.iter().any(|v| !v.is_finite()) {
+            return Err(CellError::new(
+                DeviceKind::Robot,
+                FaultKind::Rejected,
+                "joint target is not finite",
+            ));
+        }
+        self.connected()?
+            .move_joints(deg, None)
+            .await
+            .map_err(cell_err)
+    }
+
+    async fn wait_settled(&mut self, timeout: Duration) -> Result<Vec<f64>, CellError> {
+        let j = self
+            .connected()?
+            .wait_settled(timeout)
+            .await
+            .map_err(cell_err)?;
+        Ok(to_rad(j))
+    }
+
+    async fn joints(&mut self) -> Result<Vec<f64>, CellError> {
+        let j = self.connected()?.joints().await.map_err(cell_err)?;
+        Ok(to_rad(j))
+    }
+
+    async fn stop(&mut self) -> Result<(), CellError> {
+        self.connected()?.stop().await.map_err(cell_err)
+    }
+
+    async fn reconnect(&mut self) -> Result<(), CellError> {
+        if let Some(c) = self.client.take() {
+            c.close().await;
+        }
+        self.ensure_connected().await?;
+        if let Some(speed) = self.speed_pct {
+            self.power_and_speed(speed).await?;
+        }
+        Ok(())
+    }
+}

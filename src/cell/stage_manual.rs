@@ -1,0 +1,223 @@
+//! [`ManualStage`]: a micrometer the technician turns, driven through a [`Prompter`]. Without a
+//! gauge the technician types the reading; with an RS-232 gauge ([`GaugeReader`]) the
+//! technician only confirms and the reading comes from the gauge.
+
+use std::sync::Arc;
+
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncRead, AsyncWrite};
+use tracing::{info, warn};
+use zaber::{GaugeClient, GaugeError};
+
+use super::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, Stage};
+
+/// Configuration of a [`ManualStage`] (serde: every field has a default).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ManualStageConfig {
+    /// Largest accepted |reading − requested| (mm).
+    pub tolerance_mm: f64,
+    /// How many times the technician is asked before the move fails.
+    pub max_tries: u32,
+}
+
+impl Default for ManualStageConfig {
+    fn default() -> Self {
+        ManualStageConfig {
+            tolerance_mm: 0.02,
+            max_tries: 3,
+        }
+    }
+}
+
+/// A position gauge read by the software (RS-232 micrometer or indicator).
+#[async_trait]
+pub trait GaugeReader: Send {
+    /// One reading (mm).
+    async fn read_mm(&mut self) -> Result<f64, GaugeError>;
+}
+
+#[async_trait]
+impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeReader for GaugeClient<S> {
+    async fn read_mm(&mut self) -> Result<f64, GaugeError> {
+        GaugeClient::read_mm(self).await
+    }
+}
+
+/// Classify a gauge error for the campaign.
+pub fn classify_gauge(e: &GaugeError) -> FaultKind {
+    match e {
+        GaugeError::Timeout => FaultKind::Timeout,
+        GaugeError::WrongUnit(_) | GaugeError::OutOfRange(_) | GaugeError::DeviceStatus(_) => {
+            FaultKind::Device
+        }
+        GaugeError::Protocol(_) => FaultKind::Protocol,
+        GaugeError::Disconnected | GaugeError::Io(_) => FaultKind::Disconnected,
+    }
+}
+
+/// A manually set micrometer stage, optionally read back by a gauge.
+pub struct ManualStage {
+    prompter: Arc<dyn Prompter>,
+    gauge: Option<Box<dyn GaugeReader>>,
+    cfg: ManualStageConfig,
+}
+
+impl std::fmt::Debug for ManualStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ManualStage")
+            .field("cfg", &self.cfg)
+            .field("gauge", &self.gauge.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+async fn ask(
+    prompter: &Arc<dyn Prompter>,
+    with_gauge: bool,
+    target: f64,
+    text: String,
+) -> Result<Answer, CellError> {
+    let prompt = Prompt {
+        id: "stage_move".into(),
+        text,
+        expected_mm: (!with_gauge).then_some(target),
+    };
+    let a = prompter.ask(prompt).await?;
+    if a == Answer::Abort {
+        return Err(stage_err(
+            FaultKind::Aborted,
+            format!("the technician aborted while setting the micrometer to {target:.3} mm"),
+        ));
+    }
+    Ok(a)
+}
+
+fn stage_err(kind: FaultKind, msg: impl Into<String>) -> CellError {
+    CellError::new(DeviceKind::Stage, kind, msg)
+}
+
+impl ManualStage {
+    /// The technician types the micrometer reading.
+    pub fn new(prompter: Arc<dyn Prompter>, cfg: ManualStageConfig) -> ManualStage {
+        ManualStage {
+            prompter,
+            gauge: None,
+            cfg,
+        }
+    }
+
+    /// The technician moves the micrometer and confirms; the reading comes from `gauge`.
+    pub fn with_gauge(
+        prompter: Arc<dyn Prompter>,
+        gauge: Box<dyn GaugeReader>,
+        cfg: ManualStageConfig,
+    ) -> ManualStage {
+        ManualStage {
+            prompter,
+            gauge: Some(gauge),
+            cfg,
+        }
+    }
+
+    /// Open an RS-232 gauge on `port` and use it (see [`ManualStage::with_gauge`]).
+    pub fn with_gauge_port(
+        prompter: Arc<dyn Prompter>,
+        port: &str,
+        gauge_cfg: zaber::GaugeConfig,
+        cfg: ManualStageConfig,
+    ) -> Result<ManualStage, CellError> {
+        let g = GaugeClient::open(port, gauge_cfg)
+            .map_err(|e| stage_err(classify_gauge(&e), format!("gauge {port}: {e}")))?;
+        Ok(ManualStage::with_gauge(prompter, Box::new(g), cfg))
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ManualStageConfig {
+        &self.cfg
+    }
+
+    fn request_text(&self, target: f64) -> String {
+        if self.gauge.is_some() {
+            format!("Move the micrometer to {target:.3} mm and confirm")
+        } else {
+            format!("Set the micrometer to {target:.3} mm and enter the reading")
+        }
+    }
+}
+
+#[async_trait]
+impl Stage for ManualStage {
+    fn is_manual(&self) -> bool {
+        true
+    }
+
+    async fn prepare(&mut self) -> Result<(), CellError> {
+        if let Some(g) = self.gauge.as_mut() {
+            let v = g
+                .read_mm()
+                .await
+                .map_err(|e| stage_err(classify_gauge(&e), format!("gauge not answering: {e}")))?;
+            info!(reading_mm = v, "gauge answers");
+        }
+        Ok(())
+    }
+
+    async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
+        if !position_mm.is_finite() {
+            return Err(stage_err(
+                FaultKind::Rejected,
+                "target is not a finite number",
+            ));
+        }
+        let tol = self.cfg.tolerance_mm;
+        let request = self.request_text(position_mm);
+        let mut text = request.clone();
+        for attempt in 1..=self.cfg.max_tries.max(1) {
+            let answer = ask(&self.prompter, self.gauge.is_some(), position_mm, text).await?;
+            let reading = match (self.gauge.as_mut(), answer) {
+                (Some(g), _) => g.read_mm().await.map_err(|e| {
+                    stage_err(classify_gauge(&e), format!("gauge reading failed: {e}"))
+                })?,
+                (None, Answer::Number(v)) if v.is_finite() => v,
+                (None, _) => {
+                    warn!(attempt, "manual stage: no number given");
+                    text = format!("A number is needed (the micrometer reading in mm). {request}");
+                    continue;
+                }
+            };
+            let off = reading - position_mm;
+            if off.abs() <= tol {
+                info!(
+                    target_mm = position_mm,
+                    reading_mm = reading,
+                    "manual stage set"
+                );
+                return Ok(reading);
+            }
+            warn!(
+                attempt,
+                target_mm = position_mm,
+                reading_mm = reading,
+                "manual stage out of tolerance"
+            );
+            let source = if self.gauge.is_some() {
+                "The gauge reads"
+            } else {
+                "The reading"
+            };
+            text = format!(
+                "{source} {reading:.3} mm, {:.3} mm from the requested {position_mm:.3} mm (tolerance {tol:.3} mm). {request}",
+                off.abs()
+            );
+        }
+        Err(stage_err(
+            FaultKind::Rejected,
+            format!(
+                "no reading within {tol:.3} mm of {position_mm:.3} mm after {} tries",
+                self.cfg.max_tries.max(1)
+            ),
+        ))
+    }
+}

@@ -1,0 +1,172 @@
+//! [`ZaberStageAdapter`]: the [`Stage`] trait over a Zaber ASCII stage on a serial port
+//! (`drivers/zaber`). Millimetres in the trait; microsteps only inside the driver.
+
+use std::time::Duration;
+
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use tokio_serial::SerialStream;
+use tracing::{info, warn};
+use zaber::{StageConfig, StageError, ZaberStage};
+
+use super::{CellError, DeviceKind, FaultKind, Stage};
+
+/// Configuration of a [`ZaberStageAdapter`] (serde: every field has a default).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZaberStageAdapterConfig {
+    /// Serial port (`/dev/ttyUSB0`, or a pty slave such as `/dev/pts/3`).
+    pub port: String,
+    /// Device address on the daisy chain.
+    pub device: u8,
+    /// Axis number.
+    pub axis: u8,
+    /// Microsteps per millimetre (device-specific).
+    pub microsteps_per_mm: f64,
+    /// Lowest allowed target (mm).
+    pub min_mm: f64,
+    /// Highest allowed target (mm).
+    pub max_mm: f64,
+    /// Allowed |read-back − target| after a move (mm).
+    pub tolerance_mm: f64,
+    /// Home the axis in `prepare` (which always clears latched warnings first).
+    pub home_on_prepare: bool,
+    /// Timeout of one reply (ms).
+    pub reply_timeout_ms: u64,
+    /// Timeout of a move (ms).
+    pub move_timeout_ms: u64,
+    /// Timeout of homing (ms).
+    pub home_timeout_ms: u64,
+    /// Baud rate (Zaber ASCII default 115200).
+    pub baud: u32,
+}
+
+impl Default for ZaberStageAdapterConfig {
+    fn default() -> Self {
+        let d = StageConfig::default();
+        ZaberStageAdapterConfig {
+            port: "/dev/ttyUSB0".into(),
+            device: d.device,
+            axis: d.axis,
+            microsteps_per_mm: d.microsteps_per_mm,
+            min_mm: d.min_mm,
+            max_mm: d.max_mm,
+            tolerance_mm: d.tolerance_mm,
+            home_on_prepare: true,
+            reply_timeout_ms: 500,
+            move_timeout_ms: 30_000,
+            home_timeout_ms: 60_000,
+            baud: d.baud,
+        }
+    }
+}
+
+impl ZaberStageAdapterConfig {
+    /// The driver's stage configuration.
+    pub fn stage_config(&self) -> StageConfig {
+        StageConfig {
+            device: self.device,
+            axis: self.axis,
+            microsteps_per_mm: self.microsteps_per_mm,
+            min_mm: self.min_mm,
+            max_mm: self.max_mm,
+            tolerance_mm: self.tolerance_mm,
+            reply_timeout: Duration::from_millis(self.reply_timeout_ms),
+            move_timeout: Duration::from_millis(self.move_timeout_ms),
+            home_timeout: Duration::from_millis(self.home_timeout_ms),
+            baud: self.baud,
+            ..StageConfig::default()
+        }
+    }
+}
+
+/// Classify a driver error for the campaign.
+pub fn classify_zaber(e: &StageError) -> FaultKind {
+    match e {
+        StageError::NotHomed | StageError::Rejected(_) | StageError::OutOfRange(_) => {
+            FaultKind::Rejected
+        }
+        StageError::Fault(_) | StageError::Interrupted | StageError::Mismatch { .. } => {
+            FaultKind::Device
+        }
+        StageError::Timeout(_) => FaultKind::Timeout,
+        StageError::Checksum | StageError::Protocol(_) => FaultKind::Protocol,
+        StageError::Disconnected | StageError::Io(_) => FaultKind::Disconnected,
+    }
+}
+
+fn cell_err(e: StageError) -> CellError {
+    CellError::new(DeviceKind::Stage, classify_zaber(&e), e.to_string())
+}
+
+/// A motorised Zaber stage on a serial port.
+#[derive(Debug)]
+pub struct ZaberStageAdapter {
+    cfg: ZaberStageAdapterConfig,
+    stage: Option<ZaberStage<SerialStream>>,
+}
+
+impl ZaberStageAdapter {
+    /// A stage adapter; the port is opened in [`Stage::prepare`].
+    pub fn new(cfg: ZaberStageAdapterConfig) -> ZaberStageAdapter {
+        ZaberStageAdapter { cfg, stage: None }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ZaberStageAdapterConfig {
+        &self.cfg
+    }
+
+    /// Close the port; the next `prepare` opens it again (e.g. after a USB re-enumeration).
+    pub fn close(&mut self) {
+        self.stage = None;
+    }
+
+    fn open(&mut self) -> Result<&mut ZaberStage<SerialStream>, CellError> {
+        if self.stage.is_none() {
+            let s = ZaberStage::open(&self.cfg.port, self.cfg.stage_config()).map_err(cell_err)?;
+            info!(port = %self.cfg.port, "stage port open");
+            self.stage = Some(s);
+        }
+        self.stage.as_mut().ok_or_else(|| {
+            CellError::new(DeviceKind::Stage, FaultKind::Disconnected, "port not open")
+        })
+    }
+
+    fn after(&mut self, e: StageError) -> CellError {
+        let err = cell_err(e);
+        if err.kind == FaultKind::Disconnected {
+            warn!("stage port lost; it is reopened on the next prepare");
+            self.stage = None;
+        }
+        err
+    }
+}
+
+#[async_trait]
+impl Stage for ZaberStageAdapter {
+    fn is_manual(&self) -> bool {
+        false
+    }
+
+    async fn prepare(&mut self) -> Result<(), CellError> {
+        let home = self.cfg.home_on_prepare;
+        let stage = self.open()?;
+        // Clear latched fault flags first: the driver reports a latched F* on the reply to
+        // `warnings clear` itself, which would fail the homing sequence once.
+        let r = stage.command("warnings clear").await;
+        r.map_err(|e| self.after(e))?;
+        let stage = self.open()?;
+        if home {
+            let r = stage.home().await;
+            r.map_err(|e| self.after(e))?;
+        }
+        Ok(())
+    }
+
+    async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
+        let stage = self.open()?;
+        let r = stage.move_abs_mm(position_mm).await;
+        r.map_err(|e| self.after(e))
+    }
+}

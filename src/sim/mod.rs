@@ -1,0 +1,383 @@
+//! The simulated cell: one [`World`] (true robot, motion, stage, tracker noise and drift, seeded
+//! ChaCha8 RNG) behind the real protocol servers of `drivers/`: an emScon tracker and a
+//! robotlink robot on 127.0.0.1 TCP, a Zaber stage (and optionally an RS-232 gauge) on ptys.
+//! [`start_cell`] starts everything; the adapters of [`crate::cell`] talk to it like to the
+//! real devices.
+
+pub mod backends;
+pub mod config;
+pub mod world;
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use tracing::{info, warn};
+use zaber::sim::{GaugeFaults, GaugeSim, StageSim, StageSimConfig};
+
+use crate::cell::{EmsconTrackerConfig, LinkRobotConfig, ZaberStageAdapterConfig};
+use crate::model::rotation::from_rotation_vector;
+use crate::model::RobotModel;
+use crate::simulate::truth::{self, ErrorTable};
+
+pub use backends::{SimRobotBackend, SimTrackerBackend};
+pub use config::{SimFaults, SimWorldConfig, StageMode};
+pub use world::{lock_world, SharedWorld, StageSource, World, WorldFaults};
+
+/// Errors of the simulated cell.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// A configuration value is invalid.
+    #[error("sim config: {0}")]
+    Config(String),
+    /// The error table could not be loaded or applied.
+    #[error("errors `{spec}`: {message}")]
+    Errors {
+        /// The `errors` value.
+        spec: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// Binding a port or creating a pty failed.
+    #[error("{what}: {source}")]
+    Io {
+        /// What was being done.
+        what: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+}
+
+/// Load an error table: `paper`, `random` (seeded), `none`, or a TOML/JSON file of name = value.
+pub fn load_error_table(spec: &str, dof: usize, seed: u64) -> Result<ErrorTable, SimError> {
+    let fail = |message: String| SimError::Errors {
+        spec: spec.to_owned(),
+        message,
+    };
+    match spec {
+        "paper" if dof == 6 => Ok(truth::paper_errors()),
+        "paper" => Err(fail("the paper table needs a six-joint robot".into())),
+        "random" => Ok(truth::random_errors(dof, seed)),
+        "none" | "" => Ok(ErrorTable::new()),
+        path => {
+            let text = std::fs::read_to_string(Path::new(path))
+                .map_err(|e| fail(format!("cannot read: {e}")))?;
+            if path.ends_with(".json") {
+                serde_json::from_str(&text).map_err(|e| fail(e.to_string()))
+            } else {
+                toml::from_str(&text).map_err(|e| fail(e.to_string()))
+            }
+        }
+    }
+}
+
+/// The true robot: nominal + hidden errors, base and tool from the config (else the file's).
+pub fn true_model(nominal: &RobotModel, cfg: &SimWorldConfig) -> Result<RobotModel, SimError> {
+    let errors = load_error_table(&cfg.errors, nominal.dof(), cfg.error_seed)?;
+    let mut m = truth::apply_errors(nominal, &errors).map_err(|message| SimError::Errors {
+        spec: cfg.errors.clone(),
+        message,
+    })?;
+    if let Some(t) = cfg.base_translation_mm {
+        m.base_translation = t.into();
+    }
+    if let Some(r) = cfg.base_rotation_vector_deg {
+        let v: nalgebra::Vector3<f64> = r.into();
+        m.base_rotation = from_rotation_vector(&v.map(f64::to_radians));
+    }
+    if let Some(t) = cfg.tool_mm {
+        m.tool = t.into();
+    }
+    Ok(m)
+}
+
+/// A running simulated cell. Dropping it stops every task (as does [`RunningSimCell::stop`]).
+#[derive(Debug)]
+pub struct RunningSimCell {
+    /// emScon tracker address (127.0.0.1).
+    pub tracker_addr: SocketAddr,
+    /// robotlink robot address (127.0.0.1).
+    pub robot_addr: SocketAddr,
+    /// Zaber stage pty slave (`/dev/pts/N`), in stage mode `zaber`.
+    pub stage_path: Option<String>,
+    /// Gauge pty slave, when `gauge = true`.
+    pub gauge_path: Option<String>,
+    /// The world: query the truth, set the manual micrometer, change world-level faults.
+    pub world: SharedWorld,
+    /// emScon server faults (change at runtime).
+    pub tracker_faults: emscon::SharedFaults,
+    /// robotlink server faults (change at runtime).
+    pub robot_faults: robotlink::FaultHandle,
+    /// The stage simulator (its `faults()` can be changed at runtime), in stage mode `zaber`.
+    pub stage_sim: Option<StageSim>,
+    /// Gauge faults, when `gauge = true`.
+    pub gauge_faults: Option<Arc<Mutex<GaugeFaults>>>,
+    /// The configuration the cell runs with.
+    pub config: SimWorldConfig,
+    stop_tx: watch::Sender<bool>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl RunningSimCell {
+    /// Tracker adapter settings for this cell (address, measuring time, short timeouts).
+    pub fn tracker_config(&self) -> EmsconTrackerConfig {
+        let meas = i32::try_from(self.config.effective_measure_ms()).unwrap_or(i32::MAX);
+        EmsconTrackerConfig {
+            address: self.tracker_addr.to_string(),
+            meas_time_ms: meas,
+            search_distance_mm: 2500.0,
+            connect_timeout_ms: 2000,
+            command_timeout_ms: 2000,
+            initialize_timeout_ms: 5000,
+            search_timeout_ms: 2000,
+            measure_margin_ms: 2000,
+            ..EmsconTrackerConfig::default()
+        }
+    }
+
+    /// Robot adapter settings for this cell.
+    pub fn robot_config(&self) -> LinkRobotConfig {
+        LinkRobotConfig {
+            address: self.robot_addr.to_string(),
+            connect_timeout_ms: 2000,
+            request_timeout_ms: 2000,
+            wait_margin_ms: 2000,
+        }
+    }
+
+    /// Stage adapter settings for this cell (stage mode `zaber`).
+    pub fn stage_config(&self) -> Option<ZaberStageAdapterConfig> {
+        let port = self.stage_path.clone()?;
+        let speed = self.config.effective_stage_speed_mm_s().max(1e-3);
+        let travel_s = self.config.stage_max_mm / speed;
+        let move_ms = (travel_s * 1000.0 * 2.0) as u64 + 2000;
+        Some(ZaberStageAdapterConfig {
+            port,
+            microsteps_per_mm: self.config.stage_microsteps_per_mm,
+            min_mm: 0.0,
+            max_mm: self.config.stage_max_mm,
+            tolerance_mm: 2.0 / self.config.stage_microsteps_per_mm,
+            move_timeout_ms: move_ms,
+            home_timeout_ms: move_ms,
+            ..ZaberStageAdapterConfig::default()
+        })
+    }
+
+    /// Gauge client settings for this cell (`gauge = true`).
+    pub fn gauge_config(&self) -> zaber::GaugeConfig {
+        zaber::GaugeConfig::default()
+    }
+
+    /// A receiver that turns true once the cell is stopping.
+    pub fn stopping(&self) -> watch::Receiver<bool> {
+        self.stop_tx.subscribe()
+    }
+
+    /// Stop every server and pty and wait (bounded) for the tasks to end.
+    pub async fn stop(mut self) {
+        let _ = self.stop_tx.send(true);
+        let tasks = std::mem::take(&mut self.tasks);
+        for t in tasks {
+            let abort = t.abort_handle();
+            if tokio::time::timeout(Duration::from_secs(3), t)
+                .await
+                .is_err()
+            {
+                warn!("sim task did not end in time; aborting it");
+                abort.abort();
+            }
+        }
+        info!("simulated cell stopped");
+    }
+}
+
+impl Drop for RunningSimCell {
+    fn drop(&mut self) {
+        let _ = self.stop_tx.send(true);
+    }
+}
+
+async fn stopped(mut rx: watch::Receiver<bool>) {
+    let _ = rx.wait_for(|v| *v).await;
+}
+
+async fn bind(port: u16, what: &str) -> Result<TcpListener, SimError> {
+    TcpListener::bind(("127.0.0.1", port))
+        .await
+        .map_err(|source| SimError::Io {
+            what: format!("{what}: cannot bind 127.0.0.1:{port}"),
+            source,
+        })
+}
+
+/// Start the simulated cell for `robot` (the nominal model): binds the tracker and robot
+/// listeners on 127.0.0.1, opens the ptys, and runs until `shutdown` completes or the returned
+/// handle is stopped or dropped. Must be called inside a Tokio runtime.
+pub async fn start_cell(
+    robot: RobotModel,
+    cfg: SimWorldConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<RunningSimCell, SimError> {
+    if robot.dof() != 6 {
+        return Err(SimError::Config(format!(
+            "the simulated robot controller drives 6 joints, the model has {}",
+            robot.dof()
+        )));
+    }
+    if !(cfg.stage_max_mm > 0.0 && cfg.stage_microsteps_per_mm > 0.0) {
+        return Err(SimError::Config(
+            "stage_max_mm and stage_microsteps_per_mm must be positive".into(),
+        ));
+    }
+    if !(0.0..=1.0).contains(&cfg.faults.tracker.beam_break_probability) {
+        return Err(SimError::Config(
+            "faults.tracker.beam_break_probability must be in [0, 1]".into(),
+        ));
+    }
+    let truth = true_model(&robot, &cfg)?;
+    let k = cfg.stage_microsteps_per_mm;
+    let stage_sim = (cfg.stage_mode == StageMode::Zaber).then(|| {
+        let sim = StageSim::new(StageSimConfig {
+            limit_min: 0,
+            limit_max: (cfg.stage_max_mm * k).round() as i64,
+            speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
+            homed: false,
+            ..StageSimConfig::default()
+        });
+        {
+            let s = &cfg.faults.stage;
+            let mut f = sim.faults();
+            f.reject = s.reject;
+            f.reject_reason = s.reject_reason.clone();
+            f.stall = s.stall;
+            f.fault = s.fault;
+            f.overshoot = s.overshoot;
+            f.lose_home = s.lose_home;
+        }
+        sim
+    });
+    let source = match &stage_sim {
+        Some(sim) => StageSource::Zaber {
+            sim: sim.clone(),
+            microsteps_per_mm: k,
+        },
+        None => StageSource::Manual { position_mm: 0.0 },
+    };
+    let world: SharedWorld = Arc::new(Mutex::new(World::new(robot, truth, &cfg, source)?));
+
+    let tf = &cfg.faults.tracker;
+    let tracker_faults = emscon::FaultConfig::shared();
+    {
+        let mut f = tracker_faults.lock().unwrap_or_else(|p| p.into_inner());
+        f.beam_break_before_measure = tf.beam_break_before_measure;
+        f.beam_break_during_measure = tf.beam_break_during_measure;
+        f.beam_break_status = tf.beam_break_status;
+        f.relock_after_ms = tf.relock_after_ms;
+        f.no_reply = tf.no_reply;
+        f.initialize_delay_ms = tf.initialize_delay_ms;
+    }
+    lock_world(&world).attach_tracker_faults(tracker_faults.clone());
+    let rf = &cfg.faults.robot;
+    let robot_faults = robotlink::FaultConfig::handle();
+    {
+        let mut f = robot_faults.lock().unwrap_or_else(|p| p.into_inner());
+        f.never_settle = rf.never_settle;
+        f.slow_settle = rf.slow_settle;
+        f.slow_settle_extra = Duration::from_millis(rf.slow_settle_extra_ms);
+        f.disconnect_during_move = rf.disconnect_during_move;
+    }
+
+    let tracker_listener = bind(cfg.tracker_port, "tracker").await?;
+    let robot_listener = bind(cfg.robot_port, "robot").await?;
+    let local = |l: &TcpListener, what: &str| {
+        l.local_addr().map_err(|source| SimError::Io {
+            what: format!("{what}: local address"),
+            source,
+        })
+    };
+    let tracker_addr = local(&tracker_listener, "tracker")?;
+    let robot_addr = local(&robot_listener, "robot")?;
+
+    let stage_pty = match &stage_sim {
+        Some(sim) => {
+            Some(
+                zaber::pty::spawn_stage_pty(sim.clone()).map_err(|source| SimError::Io {
+                    what: "stage: cannot open a pty".into(),
+                    source,
+                })?,
+            )
+        }
+        None => None,
+    };
+    let (gauge_pty, gauge_faults) = if cfg.gauge {
+        let w = world.clone();
+        let sim = GaugeSim::new(Arc::new(move || lock_world(&w).stage_true_mm()));
+        let faults = sim.faults.clone();
+        let pty = zaber::pty::spawn_gauge_pty(sim).map_err(|source| SimError::Io {
+            what: "gauge: cannot open a pty".into(),
+            source,
+        })?;
+        (Some(pty), Some(faults))
+    } else {
+        (None, None)
+    };
+    let stage_path = stage_pty.as_ref().map(|p| p.path());
+    let gauge_path = gauge_pty.as_ref().map(|p| p.path());
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let mut tasks = Vec::new();
+    let tracker_backend: Arc<dyn emscon::TrackerBackend> =
+        Arc::new(SimTrackerBackend::new(world.clone()));
+    let tfaults = tracker_faults.clone();
+    let rx = stop_rx.clone();
+    tasks.push(tokio::spawn(async move {
+        if let Err(e) = emscon::serve(tracker_listener, tracker_backend, tfaults, stopped(rx)).await
+        {
+            warn!(error = %e, "sim tracker server ended");
+        }
+    }));
+    let robot_backend: Arc<dyn robotlink::RobotBackend> =
+        Arc::new(SimRobotBackend::new(world.clone()));
+    let rfaults = robot_faults.clone();
+    let rx = stop_rx.clone();
+    tasks.push(tokio::spawn(async move {
+        if let Err(e) = robotlink::serve(robot_listener, robot_backend, rfaults, stopped(rx)).await
+        {
+            warn!(error = %e, "sim robot server ended");
+        }
+    }));
+    let rx = stop_rx.clone();
+    tasks.push(tokio::spawn(async move {
+        stopped(rx).await;
+        drop(stage_pty);
+        drop(gauge_pty);
+    }));
+    let tx = stop_tx.clone();
+    let mut rx = stop_rx.clone();
+    tasks.push(tokio::spawn(async move {
+        tokio::select! {
+            _ = shutdown => { let _ = tx.send(true); }
+            _ = rx.wait_for(|v| *v) => {}
+        }
+    }));
+    info!(%tracker_addr, %robot_addr, ?stage_path, ?gauge_path, "simulated cell listening");
+    Ok(RunningSimCell {
+        tracker_addr,
+        robot_addr,
+        stage_path,
+        gauge_path,
+        world,
+        tracker_faults,
+        robot_faults,
+        stage_sim,
+        gauge_faults,
+        config: cfg,
+        stop_tx,
+        tasks,
+    })
+}
