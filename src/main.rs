@@ -577,7 +577,7 @@ fn run_sim(config: &Path) -> Result<(), Failure> {
         .enable_all()
         .build()
         .map_err(other)?;
-    rt.block_on(async move {
+    let result = rt.block_on(async move {
         let cell = cellcal::sim::start_cell(robot, cfg, shutdown_signal())
             .await
             .with_context(|| format!("{}: [sim]", config.display()))
@@ -600,5 +600,7 @@ fn run_sim(config: &Path) -> Result<(), Failure> {
         let _ = stopping.wait_for(|v| *v).await;
         cell.stop().await;
         Ok(())
-    })
+    });
+    rt.shutdown_timeout(std::time::Duration::from_millis(500));
+    result
 }
