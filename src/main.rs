@@ -7,6 +7,9 @@ use anyhow::{anyhow, Context};
 use clap::{Parser, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
+mod run_cmd;
+mod terminal;
+
 use cellcal::analysis::significance;
 use cellcal::dataset::{parse_csv, write_csv, Required};
 use cellcal::identify::solver::Options;
@@ -124,6 +127,54 @@ enum Command {
         /// Cell configuration file (TOML); only `[sim]` and the top-level `robot` are read.
         #[arg(long)]
         config: PathBuf,
+    },
+    /// Run a calibration campaign (plan, measure, store, identify); simulated devices start in-process.
+    Run {
+        /// Cell configuration file (TOML).
+        #[arg(long, default_value = "config/cell.sim.toml")]
+        config: PathBuf,
+        /// Allow motion and start at once (without it the campaign is only planned and stored).
+        #[arg(long)]
+        arm: bool,
+        /// Write the result (the `cellcal identify` JSON contract) here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Store file (default: `store` of the configuration).
+        #[arg(long)]
+        store: Option<PathBuf>,
+        /// Resume this stored campaign at its first unmeasured pose.
+        #[arg(long)]
+        campaign: Option<i64>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Write a stored campaign's measurements as an identify CSV.
+    Export {
+        /// Store file.
+        #[arg(long)]
+        store: PathBuf,
+        /// Campaign id (default: the latest).
+        #[arg(long)]
+        campaign: Option<i64>,
+        /// Output CSV.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Import an identify CSV as a new, fully measured campaign.
+    Import {
+        /// Store file.
+        #[arg(long)]
+        store: PathBuf,
+        /// Robot model file (TOML).
+        #[arg(long)]
+        robot: PathBuf,
+        /// Input CSV.
+        #[arg(long)]
+        data: PathBuf,
+        /// Observation model recorded with the campaign.
+        #[arg(long, default_value = "op")]
+        model: String,
     },
 }
 
@@ -266,6 +317,32 @@ fn main() -> ExitCode {
         } => run_significance(&robot, samples, seed, &json),
         Command::SimulateData(args) => run_simulate(&args),
         Command::Sim { config } => run_sim(&config),
+        Command::Run {
+            config,
+            arm,
+            json,
+            store,
+            campaign,
+            quiet,
+        } => run_cmd::run(run_cmd::RunOptions {
+            config,
+            arm,
+            json,
+            store,
+            campaign,
+            quiet,
+        }),
+        Command::Export {
+            store,
+            campaign,
+            out,
+        } => run_cmd::export(&store, campaign, &out),
+        Command::Import {
+            store,
+            robot,
+            data,
+            model,
+        } => run_cmd::import(&store, &robot, &data, &model),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,6 +8,7 @@
 
 pub mod engine;
 pub mod events;
+pub mod session;
 
 pub use engine::{run_campaign, CampaignContext, CampaignError, Devices, Outcome};
 pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control};

@@ -1,0 +1,110 @@
+//! Terminal front end of the campaign (binary only: the library never prints): the technician
+//! prompter and the event printer with a progress bar.
+
+use std::io::{BufRead, Write};
+
+use async_trait::async_trait;
+use indicatif::{ProgressBar, ProgressStyle};
+use tokio::sync::broadcast;
+
+use cellcal::campaign::{CampaignEvent, CampaignState};
+use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter};
+
+/// Asks the technician on the terminal; `a` (or end of input) aborts.
+pub struct TerminalPrompter;
+
+fn parse_answer(line: &str) -> Option<Answer> {
+    let t = line.trim();
+    match t {
+        "a" | "abort" | "A" => Some(Answer::Abort),
+        "" => Some(Answer::Confirmed),
+        _ => t.parse::<f64>().ok().filter(|v| v.is_finite()).map(Answer::Number),
+    }
+}
+
+#[async_trait]
+impl Prompter for TerminalPrompter {
+    async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
+        tokio::task::spawn_blocking(move || {
+            let stdin = std::io::stdin();
+            loop {
+                let hint = if prompt.expected_mm.is_some() {
+                    "reading in mm, or a to abort"
+                } else {
+                    "Enter to confirm, or a to abort"
+                };
+                eprint!("\n{} [{hint}]: ", prompt.text);
+                let _ = std::io::stderr().flush();
+                let mut line = String::new();
+                match stdin.lock().read_line(&mut line) {
+                    Ok(0) | Err(_) => return Ok(Answer::Abort),
+                    Ok(_) => {}
+                }
+                match parse_answer(&line) {
+                    Some(Answer::Confirmed) if prompt.expected_mm.is_some() => {
+                        eprintln!("please type the reading in mm (e.g. 10.003), or a to abort");
+                    }
+                    Some(a) => return Ok(a),
+                    None => eprintln!("`{}` is not a number; type the reading in mm, or a to abort", line.trim()),
+                }
+            }
+        })
+        .await
+        .map_err(|e| CellError::new(DeviceKind::Operator, FaultKind::Aborted, e.to_string()))?
+    }
+}
+
+/// Print campaign events with a progress bar until the channel closes.
+pub async fn print_events(mut rx: broadcast::Receiver<CampaignEvent>, total: usize, quiet: bool) {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(total as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    loop {
+        match rx.recv().await {
+            Ok(CampaignEvent::Measured { done, .. }) => bar.set_position(done as u64),
+            Ok(CampaignEvent::State { state }) => {
+                let text = match &state {
+                    CampaignState::Paused { reason } | CampaignState::Failed { reason } => {
+                        format!("{}: {reason}", state.name())
+                    }
+                    s => s.name().to_owned(),
+                };
+                bar.set_message(text.clone());
+                if matches!(state, CampaignState::Failed { .. } | CampaignState::Aborted) {
+                    bar.println(format!("campaign {text}"));
+                }
+            }
+            Ok(CampaignEvent::Fault { device, kind, message, action }) => {
+                bar.println(format!("{device} {kind}: {message} -> {action}"));
+            }
+            Ok(CampaignEvent::Drift { drift_mm, max_mm }) => {
+                bar.set_message(format!("drift {:.4} mm (max {max_mm})", drift_mm));
+            }
+            Ok(CampaignEvent::Note { text }) => bar.println(text),
+            Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
+            Err(broadcast::error::RecvError::Lagged(_)) => {}
+            Err(broadcast::error::RecvError::Closed) => break,
+        }
+    }
+    bar.finish_and_clear();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn answers() {
+        assert_eq!(parse_answer("10.003\n"), Some(Answer::Number(10.003)));
+        assert_eq!(parse_answer("a\n"), Some(Answer::Abort));
+        assert_eq!(parse_answer("\n"), Some(Answer::Confirmed));
+        assert_eq!(parse_answer("ten"), None);
+        assert_eq!(parse_answer("NaN"), None);
+    }
+}
