@@ -128,7 +128,11 @@ pub fn export(store: &Path, campaign: Option<i64>, out: &Path) -> Result<(), Fai
     std::fs::write(out, write_csv(&rows, dof, &comment))
         .with_context(|| format!("{}: cannot write", out.display()))
         .map_err(other)?;
-    println!("wrote {} poses of campaign {id} to {}", rows.len(), out.display());
+    println!(
+        "wrote {} poses of campaign {id} to {}",
+        rows.len(),
+        out.display()
+    );
     Ok(())
 }
 
@@ -159,6 +163,10 @@ pub fn import(store: &Path, robot: &Path, data: &Path, model: &str) -> Result<()
             &rows,
         )
         .map_err(input)?;
-    println!("imported {} poses as campaign {id} into {}", rows.len(), store.display());
+    println!(
+        "imported {} poses as campaign {id} into {}",
+        rows.len(),
+        store.display()
+    );
     Ok(())
 }

@@ -18,7 +18,11 @@ fn parse_answer(line: &str) -> Option<Answer> {
     match t {
         "a" | "abort" | "A" => Some(Answer::Abort),
         "" => Some(Answer::Confirmed),
-        _ => t.parse::<f64>().ok().filter(|v| v.is_finite()).map(Answer::Number),
+        _ => t
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .map(Answer::Number),
     }
 }
 
@@ -45,7 +49,10 @@ impl Prompter for TerminalPrompter {
                         eprintln!("please type the reading in mm (e.g. 10.003), or a to abort");
                     }
                     Some(a) => return Ok(a),
-                    None => eprintln!("`{}` is not a number; type the reading in mm, or a to abort", line.trim()),
+                    None => eprintln!(
+                        "`{}` is not a number; type the reading in mm, or a to abort",
+                        line.trim()
+                    ),
                 }
             }
         })
@@ -80,7 +87,12 @@ pub async fn print_events(mut rx: broadcast::Receiver<CampaignEvent>, total: usi
                     bar.println(format!("campaign {text}"));
                 }
             }
-            Ok(CampaignEvent::Fault { device, kind, message, action }) => {
+            Ok(CampaignEvent::Fault {
+                device,
+                kind,
+                message,
+                action,
+            }) => {
                 bar.println(format!("{device} {kind}: {message} -> {action}"));
             }
             Ok(CampaignEvent::Drift { drift_mm, max_mm }) => {

@@ -99,10 +99,13 @@ pub async fn open_session(
     // simulated devices
     let sim = if cfg.any_simulated() {
         let table = cfg.sim.clone().unwrap_or_default();
-        let mut sc: SimWorldConfig = table.try_into().map_err(|e: toml::de::Error| SessionError::Sim {
-            path: cfg.path.display().to_string(),
-            message: e.to_string().trim_end().replace('\n', " "),
-        })?;
+        let mut sc: SimWorldConfig =
+            table
+                .try_into()
+                .map_err(|e: toml::de::Error| SessionError::Sim {
+                    path: cfg.path.display().to_string(),
+                    message: e.to_string().trim_end().replace('\n', " "),
+                })?;
         if !matches!(sc.errors.as_str(), "paper" | "random" | "none" | "") {
             let dir = cfg.path.parent().unwrap_or(Path::new("."));
             sc.errors = dir.join(&sc.errors).to_string_lossy().into_owned();
@@ -218,8 +221,16 @@ pub async fn open_session(
             (id, fresh, false)
         }
     };
-    if plan.poses.iter().filter(|p| p.set == PoseSet::Ident).count() == 0 {
-        return Err(SessionError::Invalid(format!("campaign {campaign_id} has no identification poses")));
+    if plan
+        .poses
+        .iter()
+        .filter(|p| p.set == PoseSet::Ident)
+        .count()
+        == 0
+    {
+        return Err(SessionError::Invalid(format!(
+            "campaign {campaign_id} has no identification poses"
+        )));
     }
     Ok(Session {
         ctx: CampaignContext {

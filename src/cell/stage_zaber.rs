@@ -33,6 +33,8 @@ pub struct ZaberStageAdapterConfig {
     pub home_on_prepare: bool,
     /// Timeout of one reply (ms).
     pub reply_timeout_ms: u64,
+    /// Status poll period while a move runs (ms).
+    pub poll_interval_ms: u64,
     /// Timeout of a move (ms).
     pub move_timeout_ms: u64,
     /// Timeout of homing (ms).
@@ -54,6 +56,7 @@ impl Default for ZaberStageAdapterConfig {
             tolerance_mm: d.tolerance_mm,
             home_on_prepare: true,
             reply_timeout_ms: 500,
+            poll_interval_ms: 20,
             move_timeout_ms: 30_000,
             home_timeout_ms: 60_000,
             baud: d.baud,
@@ -72,6 +75,7 @@ impl ZaberStageAdapterConfig {
             max_mm: self.max_mm,
             tolerance_mm: self.tolerance_mm,
             reply_timeout: Duration::from_millis(self.reply_timeout_ms),
+            poll_interval: Duration::from_millis(self.poll_interval_ms.max(1)),
             move_timeout: Duration::from_millis(self.move_timeout_ms),
             home_timeout: Duration::from_millis(self.home_timeout_ms),
             baud: self.baud,

@@ -222,7 +222,7 @@ impl Default for CampaignSection {
             floor_z_mm: -300.0,
             line_of_sight_max_deg: 180.0,
             drift_every: 50,
-            drift_max_mm: 0.05,
+            drift_max_mm: 0.1,
             identify_base: true,
             identify_tool: false,
             tool_mm: [0.0, 0.0, 0.0],

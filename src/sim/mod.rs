@@ -164,6 +164,7 @@ impl RunningSimCell {
             tolerance_mm: 2.0 / self.config.stage_microsteps_per_mm,
             move_timeout_ms: move_ms,
             home_timeout_ms: move_ms,
+            poll_interval_ms: if self.config.realistic { 20 } else { 1 },
             ..ZaberStageAdapterConfig::default()
         })
     }

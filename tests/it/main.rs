@@ -1,5 +1,6 @@
 //! The one integration-test binary: modules per capability.
 
+mod campaign;
 mod cell_sim;
 mod cli;
 mod common;

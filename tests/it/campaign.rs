@@ -1,0 +1,296 @@
+//! The campaign end to end against the simulated cell over the real protocols: accuracy,
+//! faults with nothing lost or duplicated, the armed gate, crash-resume of the real binary,
+//! bad configuration.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use cellcal::analysis::evaluate;
+use cellcal::campaign::engine::identify_options;
+use cellcal::campaign::session::open_session;
+use cellcal::campaign::{run_campaign, CampaignCommand, Outcome};
+use cellcal::cell::ScriptedPrompter;
+use cellcal::config::parse_cell_config;
+use cellcal::dataset::{split, to_measured};
+use cellcal::sim::lock_world;
+use cellcal::store::Store;
+
+/// config/cell.sim.toml with fast motion and extra `[sim]` / `[campaign]` keys.
+fn config_text(sim_extra: &str, campaign_extra: &str, faults: &str) -> String {
+    let base =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/cell.sim.toml"))
+            .expect("cell.sim.toml");
+    let mut s = base
+        .replace(
+            "realistic = false\n",
+            &format!("realistic = false\nmove_speed_deg_s = 200000.0\nstage_speed_mm_s = 100000.0\n{sim_extra}\n"),
+        )
+        .replace("[campaign]\n", &format!("[campaign]\n{campaign_extra}\n"));
+    if !faults.is_empty() {
+        s = s.replace("beam_break_probability = 0.0", faults);
+    }
+    s
+}
+
+fn write_config(dir: &Path, text: &str) -> PathBuf {
+    let robots = dir.join("robots");
+    std::fs::create_dir_all(&robots).expect("mkdir");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/robots/staubli_tx60.toml"),
+        robots.join("staubli_tx60.toml"),
+    )
+    .expect("copy robot");
+    let p = dir.join("cell.toml");
+    std::fs::write(&p, text).expect("write config");
+    p
+}
+
+struct Finished {
+    report_after_mm: f64,
+    floor_mm: f64,
+    store: PathBuf,
+    id: i64,
+}
+
+async fn run_in_process(text: &str) -> Finished {
+    let dir = tempfile::tempdir().expect("tempdir").keep();
+    let cfg_path = write_config(&dir, text);
+    let cfg = parse_cell_config(text, &cfg_path).expect("config");
+    let store = dir.join("c.db");
+    let session = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
+        .await
+        .expect("session");
+    let ctx = session.ctx;
+    let mut devices = session.devices;
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = tokio::time::timeout(Duration::from_secs(120), run_campaign(&ctx, &mut devices))
+        .await
+        .expect("campaign finishes in time")
+        .expect("campaign runs");
+    let Outcome::Done(report) = outcome else {
+        panic!("campaign did not finish: {outcome:?}");
+    };
+    let sim = session.sim.expect("simulated cell");
+    let truth = lock_world(&sim.world).true_model().clone();
+    // the noise floor: the true robot against the stored verification measurements
+    let rows = ctx
+        .store
+        .lock()
+        .expect("store")
+        .observations(ctx.campaign_id)
+        .expect("rows");
+    let opts = identify_options(&ctx.cfg);
+    let (_, verify) = split(&rows);
+    let verify = to_measured(&verify, opts.obs.model, ctx.cfg.stage.travel_mm).expect("verify");
+    let floor_mm = evaluate(&truth, &verify, &opts.obs).position_mean_mm;
+    let after = report
+        .metrics
+        .verify
+        .as_ref()
+        .expect("verify metrics")
+        .after
+        .position_mean_mm;
+    sim.stop().await;
+    Finished {
+        report_after_mm: after,
+        floor_mm,
+        store,
+        id: ctx.campaign_id,
+    }
+}
+
+fn check_complete(store: &Path, id: i64, poses: usize) {
+    let s = Store::open(store).expect("store");
+    let done = s.done_poses(id).expect("done");
+    assert_eq!(done.len(), poses, "every pose measured once");
+    let unique: BTreeSet<usize> = done.iter().copied().collect();
+    assert_eq!(unique.len(), poses, "no duplicated pose");
+    let rows = s.observations(id).expect("rows");
+    assert_eq!(rows.len(), poses);
+    assert!(
+        s.latest_result(id).expect("result").is_some(),
+        "result stored"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn full_simulated_campaign_reaches_the_noise_floor() {
+    let f = run_in_process(&config_text("", "", "")).await;
+    assert!(
+        f.report_after_mm <= 1.10 * f.floor_mm,
+        "verification after {:.5} mm vs floor {:.5} mm",
+        f.report_after_mm,
+        f.floor_mm
+    );
+    check_complete(&f.store, f.id, 300);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn campaign_with_faults_loses_and_duplicates_nothing() {
+    let text = config_text("", "", "beam_break_probability = 0.05\nrelock_after_ms = 5")
+        .replace(
+            "disconnect_after_measurements = 0",
+            "disconnect_after_measurements = 400",
+        )
+        .replace("never_settle = 0 ", "never_settle = 1 ");
+    let f = run_in_process(&text).await;
+    assert!(
+        f.report_after_mm <= 1.10 * f.floor_mm,
+        "verification after {:.5} mm vs floor {:.5} mm",
+        f.report_after_mm,
+        f.floor_mm
+    );
+    check_complete(&f.store, f.id, 300);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nothing_moves_unless_armed_and_abort_is_accepted() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "");
+    let cfg_path = write_config(dir.path(), &text);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let session = open_session(
+        cfg,
+        &dir.path().join("c.db"),
+        None,
+        Arc::new(ScriptedPrompter::exact()),
+    )
+    .await
+    .expect("session");
+    let ctx = session.ctx;
+    let mut devices = session.devices;
+    let sim = session.sim.expect("sim");
+    let moves_before = lock_world(&sim.world).moves();
+    ctx.control.apply(&CampaignCommand::Start); // start without arming
+    let control = ctx.control.clone();
+    let world = sim.world.clone();
+    let watcher = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let moved = lock_world(&world).moves();
+        control.apply(&CampaignCommand::Abort);
+        moved
+    });
+    let outcome = tokio::time::timeout(Duration::from_secs(10), run_campaign(&ctx, &mut devices))
+        .await
+        .expect("abort ends the run")
+        .expect("runs");
+    let moved = watcher.await.expect("watcher");
+    assert_eq!(moved, moves_before, "the robot moved while not armed");
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    assert_eq!(
+        ctx.store
+            .lock()
+            .expect("store")
+            .done_poses(ctx.campaign_id)
+            .expect("done")
+            .len(),
+        0
+    );
+    sim.stop().await;
+}
+
+#[test]
+fn kill_9_at_random_moments_then_resume_loses_and_duplicates_nothing() {
+    use rand::{Rng, SeedableRng};
+    let dir = tempfile::tempdir().expect("tempdir");
+    // default (not accelerated) simulated timing: ~80 ms per pose, so kills land mid-campaign
+    let text = config_text("", "", "")
+        .replace(
+            "move_speed_deg_s = 200000.0\nstage_speed_mm_s = 100000.0\n",
+            "",
+        )
+        .replace("poses = 300", "poses = 120")
+        .replace("ident = 100", "ident = 40");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let bin = assert_cmd::cargo::cargo_bin("cellcal");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
+    let mut previous: BTreeSet<usize> = BTreeSet::new();
+    let mut kills = 0;
+    let mut created = false;
+    for round in 0..8 {
+        let mut cmd = std::process::Command::new(&bin);
+        cmd.args(["run", "--quiet", "--arm", "--config"])
+            .arg(&cfg)
+            .arg("--store")
+            .arg(&store);
+        if created {
+            cmd.args(["--campaign", "1"]);
+        }
+        let mut child = cmd
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("spawn cellcal run");
+        let wait_ms = rng.random_range(300..1500);
+        std::thread::sleep(Duration::from_millis(wait_ms));
+        if child.try_wait().expect("try_wait").is_none() && round < 4 {
+            child.kill().expect("kill -9"); // SIGKILL
+            kills += 1;
+        }
+        let status = child.wait().expect("wait");
+        assert!(status.code() != Some(2), "bad input in round {round}");
+        let s = Store::open(&store).expect("store");
+        created = s.latest_campaign().expect("latest").is_some();
+        if !created {
+            continue;
+        }
+        let done: BTreeSet<usize> = s.done_poses(1).expect("done").into_iter().collect();
+        assert!(
+            previous.is_subset(&done),
+            "acknowledged poses lost after a kill"
+        );
+        previous = done;
+        if status.success() {
+            break;
+        }
+        let _ = status;
+    }
+    assert!(
+        kills >= 2,
+        "the test must actually kill the binary ({kills})"
+    );
+    // finish if the rounds above did not
+    let out = std::process::Command::new(&bin)
+        .args(["run", "--quiet", "--arm", "--campaign", "1", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(&store)
+        .output()
+        .expect("final run");
+    let s = Store::open(&store).expect("store");
+    if s.latest_result(1).expect("result").is_none() {
+        panic!("final run failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    check_complete(&store, 1, 120);
+}
+
+#[test]
+fn bad_configuration_is_a_clear_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (text, want) in [
+        ("[campaign]\nposes = \"x\"\n", "poses"),
+        ("[campaign]\nmodel = \"xyz\"\n", "campaign.model"),
+        ("[stage]\naxis = \"+q\"\n", "stage.axis"),
+        ("[tracker]\nmeasure_ms = 0\n", "tracker.measure_ms"),
+        ("[trackr]\nmode = \"sim\"\n", "trackr"),
+    ] {
+        let p = dir.path().join("bad.toml");
+        std::fs::write(&p, text).expect("write");
+        let out = std::process::Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
+            .args(["run", "--config"])
+            .arg(&p)
+            .output()
+            .expect("runs");
+        assert_eq!(out.status.code(), Some(2), "{text}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("bad.toml") && err.contains(want),
+            "{text}: {err}"
+        );
+    }
+}
