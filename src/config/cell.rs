@@ -435,3 +435,23 @@ mod tests {
         assert!(e.contains("poses"), "{e}");
     }
 }
+
+#[cfg(test)]
+mod shipped_files {
+    use super::*;
+
+    #[test]
+    fn shipped_configurations_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+        for name in ["cell.sim.toml", "cell.example.toml"] {
+            let p = dir.join(name);
+            let c = load_cell_config(&p).unwrap_or_else(|e| panic!("{e}"));
+            assert!(c.robot.exists(), "{name}: robot file {}", c.robot.display());
+        }
+        let real = load_cell_config(&dir.join("cell.example.toml")).unwrap();
+        assert!(!real.any_simulated());
+        assert!(load_cell_config(&dir.join("cell.sim.toml"))
+            .unwrap()
+            .any_simulated());
+    }
+}
