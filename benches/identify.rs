@@ -60,6 +60,7 @@ fn bench_identify(c: &mut Criterion) {
                 identify_base: false,
                 identify_tool: false,
                 robust: None,
+                point_weights: None,
                 solver: Options::default(),
             };
             let meas = to_measured(&rows[..n], model, 10.0).expect("convert");

@@ -98,6 +98,10 @@ enum Command {
         /// Down-weight gross outliers (default loss: Huber).
         #[arg(long, num_args = 0..=1, default_missing_value = "huber", value_enum)]
         robust: Option<RobustArg>,
+        /// Weight each pose by the AT960 uncertainty model σ = (15 µm + 6 µm/m·range)/2, range
+        /// from the tracker at X,Y,Z (mm, measurement frame; 0,0,0 when the data is in the tracker frame).
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        tracker_weights: Option<Vector3<f64>>,
         /// Weight of direction rows (mm); default stage travel/√2.
         #[arg(long)]
         direction_weight_mm: Option<f64>,
@@ -294,6 +298,7 @@ fn main() -> ExitCode {
             identify_base,
             identify_tool,
             robust,
+            tracker_weights,
             direction_weight_mm,
             json,
         } => run_identify(
@@ -306,6 +311,7 @@ fn main() -> ExitCode {
             identify_base,
             identify_tool,
             robust,
+            tracker_weights,
             direction_weight_mm,
             json.as_deref(),
         ),
@@ -364,6 +370,7 @@ fn run_identify(
     identify_base: bool,
     identify_tool: bool,
     robust: Option<RobustArg>,
+    tracker_weights: Option<Vector3<f64>>,
     direction_weight_mm: Option<f64>,
     json: Option<&Path>,
 ) -> Result<(), Failure> {
@@ -410,6 +417,7 @@ fn run_identify(
             RobustArg::Huber => RobustLoss::Huber,
             RobustArg::Cauchy => RobustLoss::Cauchy,
         }),
+        point_weights: tracker_weights.map(TrackerNoise::at960),
         solver: Options::default(),
     };
     let (report, _) = calibrate(&robot_model, &rows, &opts, stage_travel_mm)

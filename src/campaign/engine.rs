@@ -497,6 +497,7 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
         identify_base: cfg.campaign.identify_base,
         identify_tool: cfg.campaign.identify_tool,
         robust: None,
+        point_weights: None,
         solver: Options::default(),
     }
 }

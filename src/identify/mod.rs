@@ -39,6 +39,9 @@ pub struct IdentifyOptions {
     pub identify_tool: bool,
     /// Robust loss for an iteratively reweighted refit, if any.
     pub robust: Option<RobustLoss>,
+    /// Per-point weights from the tracker's uncertainty model: each pose is weighted by
+    /// σ(1 m)/σ(range), range measured from this tracker (measurement frame). `None` = equal weights.
+    pub point_weights: Option<crate::simulate::TrackerNoise>,
     /// Solver options.
     pub solver: solver::Options,
 }
@@ -167,6 +170,21 @@ pub fn identify(
     poses: &[Measured],
     opts: &IdentifyOptions,
 ) -> Result<Identification, IdentifyError> {
+    let weighted: Vec<Measured>;
+    let poses = match &opts.point_weights {
+        None => poses,
+        Some(t) => {
+            let reference = (t.a_um + t.b_um_per_m) / 1000.0 / t.k;
+            weighted = poses
+                .iter()
+                .map(|m| Measured {
+                    weight: m.weight * reference / t.sigma_mm(&m.p1),
+                    ..m.clone()
+                })
+                .collect();
+            &weighted
+        }
+    };
     let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
     let rows = opts.obs.model.rows();
     // generic structure first: how many parameters can this model identify at all?

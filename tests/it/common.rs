@@ -32,6 +32,7 @@ pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
         identify_base: false,
         identify_tool: false,
         robust: None,
+        point_weights: None,
         solver: Options::default(),
     }
 }

@@ -95,3 +95,24 @@ fn full_model_reaches_floor() {
 fn op_with_minus_y_axis_as_in_the_paper() {
     run(ObsModel::Op, -Vector3::y());
 }
+
+#[test]
+fn tracker_uncertainty_weights_normalise_the_residuals() {
+    use cellcal::simulate::TrackerNoise;
+    let truth = paper_truth();
+    let data = sim(&truth, &SimConfig::default());
+    let mut opts = options(ObsModel::Op, Vector3::y());
+    let (ident, verify) = measured(&data.observations, &opts);
+    let plain = identify(&tx60(), &ident, &opts).expect("plain");
+    opts.point_weights = Some(TrackerNoise::at960(Vector3::new(2550.0, 0.0, 0.0)));
+    let weighted = identify(&tx60(), &ident, &opts).expect("weighted");
+    // weighted residuals are in units of σ at 1 m (10.5 µm); plain ones carry σ at 2–2.5 m
+    assert!(plain.sigma0_mm > 0.0128, "plain σ0 {}", plain.sigma0_mm);
+    assert!(
+        (0.0095..0.0125).contains(&weighted.sigma0_mm),
+        "weighted σ0 {}",
+        weighted.sigma0_mm
+    );
+    let after = evaluate(&weighted.corrected, &verify, &opts.obs).position_mean_mm;
+    assert!(after <= 1.06 * floor(&truth, &verify, &opts));
+}
