@@ -15,9 +15,10 @@
 
 use nalgebra::DMatrix;
 
-use super::observation::{residual_jacobian, Measured, ObsConfig};
+use super::observation::{Measured, ObsConfig};
 use super::params::ParamId;
-use super::problem::split_map;
+use super::problem::CalibProblem;
+use super::solver::Problem;
 use crate::model::{ParamKind, RobotModel};
 
 /// Scale of direction rows and angle columns for the rank test (mm).
@@ -43,14 +44,31 @@ pub struct Identifiability {
     pub identified: Vec<ParamId>,
     /// Dropped parameters with reasons, in candidate order.
     pub dropped: Vec<Dropped>,
-    /// Singular values of the scaled Jacobian restricted to the identified set (descending).
-    pub singular_values: Vec<f64>,
+    /// Gram matrix `JᵀJ` of the scaled Jacobian restricted to the identified set.
+    pub gram: DMatrix<f64>,
 }
 
 impl Identifiability {
+    /// Singular values of the scaled identified Jacobian (descending; computed on demand).
+    pub fn singular_values(&self) -> Vec<f64> {
+        if self.gram.is_empty() {
+            return Vec::new();
+        }
+        let mut s: Vec<f64> = self
+            .gram
+            .clone()
+            .symmetric_eigenvalues()
+            .iter()
+            .map(|e| e.max(0.0).sqrt())
+            .collect();
+        s.sort_by(|x, y| y.total_cmp(x));
+        s
+    }
+
     /// Condition number of the scaled identified Jacobian.
     pub fn condition_number(&self) -> f64 {
-        match (self.singular_values.first(), self.singular_values.last()) {
+        let s = self.singular_values();
+        match (s.first(), s.last()) {
             (Some(a), Some(b)) if *b > 0.0 => a / b,
             _ => f64::INFINITY,
         }
@@ -116,7 +134,6 @@ pub fn scaled_gram(
     params: &[ParamId],
 ) -> DMatrix<f64> {
     let k = params.len();
-    let rows = cfg.model.rows();
     let mut scfg = *cfg;
     scfg.direction_weight_mm = RANK_SCALE_MM;
     let colscale: Vec<f64> = params
@@ -129,43 +146,9 @@ pub fn scaled_gram(
             }
         })
         .collect();
-    let parts = split_map(poses, |chunk| {
-        let mut res = vec![0.0; rows];
-        let mut jac = vec![0.0; rows * k];
-        let mut g = vec![0.0; k * k];
-        // pose weights only scale rows: they change no rank; zero-weight poses are left out
-        for pose in chunk.iter().filter(|p| p.weight != 0.0) {
-            residual_jacobian(model, pose, &scfg, params, &mut res, &mut jac);
-            for r in 0..rows {
-                let row = &mut jac[r * k..(r + 1) * k];
-                row.iter_mut().zip(&colscale).for_each(|(x, s)| *x *= s);
-                for a in 0..k {
-                    let ja = row[a];
-                    if ja == 0.0 {
-                        continue;
-                    }
-                    for b in a..k {
-                        g[a * k + b] += ja * row[b];
-                    }
-                }
-            }
-        }
-        g
-    });
-    let mut g = DMatrix::<f64>::zeros(k, k);
-    for part in parts {
-        for a in 0..k {
-            for b in a..k {
-                g[(a, b)] += part[a * k + b];
-            }
-        }
-    }
-    for a in 0..k {
-        for b in 0..a {
-            g[(a, b)] = g[(b, a)];
-        }
-    }
-    g
+    // pose weights only scale rows: they change no rank (zero-weight poses are left out)
+    let (_, _, g) = CalibProblem::new(poses, &scfg, params).linearize(model);
+    DMatrix::from_fn(k, k, |a, b| g[(a, b)] * colscale[a] * colscale[b])
 }
 
 /// Analyse which of `candidates` the poses can identify.
@@ -255,18 +238,9 @@ pub fn analyze(
     dropped.sort_by_key(|d| candidates.iter().position(|p| *p == d.param));
     // singular values of the scaled (not normalised) identified Jacobian
     let gs = DMatrix::from_fn(kept.len(), kept.len(), |i, j| g[(kept[i], kept[j])]);
-    let mut singular_values: Vec<f64> = if kept.is_empty() {
-        Vec::new()
-    } else {
-        gs.symmetric_eigenvalues()
-            .iter()
-            .map(|e| e.max(0.0).sqrt())
-            .collect()
-    };
-    singular_values.sort_by(|x, y| y.total_cmp(x));
     Identifiability {
         identified,
         dropped,
-        singular_values,
+        gram: gs,
     }
 }

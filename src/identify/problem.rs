@@ -65,41 +65,37 @@ impl CalibProblem<'_> {
     fn accumulate(&self, state: &RobotModel, chunk: &[Measured]) -> (f64, Vec<f64>, Vec<f64>) {
         let k = self.params.len();
         let rows = self.cfg.model.rows();
-        let mut res = vec![0.0; rows];
-        let mut jac = vec![0.0; rows * k];
+        // Each pose writes its row-major Jacobian block (rows × k) straight into `buf`; read as
+        // a column-major matrix, `buf` is Jᵀ (k × block rows), so no reshuffling is needed.
         let cap = BLOCK_POSES * rows;
-        let mut jb = DMatrix::<f64>::zeros(cap, k);
-        let mut rb = DVector::<f64>::zeros(cap);
+        let mut buf = vec![0.0; cap * k];
+        let mut rb = vec![0.0; cap];
         let mut h = DMatrix::<f64>::zeros(k, k);
         let mut g = DVector::<f64>::zeros(k);
         let mut cost = 0.0;
         let mut filled = 0;
-        let flush = |jb: &DMatrix<f64>,
-                     rb: &DVector<f64>,
-                     n: usize,
-                     h: &mut DMatrix<f64>,
-                     g: &mut DVector<f64>| {
-            let jv = jb.rows(0, n);
-            h.gemm_tr(1.0, &jv, &jv, 1.0);
-            g.gemv_tr(1.0, &jv, &rb.rows(0, n), 1.0);
-        };
+        let flush =
+            |buf: &[f64], rb: &[f64], n: usize, h: &mut DMatrix<f64>, g: &mut DVector<f64>| {
+                let jt = nalgebra::DMatrixView::from_slice(&buf[..n * k], k, n);
+                let r = nalgebra::DVectorView::from_slice(&rb[..n], n);
+                h.gemm(1.0, &jt, &jt.transpose(), 1.0);
+                g.gemv(1.0, &jt, &r, 1.0);
+            };
         for p in chunk.iter().filter(|p| p.weight != 0.0) {
-            residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut jac);
-            for r in 0..rows {
-                rb[filled + r] = res[r];
-                cost += res[r] * res[r];
-                for c in 0..k {
-                    jb[(filled + r, c)] = jac[r * k + c];
-                }
-            }
+            let (res, jac) = (
+                &mut rb[filled..filled + rows],
+                &mut buf[filled * k..(filled + rows) * k],
+            );
+            residual_jacobian(state, p, self.cfg, self.params, res, jac);
+            cost += res.iter().map(|r| r * r).sum::<f64>();
             filled += rows;
             if filled == cap {
-                flush(&jb, &rb, filled, &mut h, &mut g);
+                flush(&buf, &rb, filled, &mut h, &mut g);
                 filled = 0;
             }
         }
         if filled > 0 {
-            flush(&jb, &rb, filled, &mut h, &mut g);
+            flush(&buf, &rb, filled, &mut h, &mut g);
         }
         let h_rows: Vec<f64> = (0..k * k).map(|i| h[(i / k, i % k)]).collect();
         (cost, g.as_slice().to_vec(), h_rows)

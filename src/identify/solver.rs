@@ -111,7 +111,7 @@ pub fn solve<P: Problem>(problem: &P, x0: P::State, opts: &Options) -> Solution<
     let initial_cost = cost;
     let mut evaluations = 1;
     let mut diag: Vec<f64> = (0..n).map(|i| h[(i, i)].sqrt().max(1e-300)).collect();
-    let mut lambda = 1e-3;
+    let mut lambda = 1e-6;
     let mut nu = 2.0;
     let mut iterations = 0;
     let termination = loop {
