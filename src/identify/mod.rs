@@ -140,6 +140,52 @@ pub fn generic_poses(model: &RobotModel, n: usize) -> Vec<Vec<f64>> {
     out
 }
 
+/// Key of the structural analysis: every input bit that can change its result.
+fn structural_key(nominal: &RobotModel, obs: &ObsConfig, candidates: &[ParamId]) -> Vec<u64> {
+    let mut k: Vec<u64> = Vec::with_capacity(8 * nominal.dof() + 32);
+    for (j, l) in nominal.joints.iter().zip(&nominal.limits) {
+        k.extend([j.theta, j.d, j.a, j.alpha, j.beta, l.min, l.max].map(f64::to_bits));
+    }
+    k.extend(nominal.base_rotation.iter().map(|v| v.to_bits()));
+    k.extend(nominal.base_translation.iter().map(|v| v.to_bits()));
+    k.extend(nominal.tool.iter().map(|v| v.to_bits()));
+    k.extend(obs.stage_axis.iter().map(|v| v.to_bits()));
+    k.push(obs.model.rows() as u64 * 10 + u64::from(obs.model == ObsModel::Op));
+    k.push(candidates.len() as u64);
+    k
+}
+
+/// The parameters identifiable in general (on 32 generic poses) for this model and
+/// observation. Memoised per process: the result depends only on the key's inputs, so the
+/// cache changes no output, it only spares a repeated service call ~0.2 ms.
+fn structural_set(
+    nominal: &RobotModel,
+    obs: &ObsConfig,
+    candidates: &[ParamId],
+) -> Identifiability {
+    use std::sync::{Mutex, OnceLock};
+    static CACHE: OnceLock<Mutex<Vec<(Vec<u64>, Identifiability)>>> = OnceLock::new();
+    let key = structural_key(nominal, obs, candidates);
+    let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+    if let Ok(c) = cache.lock() {
+        if let Some((_, v)) = c.iter().find(|(k, _)| *k == key) {
+            return v.clone();
+        }
+    }
+    let generic: Vec<Measured> = generic_poses(nominal, 32)
+        .into_iter()
+        .map(Measured::joints_only)
+        .collect();
+    let result = identifiability::analyze(nominal, &generic, obs, candidates);
+    if let Ok(mut c) = cache.lock() {
+        if c.len() >= 32 {
+            c.remove(0);
+        }
+        c.push((key, result.clone()));
+    }
+    result
+}
+
 /// Starting model: the given one, with the base from a rigid registration when identified.
 pub fn initial_model(
     nominal: &RobotModel,
@@ -188,11 +234,7 @@ pub fn identify(
     let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
     let rows = opts.obs.model.rows();
     // generic structure first: how many parameters can this model identify at all?
-    let generic: Vec<Measured> = generic_poses(nominal, 32)
-        .into_iter()
-        .map(Measured::joints_only)
-        .collect();
-    let structural = identifiability::analyze(nominal, &generic, &opts.obs, &candidates);
+    let structural = structural_set(nominal, &opts.obs, &candidates);
     let k = structural.identified.len();
     let needed = k.div_ceil(rows) + 1;
     if poses.len() < needed.max(3) {
