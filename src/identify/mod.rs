@@ -164,7 +164,8 @@ fn structural_set(
     candidates: &[ParamId],
 ) -> Identifiability {
     use std::sync::{Mutex, OnceLock};
-    static CACHE: OnceLock<Mutex<Vec<(Vec<u64>, Identifiability)>>> = OnceLock::new();
+    type Memo = Mutex<Vec<(Vec<u64>, Identifiability)>>;
+    static CACHE: OnceLock<Memo> = OnceLock::new();
     let key = structural_key(nominal, obs, candidates);
     let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
     if let Ok(c) = cache.lock() {
