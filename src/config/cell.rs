@@ -7,36 +7,8 @@ use serde::Deserialize;
 
 use crate::identify::ObsModel;
 
-/// Why a configuration could not be loaded.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    /// The file could not be read.
-    #[error("{path}: cannot read: {source}")]
-    Read {
-        /// File path.
-        path: PathBuf,
-        /// I/O error.
-        source: std::io::Error,
-    },
-    /// Syntax or schema error (unknown key, wrong type, missing key).
-    #[error("{path}: {message}")]
-    Parse {
-        /// File path.
-        path: PathBuf,
-        /// Parser message naming the key and line.
-        message: String,
-    },
-    /// A value is out of range or inconsistent.
-    #[error("{path}: key `{key}`: {message}")]
-    Invalid {
-        /// File path.
-        path: PathBuf,
-        /// Dotted key.
-        key: String,
-        /// What is wrong.
-        message: String,
-    },
-}
+/// Why a configuration could not be loaded (names the file and the key).
+pub type ConfigError = crate::model::file::FileError;
 
 /// Simulated device (started in-process from `[sim]`) or real device at an address.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

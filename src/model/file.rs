@@ -24,9 +24,10 @@ use serde::Deserialize;
 use super::chain::{JointLimit, Mdh, RobotModel};
 use super::rotation::from_rotation_vector;
 
-/// Why a robot model file could not be loaded; always names the file and, where known, the key.
+/// Why a TOML file (robot model, cell configuration) could not be loaded; always names the
+/// file and, where known, the key.
 #[derive(Debug, thiserror::Error)]
-pub enum RobotFileError {
+pub enum FileError {
     /// The file could not be read.
     #[error("{path}: cannot read: {source}")]
     Read {
@@ -90,6 +91,9 @@ struct BaseEntry {
 struct ToolEntry {
     translation_mm: [f64; 3],
 }
+
+/// Why a robot model file could not be loaded.
+pub type RobotFileError = FileError;
 
 /// Load a robot model file.
 pub fn load_robot(path: &Path) -> Result<RobotModel, RobotFileError> {

@@ -8,5 +8,5 @@ pub mod kinematics;
 pub mod rotation;
 
 pub use chain::{JointLimit, Mdh, ParamKind, RobotModel};
-pub use file::{load_robot, parse_robot, RobotFileError};
+pub use file::{load_robot, parse_robot, FileError, RobotFileError};
 pub use kinematics::{forward, Frames, Pose};
