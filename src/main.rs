@@ -1,5 +1,6 @@
 //! `cellcal` command line: thin clap layer over the library. Exit code 2 = bad input.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -11,6 +12,7 @@ mod run_cmd;
 mod terminal;
 
 use cellcal::analysis::significance;
+use cellcal::campaign::FaultPolicy;
 use cellcal::dataset::{parse_csv, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
@@ -152,6 +154,10 @@ enum Command {
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
+        /// What a fault that needs the operator does: `pause` (ask at the terminal: resume or
+        /// abort) or `fail` (stop, resumable). Default: `pause` when stdin is a terminal.
+        #[arg(long, value_parser = ["pause", "fail"])]
+        on_fault: Option<String>,
     },
     /// Write a stored campaign's measurements as an identify CSV.
     Export {
@@ -330,6 +336,7 @@ fn main() -> ExitCode {
             store,
             campaign,
             quiet,
+            on_fault,
         } => run_cmd::run(run_cmd::RunOptions {
             config,
             arm,
@@ -337,6 +344,12 @@ fn main() -> ExitCode {
             store,
             campaign,
             quiet,
+            on_fault: match on_fault.as_deref() {
+                Some("pause") => FaultPolicy::Pause,
+                Some(_) => FaultPolicy::Fail,
+                None if std::io::stdin().is_terminal() => FaultPolicy::Pause,
+                None => FaultPolicy::Fail,
+            },
         }),
         Command::Export {
             store,

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use anyhow::{anyhow, Context};
 
 use cellcal::campaign::session::open_session;
-use cellcal::campaign::{run_campaign, CampaignCommand, Outcome};
+use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
 use cellcal::dataset::{parse_csv, write_csv, Required};
@@ -15,7 +15,7 @@ use cellcal::model::load_robot;
 use cellcal::report::summary_text;
 use cellcal::store::{NewCampaign, Store};
 
-use crate::terminal::{print_events, TerminalPrompter};
+use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
 
 /// Options of `cellcal run`.
@@ -32,6 +32,8 @@ pub struct RunOptions {
     pub campaign: Option<i64>,
     /// No progress bar.
     pub quiet: bool,
+    /// What an operator fault does (pause and ask at the terminal, or stop resumable).
+    pub on_fault: FaultPolicy,
 }
 
 /// Run a campaign headless (or with terminal prompts for a manual stage).
@@ -48,7 +50,8 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         let session = open_session(cfg, &store_path, opts.campaign, prompter)
             .await
             .map_err(input)?;
-        let ctx = session.ctx;
+        let mut ctx = session.ctx;
+        ctx.on_fault = opts.on_fault;
         let mut devices = session.devices;
         let id = ctx.campaign_id;
         let total = ctx.plan.poses.len();
@@ -76,7 +79,22 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         let control = ctx.control.clone();
         control.apply(&CampaignCommand::Arm);
         control.apply(&CampaignCommand::Start);
-        let printer = tokio::spawn(print_events(control.events.subscribe(), total, opts.quiet));
+        let manual = devices.stage.is_manual();
+        let display = if opts.quiet {
+            Display::Quiet
+        } else if manual {
+            Display::Lines { every: 1 }
+        } else if opts.on_fault == FaultPolicy::Pause {
+            Display::Lines {
+                every: (total / 10).max(1),
+            }
+        } else {
+            Display::Bar
+        };
+        let printer = tokio::spawn(print_events(control.events.subscribe(), total, display));
+        if opts.on_fault == FaultPolicy::Pause {
+            tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
+        }
         let abort = control.clone();
         tokio::spawn(async move {
             if tokio::signal::ctrl_c().await.is_ok() {

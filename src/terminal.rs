@@ -7,7 +7,7 @@ use async_trait::async_trait;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::broadcast;
 
-use cellcal::campaign::{CampaignEvent, CampaignState};
+use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control};
 use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter};
 
 /// Asks the technician on the terminal; `a` (or end of input) aborts.
@@ -61,20 +61,85 @@ impl Prompter for TerminalPrompter {
     }
 }
 
-/// Print campaign events with a progress bar until the channel closes.
-pub async fn print_events(mut rx: broadcast::Receiver<CampaignEvent>, total: usize, quiet: bool) {
-    let bar = if quiet {
-        ProgressBar::hidden()
-    } else {
+/// The operator at the terminal: when the campaign pauses for a fault, show why and wait for
+/// Enter (resume) or `a` (abort).
+pub async fn ask_on_pause(mut rx: broadcast::Receiver<CampaignEvent>, control: Control) {
+    loop {
+        let reason = match rx.recv().await {
+            Ok(CampaignEvent::State {
+                state: CampaignState::Paused { reason },
+            }) => reason,
+            Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
+            Err(broadcast::error::RecvError::Closed) => return,
+        };
+        let answer = tokio::task::spawn_blocking(move || {
+            eprint!("\nCampaign paused: {reason}\nFix the cause, then press Enter to resume, or type a to abort: ");
+            let _ = std::io::stderr().flush();
+            let mut line = String::new();
+            match std::io::stdin().lock().read_line(&mut line) {
+                Ok(0) | Err(_) => Answer::Abort,
+                Ok(_) => parse_answer(&line).unwrap_or(Answer::Confirmed),
+            }
+        })
+        .await
+        .unwrap_or(Answer::Abort);
+        control.apply(&match answer {
+            Answer::Abort => CampaignCommand::Abort,
+            _ => CampaignCommand::Resume,
+        });
+    }
+}
+
+/// How progress is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Display {
+    /// A progress bar (nobody is asked anything at this terminal).
+    Bar,
+    /// Plain lines, one per `every` poses, so that questions at the terminal are never
+    /// overdrawn by a bar.
+    Lines {
+        /// Print a progress line every this many poses.
+        every: usize,
+    },
+    /// Nothing but faults and the end state.
+    Quiet,
+}
+
+/// Print campaign events until the channel closes.
+pub async fn print_events(
+    mut rx: broadcast::Receiver<CampaignEvent>,
+    total: usize,
+    display: Display,
+) {
+    let bar = if display == Display::Bar {
         ProgressBar::new(total as u64)
+    } else {
+        ProgressBar::hidden()
     };
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    // a line for plain displays (a hidden bar swallows `println`)
+    let line = |text: String| {
+        if display == Display::Bar {
+            bar.println(text);
+        } else {
+            eprintln!("{text}");
+        }
+    };
     loop {
         match rx.recv().await {
-            Ok(CampaignEvent::Measured { done, .. }) => bar.set_position(done as u64),
+            Ok(CampaignEvent::Measured {
+                pose, done, total, ..
+            }) => {
+                bar.set_position(done as u64);
+                if let Display::Lines { every } = display {
+                    if done % every.max(1) == 0 || done == total {
+                        eprintln!("[{done}/{total}] pose {pose} measured");
+                    }
+                }
+            }
             Ok(CampaignEvent::State { state }) => {
                 let text = match &state {
                     CampaignState::Paused { reason } | CampaignState::Failed { reason } => {
@@ -84,7 +149,7 @@ pub async fn print_events(mut rx: broadcast::Receiver<CampaignEvent>, total: usi
                 };
                 bar.set_message(text.clone());
                 if matches!(state, CampaignState::Failed { .. } | CampaignState::Aborted) {
-                    bar.println(format!("campaign {text}"));
+                    line(format!("campaign {text}"));
                 }
             }
             Ok(CampaignEvent::Fault {
@@ -92,13 +157,15 @@ pub async fn print_events(mut rx: broadcast::Receiver<CampaignEvent>, total: usi
                 kind,
                 message,
                 action,
-            }) => {
-                bar.println(format!("{device} {kind}: {message} -> {action}"));
-            }
+            }) => line(format!("{device} {kind}: {message} -> {action}")),
             Ok(CampaignEvent::Drift { drift_mm, max_mm }) => {
-                bar.set_message(format!("drift {:.4} mm (max {max_mm})", drift_mm));
+                let text = format!("drift {drift_mm:.4} mm (max {max_mm})");
+                if matches!(display, Display::Lines { .. }) {
+                    eprintln!("{text}");
+                }
+                bar.set_message(text);
             }
-            Ok(CampaignEvent::Note { text }) => bar.println(text),
+            Ok(CampaignEvent::Note { text }) => line(text),
             Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
             Err(broadcast::error::RecvError::Lagged(_)) => {}
             Err(broadcast::error::RecvError::Closed) => break,

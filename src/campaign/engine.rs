@@ -2,10 +2,15 @@
 //!
 //! Fault policy: a beam break discards the point in progress, re-locks and measures again (a
 //! point is never averaged across a break); a point above the quality gate is stored as
-//! `discarded` and measured again; a disconnect or timeout reconnects and retries; after
-//! `max_attempts` the campaign stops in `failed` (resumable) and says why. An emergency stop or a
-//! rejected move stops at once. Abort cancels every wait, stops the robot and leaves the
-//! campaign resumable at the first unmeasured pose.
+//! `discarded` and measured again; a disconnect or timeout reconnects and retries. A device that
+//! keeps failing (after `max_attempts`), a device error, an emergency stop or a drift above the
+//! threshold is an *operator fault*: with [`FaultPolicy::Pause`] the campaign pauses with the
+//! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
+//! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
+//! in `failed`, resumable. A safety refusal (not armed, target outside the limits or the
+//! workspace) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
+//! campaign resumable at the first unmeasured pose. Every state change, fault, drift check and
+//! note is journalled in the store's `events` table.
 
 use std::future::Future;
 use std::sync::{Arc, Mutex};
@@ -19,9 +24,9 @@ use crate::config::CellConfig;
 use crate::identify::solver::Options;
 use crate::identify::{IdentifyOptions, ObsConfig};
 use crate::model::RobotModel;
-use crate::plan::{target_ok, Plan, PlanRequest};
+use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
-use crate::store::{PointKind, PointRecord, PoseMeasurement, Store, StoreError};
+use crate::store::{EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
 
 /// The three devices of the cell.
 pub struct Devices {
@@ -31,6 +36,16 @@ pub struct Devices {
     pub robot: Box<dyn Robot>,
     /// Stage.
     pub stage: Box<dyn Stage>,
+}
+
+/// What the engine does when a fault needs the operator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FaultPolicy {
+    /// Pause with the reason; `Resume` retries the step, `Abort` ends the run (daemon, terminal).
+    #[default]
+    Pause,
+    /// Stop in `failed` (resumable): for runs with nobody to answer.
+    Fail,
 }
 
 /// Everything a campaign run needs besides the devices.
@@ -49,6 +64,8 @@ pub struct CampaignContext {
     pub campaign_id: i64,
     /// Commands and events.
     pub control: Control,
+    /// What an operator fault does.
+    pub on_fault: FaultPolicy,
 }
 
 /// How a run ended.
@@ -77,8 +94,12 @@ pub enum CampaignError {
 }
 
 enum Stop {
+    /// The operator aborted.
     Aborted,
+    /// A safety refusal: never retried.
     Failed(String),
+    /// A fault the operator can fix (pause and retry, or fail, per [`FaultPolicy`]).
+    Fault(String),
     Store(CampaignError),
 }
 
@@ -124,6 +145,23 @@ async fn guarded<T>(
 struct Run<'a> {
     ctx: &'a CampaignContext,
     dev: &'a mut Devices,
+    /// The stage reading after its last successful move (mm); `None` once anything may have
+    /// moved it (a fault, a pause, a new preparation).
+    stage_mm: Option<f64>,
+}
+
+/// Retry a step after the operator fixed a fault: `Stop::Fault` pauses (or fails, per the
+/// policy) and runs the step again on resume; every other outcome passes through.
+macro_rules! with_operator {
+    ($run:expr, $step:expr) => {
+        loop {
+            match $step {
+                Ok(v) => break v,
+                Err(Stop::Fault(reason)) => $run.operator_pause(reason).await?,
+                Err(e) => return Err(e),
+            }
+        }
+    };
 }
 
 impl Run<'_> {
@@ -146,12 +184,36 @@ impl Run<'_> {
         .map_err(|e| CampaignError::Task(e.to_string()))?
     }
 
+    /// Journal an event in the store, then emit it.
+    async fn journal(&self, e: CampaignEvent) -> Result<(), CampaignError> {
+        let rec = EventRecord {
+            at_ms: ms(SystemTime::now()),
+            kind: e.kind().to_owned(),
+            message: serde_json::to_string(&e).map_err(|x| CampaignError::Task(x.to_string()))?,
+        };
+        let id = self.ctx.campaign_id;
+        self.store(move |s| s.add_event(id, &rec)).await?;
+        self.ctl().emit(e);
+        Ok(())
+    }
+
+    /// Journal and emit a device fault and the action taken.
+    async fn fault(
+        &self,
+        device: DeviceKind,
+        kind: FaultKind,
+        message: &str,
+        action: &str,
+    ) -> Result<(), CampaignError> {
+        self.journal(CampaignEvent::fault(device, kind, message, action))
+            .await
+    }
+
     async fn set_state(&self, state: CampaignState) -> Result<(), CampaignError> {
         let id = self.ctx.campaign_id;
         let name = state.name();
         self.store(move |s| s.set_state(id, name)).await?;
-        self.ctl().emit(CampaignEvent::State { state });
-        Ok(())
+        self.journal(CampaignEvent::State { state }).await
     }
 
     /// Recover from a transient fault; returns the action taken.
@@ -162,37 +224,20 @@ impl Run<'_> {
             (_, FaultKind::NotReady) => "wait",
             _ => "pause",
         };
-        self.ctl().fault(e.device, e.kind, &e.message, action);
+        self.fault(e.device, e.kind, &e.message, action).await?;
+        let abort = &self.ctx.control.abort;
         let r = match (action, e.device) {
-            ("relock", _) => {
-                let t = &mut self.dev.tracker;
-                self.ctx.control.abort.run_until_cancelled(t.relock()).await
-            }
+            ("relock", _) => abort.run_until_cancelled(self.dev.tracker.relock()).await,
             ("reconnect", DeviceKind::Tracker) => {
-                let t = &mut self.dev.tracker;
-                self.ctx
-                    .control
-                    .abort
-                    .run_until_cancelled(t.reconnect())
+                abort
+                    .run_until_cancelled(self.dev.tracker.reconnect())
                     .await
             }
             ("reconnect", DeviceKind::Robot) => {
                 let r = &mut self.dev.robot;
                 let speed = self.ctx.cfg.robot_controller.speed_pct;
-                match self
-                    .ctx
-                    .control
-                    .abort
-                    .run_until_cancelled(r.reconnect())
-                    .await
-                {
-                    Some(Ok(())) => {
-                        self.ctx
-                            .control
-                            .abort
-                            .run_until_cancelled(r.prepare(speed))
-                            .await
-                    }
+                match abort.run_until_cancelled(r.reconnect()).await {
+                    Some(Ok(())) => abort.run_until_cancelled(r.prepare(speed)).await,
                     other => other,
                 }
             }
@@ -200,13 +245,13 @@ impl Run<'_> {
                 tokio::time::sleep(Duration::from_millis(200)).await;
                 Some(Ok(()))
             }
-            _ => return Err(Stop::Failed(e.to_string())),
+            _ => return Err(Stop::Fault(e.to_string())),
         };
         match r {
             None => Err(Stop::Aborted),
             // a failed recovery counts as another attempt; the caller's loop decides
             Some(Err(re)) => {
-                self.ctl().fault(re.device, re.kind, &re.message, "retry");
+                self.fault(re.device, re.kind, &re.message, "retry").await?;
                 Ok(action)
             }
             Some(Ok(())) => Ok(action),
@@ -233,21 +278,14 @@ impl Run<'_> {
             };
             match r {
                 Ok(p) if p.std_total_mm.is_finite() && p.std_total_mm > gate => {
-                    let id = self.ctx.campaign_id;
-                    let rec = record(&p, stage_mm);
-                    let q = joints.to_vec();
                     let note = format!(
                         "std_total {:.4} mm above the gate {gate} mm",
                         p.std_total_mm
                     );
                     last = note.clone();
-                    self.ctl()
-                        .fault(DeviceKind::Tracker, FaultKind::Device, &note, "retry");
-                    self.store(move |s| {
-                        s.add_point(id, PointKind::Discarded, pose, Some(&q), &rec, &note)
-                            .map(|_| ())
-                    })
-                    .await?;
+                    self.fault(DeviceKind::Tracker, FaultKind::Device, &note, "retry")
+                        .await?;
+                    self.discard(pose, joints, &p, stage_mm, note).await?;
                 }
                 Ok(p) => return Ok(p),
                 Err(e) if e.is_transient() => {
@@ -255,14 +293,33 @@ impl Run<'_> {
                     self.recover(&e).await?;
                 }
                 Err(e) => {
-                    self.ctl().fault(e.device, e.kind, &e.message, "pause");
-                    return Err(Stop::Failed(e.to_string()));
+                    self.fault(e.device, e.kind, &e.message, "pause").await?;
+                    return Err(Stop::Fault(e.to_string()));
                 }
             }
         }
-        Err(Stop::Failed(format!(
+        Err(Stop::Fault(format!(
             "tracker: no acceptable point after {max} attempts ({last})"
         )))
+    }
+
+    /// Keep a point that was taken but is not used, with the reason.
+    async fn discard(
+        &self,
+        pose: Option<usize>,
+        joints: &[f64],
+        p: &TrackerPoint,
+        stage_mm: f64,
+        note: String,
+    ) -> Result<(), CampaignError> {
+        let id = self.ctx.campaign_id;
+        let rec = record(p, stage_mm);
+        let q = joints.to_vec();
+        self.store(move |s| {
+            s.add_point(id, PointKind::Discarded, pose, Some(&q), &rec, &note)
+                .map(|_| ())
+        })
+        .await
     }
 
     /// Move to a joint target after the safety checks; returns the joints read after settling.
@@ -296,36 +353,44 @@ impl Run<'_> {
                     self.recover(&e).await?;
                 }
                 Err(e) => {
-                    self.ctl().fault(e.device, e.kind, &e.message, "pause");
+                    self.fault(e.device, e.kind, &e.message, "pause").await?;
                     let _ =
                         tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
-                    return Err(Stop::Failed(e.to_string()));
+                    return Err(Stop::Fault(e.to_string()));
                 }
             }
         }
-        Err(Stop::Failed(format!(
+        Err(Stop::Fault(format!(
             "robot: move failed after {max} attempts ({last})"
         )))
     }
 
+    /// Put the stage at `mm` (skipped when its last move already put it there, so a technician
+    /// is not asked twice); returns the reading.
     async fn stage_to(&mut self, mm: f64) -> Result<f64, Stop> {
+        let tol = self.ctx.cfg.stage.tolerance_mm;
+        if let Some(at) = self.stage_mm.filter(|at| (at - mm).abs() <= tol) {
+            return Ok(at);
+        }
+        self.stage_mm = None;
         let r = {
             let stage = &mut self.dev.stage;
             guarded(&self.ctx.control.abort, stage.move_to(mm)).await?
         };
-        r.map_err(|e| {
-            let action = if e.kind == FaultKind::Aborted {
-                "abort"
-            } else {
-                "pause"
-            };
-            self.ctl().fault(e.device, e.kind, &e.message, action);
-            if e.kind == FaultKind::Aborted {
-                Stop::Aborted
-            } else {
-                Stop::Failed(e.to_string())
+        match r {
+            Ok(v) => {
+                self.stage_mm = Some(v);
+                Ok(v)
             }
-        })
+            Err(e) if e.kind == FaultKind::Aborted => {
+                self.fault(e.device, e.kind, &e.message, "abort").await?;
+                Err(Stop::Aborted)
+            }
+            Err(e) => {
+                self.fault(e.device, e.kind, &e.message, "pause").await?;
+                Err(Stop::Fault(e.to_string()))
+            }
+        }
     }
 
     /// Measure the drift reference; returns the point.
@@ -356,13 +421,14 @@ impl Run<'_> {
         let p = self.drift_point().await?;
         let drift = (p - baseline).norm();
         let max = self.ctx.cfg.campaign.drift_max_mm;
-        self.ctl().emit(CampaignEvent::Drift {
+        self.journal(CampaignEvent::Drift {
             drift_mm: drift,
             max_mm: max,
-        });
+        })
+        .await?;
         if drift > max {
-            return Err(Stop::Failed(format!(
-                "drift {drift:.4} mm at the reference pose exceeds {max} mm: check the tracker and the mounting, then resume"
+            return Err(Stop::Fault(format!(
+                "drift {drift:.4} mm at the reference pose exceeds {max} mm: check the tracker and the mounting; resuming measures the reference again"
             )));
         }
         Ok(())
@@ -382,16 +448,11 @@ impl Run<'_> {
         }
     }
 
-    async fn wait_unpaused(&self) -> Result<(), Stop> {
+    /// Stay paused with `reason` until the operator resumes (or aborts).
+    async fn paused(&self, reason: String) -> Result<(), Stop> {
         let mut pause = self.ctx.control.pause.subscribe();
-        if !*pause.borrow() {
-            return Ok(());
-        }
-        self.set_state(CampaignState::Paused {
-            reason: "paused by the operator".into(),
-        })
-        .await?;
-        while *pause.borrow() {
+        self.set_state(CampaignState::Paused { reason }).await?;
+        while *pause.borrow_and_update() {
             tokio::select! {
                 r = pause.changed() => if r.is_err() { return Err(Stop::Aborted) },
                 _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
@@ -401,7 +462,33 @@ impl Run<'_> {
         Ok(())
     }
 
+    async fn wait_unpaused(&self) -> Result<(), Stop> {
+        if !*self.ctx.control.pause.borrow() {
+            return Ok(());
+        }
+        self.paused("paused by the operator".into()).await
+    }
+
+    /// An operator fault: pause with the reason (or fail, per the policy); on resume the
+    /// devices are prepared again (a failure there pauses again).
+    async fn operator_pause(&mut self, mut reason: String) -> Result<(), Stop> {
+        if self.ctx.on_fault == FaultPolicy::Fail {
+            return Err(Stop::Fault(reason));
+        }
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
+        loop {
+            self.ctx.control.pause.send_replace(true);
+            self.paused(reason).await?;
+            match self.prepare().await {
+                Ok(()) => return Ok(()),
+                Err(Stop::Fault(r)) => reason = r,
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
     async fn prepare(&mut self) -> Result<(), Stop> {
+        self.stage_mm = None;
         let speed = self.ctx.cfg.robot_controller.speed_pct;
         for device in [DeviceKind::Robot, DeviceKind::Tracker, DeviceKind::Stage] {
             let r = match device {
@@ -419,8 +506,8 @@ impl Run<'_> {
                 }
             };
             if let Err(e) = r {
-                self.ctl().fault(e.device, e.kind, &e.message, "pause");
-                return Err(Stop::Failed(format!(
+                self.fault(e.device, e.kind, &e.message, "pause").await?;
+                return Err(Stop::Fault(format!(
                     "{} could not be prepared: {e}",
                     device.name()
                 )));
@@ -429,22 +516,64 @@ impl Run<'_> {
         Ok(())
     }
 
+    /// Move, P1, P2 and back for one planned pose. A P1 taken before a later step fails is kept
+    /// as `discarded`.
+    async fn measure_pose(
+        &mut self,
+        entry: &PlanEntry,
+        s1: f64,
+        s2: f64,
+    ) -> Result<PoseMeasurement, Stop> {
+        let joints = self.move_to(&entry.q_rad).await?;
+        let a1 = self.stage_to(s1).await?;
+        let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
+        let second = async {
+            let a2 = self.stage_to(s2).await?;
+            let p2 = self.measure_point(Some(entry.index), &joints, a2).await?;
+            self.stage_to(s1).await?;
+            Ok::<_, Stop>((a2, p2))
+        }
+        .await;
+        match second {
+            Ok((a2, p2)) => Ok(PoseMeasurement {
+                index: entry.index,
+                joints_rad: joints,
+                p1: record(&p1, a1),
+                p2: Some(record(&p2, a2)),
+            }),
+            Err(Stop::Store(e)) => Err(Stop::Store(e)),
+            Err(e) => {
+                let why = match &e {
+                    Stop::Aborted => "aborted".to_owned(),
+                    Stop::Failed(r) | Stop::Fault(r) => r.clone(),
+                    Stop::Store(_) => String::new(),
+                };
+                let note = format!("P1 of an unfinished pose ({why})");
+                self.discard(Some(entry.index), &joints, &p1, a1, note)
+                    .await?;
+                Err(e)
+            }
+        }
+    }
+
     async fn measure_all(&mut self) -> Result<(), Stop> {
         let id = self.ctx.campaign_id;
         let done: Vec<usize> = self.store(move |s| s.done_poses(id)).await?;
         let total = self.ctx.plan.poses.len();
         let mut count = done.len();
         if count > 0 {
-            self.ctl().emit(CampaignEvent::Note {
+            self.journal(CampaignEvent::Note {
                 text: format!("resuming: {count} of {total} poses already measured"),
-            });
+            })
+            .await?;
         }
-        self.prepare().await?;
-        let baseline = self.drift_point().await?;
-        self.ctl().emit(CampaignEvent::Drift {
+        with_operator!(self, self.prepare().await);
+        let baseline = with_operator!(self, self.drift_point().await);
+        self.journal(CampaignEvent::Drift {
             drift_mm: 0.0,
             max_mm: self.ctx.cfg.campaign.drift_max_mm,
-        });
+        })
+        .await?;
         let every = self.ctx.cfg.campaign.drift_every;
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s2 = s1 + self.ctx.cfg.stage.travel_mm;
@@ -454,18 +583,8 @@ impl Run<'_> {
                 continue;
             }
             self.wait_unpaused().await?;
-            let joints = self.move_to(&entry.q_rad).await?;
-            let a1 = self.stage_to(s1).await?;
-            let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
-            let a2 = self.stage_to(s2).await?;
-            let p2 = self.measure_point(Some(entry.index), &joints, a2).await?;
-            self.stage_to(s1).await?;
-            let m = PoseMeasurement {
-                index: entry.index,
-                joints_rad: joints,
-                p1: record(&p1, a1),
-                p2: Some(record(&p2, a2)),
-            };
+            let m = with_operator!(self, self.measure_pose(&entry, s1, s2).await);
+            let p1_mm = [m.p1.x_mm, m.p1.y_mm, m.p1.z_mm];
             // durable before the robot moves again
             self.store(move |s| s.commit_pose(id, &m)).await?;
             count += 1;
@@ -474,14 +593,14 @@ impl Run<'_> {
                 pose: entry.index,
                 done: count,
                 total,
-                p1_mm: [p1.p_mm.x, p1.p_mm.y, p1.p_mm.z],
+                p1_mm,
             });
             if every > 0 && since_drift >= every && count < total {
                 since_drift = 0;
-                self.check_drift(&baseline).await?;
+                with_operator!(self, self.check_drift(&baseline).await);
             }
         }
-        self.check_drift(&baseline).await?;
+        with_operator!(self, self.check_drift(&baseline).await);
         Ok(())
     }
 }
@@ -542,7 +661,11 @@ pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
 ) -> Result<Outcome, CampaignError> {
-    let mut run = Run { ctx, dev: devices };
+    let mut run = Run {
+        ctx,
+        dev: devices,
+        stage_mm: None,
+    };
     run.set_state(if ctx.control.is_armed() {
         CampaignState::Armed
     } else {
@@ -571,7 +694,7 @@ pub async fn run_campaign(
             run.set_state(CampaignState::Aborted).await?;
             Ok(Outcome::Aborted)
         }
-        Err(Stop::Failed(reason)) => {
+        Err(Stop::Failed(reason) | Stop::Fault(reason)) => {
             let _ = tokio::time::timeout(Duration::from_secs(2), run.dev.robot.stop()).await;
             run.set_state(CampaignState::Failed {
                 reason: reason.clone(),

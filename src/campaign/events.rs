@@ -127,6 +127,30 @@ pub enum CampaignEvent {
     },
 }
 
+impl CampaignEvent {
+    /// The event's tag (`state`, `measured`, `fault`, `drift`, `note`, `result`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            CampaignEvent::State { .. } => "state",
+            CampaignEvent::Measured { .. } => "measured",
+            CampaignEvent::Fault { .. } => "fault",
+            CampaignEvent::Drift { .. } => "drift",
+            CampaignEvent::Note { .. } => "note",
+            CampaignEvent::Result { .. } => "result",
+        }
+    }
+
+    /// A fault event.
+    pub fn fault(device: DeviceKind, kind: FaultKind, message: &str, action: &str) -> Self {
+        CampaignEvent::Fault {
+            device: device.name(),
+            kind: format!("{kind:?}"),
+            message: message.to_owned(),
+            action: action.to_owned(),
+        }
+    }
+}
+
 /// Shared control state between the command listener and the engine.
 #[derive(Debug, Clone)]
 pub struct Control {
@@ -181,15 +205,5 @@ impl Control {
     /// Emit an event (no receivers is fine).
     pub fn emit(&self, e: CampaignEvent) {
         let _ = self.events.send(e);
-    }
-
-    /// Emit a fault event.
-    pub fn fault(&self, device: DeviceKind, kind: FaultKind, message: &str, action: &str) {
-        self.emit(CampaignEvent::Fault {
-            device: device.name(),
-            kind: format!("{kind:?}"),
-            message: message.to_owned(),
-            action: action.to_owned(),
-        });
     }
 }

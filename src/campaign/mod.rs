@@ -10,5 +10,5 @@ pub mod engine;
 pub mod events;
 pub mod session;
 
-pub use engine::{run_campaign, CampaignContext, CampaignError, Devices, Outcome};
+pub use engine::{run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome};
 pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control};

@@ -8,7 +8,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use nalgebra::Vector3;
 
-use super::engine::{CampaignContext, Devices};
+use super::engine::{CampaignContext, Devices, FaultPolicy};
 use super::events::Control;
 use crate::cell::stage_manual::{ManualStage, ManualStageConfig};
 use crate::cell::{
@@ -19,7 +19,7 @@ use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::{plan_campaign, Plan, PlanEntry, PlanRequest, Workspace};
-use crate::sim::{start_cell, RunningSimCell, SimWorldConfig};
+use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
 use crate::store::{NewCampaign, PlannedPose, Store};
 
 /// Why a session could not be set up.
@@ -157,7 +157,13 @@ pub async fn open_session(
             }))
         }
         StageMode::Manual | StageMode::ManualGauge => Box::new(ManualStage::new(
-            Arc::clone(&prompter),
+            match (&sim, cfg.stage.mode) {
+                // the simulated micrometer follows the technician's answers
+                (Some(s), DeviceMode::Sim) => {
+                    Arc::new(SimTechnician::new(Arc::clone(&prompter), s.world.clone()))
+                }
+                _ => Arc::clone(&prompter),
+            },
             ManualStageConfig {
                 tolerance_mm: cfg.stage.tolerance_mm,
                 ..ManualStageConfig::default()
@@ -241,6 +247,7 @@ pub async fn open_session(
             store: Arc::new(Mutex::new(store)),
             campaign_id,
             control: Control::new(1024),
+            on_fault: FaultPolicy::default(),
         },
         devices,
         sim,

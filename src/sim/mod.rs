@@ -6,6 +6,7 @@
 
 pub mod backends;
 pub mod config;
+pub mod technician;
 pub mod world;
 
 use std::future::Future;
@@ -27,6 +28,7 @@ use crate::simulate::truth::{self, ErrorTable};
 
 pub use backends::{SimRobotBackend, SimTrackerBackend};
 pub use config::{SimFaults, SimWorldConfig, StageMode};
+pub use technician::SimTechnician;
 pub use world::{lock_world, SharedWorld, StageSource, World, WorldFaults};
 
 /// Errors of the simulated cell.

@@ -10,7 +10,9 @@ use std::time::Duration;
 use cellcal::analysis::evaluate;
 use cellcal::campaign::engine::identify_options;
 use cellcal::campaign::session::open_session;
-use cellcal::campaign::{run_campaign, CampaignCommand, Outcome};
+use cellcal::campaign::{
+    run_campaign, CampaignCommand, CampaignEvent, CampaignState, Control, Outcome,
+};
 use cellcal::cell::ScriptedPrompter;
 use cellcal::config::parse_cell_config;
 use cellcal::dataset::{split, to_measured};
@@ -18,7 +20,7 @@ use cellcal::sim::lock_world;
 use cellcal::store::Store;
 
 /// config/cell.sim.toml with fast motion and extra `[sim]` / `[campaign]` keys.
-fn config_text(sim_extra: &str, campaign_extra: &str, faults: &str) -> String {
+pub(crate) fn config_text(sim_extra: &str, campaign_extra: &str, faults: &str) -> String {
     let base =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/cell.sim.toml"))
             .expect("cell.sim.toml");
@@ -34,7 +36,7 @@ fn config_text(sim_extra: &str, campaign_extra: &str, faults: &str) -> String {
     s
 }
 
-fn write_config(dir: &Path, text: &str) -> PathBuf {
+pub(crate) fn write_config(dir: &Path, text: &str) -> PathBuf {
     let robots = dir.join("robots");
     std::fs::create_dir_all(&robots).expect("mkdir");
     std::fs::copy(
@@ -293,4 +295,108 @@ fn bad_configuration_is_a_clear_error() {
             "{text}: {err}"
         );
     }
+}
+
+/// Run `text` in process; `on_event` sees every event with the live cell and may steer it.
+async fn run_steered(
+    text: &str,
+    mut on_event: impl FnMut(&CampaignEvent, &cellcal::sim::RunningSimCell, &Control) + Send + 'static,
+) -> (Outcome, PathBuf, i64) {
+    let dir = tempfile::tempdir().expect("tempdir").keep();
+    let cfg_path = write_config(&dir, text);
+    let cfg = parse_cell_config(text, &cfg_path).expect("config");
+    let store = dir.join("c.db");
+    let session = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
+        .await
+        .expect("session");
+    let ctx = session.ctx;
+    let mut devices = session.devices;
+    let sim = Arc::new(session.sim.expect("simulated cell"));
+    let mut rx = ctx.control.events.subscribe();
+    let control = ctx.control.clone();
+    let cell = Arc::clone(&sim);
+    let steer = tokio::spawn(async move {
+        while let Ok(e) = rx.recv().await {
+            on_event(&e, &cell, &control);
+        }
+    });
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = tokio::time::timeout(Duration::from_secs(60), run_campaign(&ctx, &mut devices))
+        .await
+        .expect("campaign ends in time")
+        .expect("campaign runs");
+    steer.abort();
+    let _ = steer.await;
+    if let Ok(sim) = Arc::try_unwrap(sim) {
+        sim.stop().await;
+    }
+    (outcome, store, ctx.campaign_id)
+}
+
+fn journal_states(store: &Path, id: i64) -> Vec<serde_json::Value> {
+    Store::open(store)
+        .expect("store")
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .filter(|e| e.kind == "state")
+        .map(|e| {
+            serde_json::from_str::<serde_json::Value>(&e.message).expect("event JSON")["state"]
+                .clone()
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_emergency_stop_pauses_with_the_reason_and_resume_completes() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+        .replace("estop_after_moves = 0 ", "estop_after_moves = 6 ");
+    let (outcome, store, id) = run_steered(&text, |e, cell, control| {
+        if let CampaignEvent::State {
+            state: CampaignState::Paused { reason },
+        } = e
+        {
+            assert!(reason.contains("emergency stop"), "pause reason: {reason}");
+            // the operator clears the E-stop and resumes
+            lock_world(&cell.world).set_estop(false);
+            control.apply(&CampaignCommand::Resume);
+        }
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    check_complete(&store, id, 40);
+    let states = journal_states(&store, id);
+    let paused: Vec<_> = states.iter().filter(|s| s["state"] == "paused").collect();
+    assert_eq!(paused.len(), 1, "{states:?}");
+    assert!(states.iter().any(|s| s["state"] == "done"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn drift_above_the_threshold_pauses_for_the_operator() {
+    // 10 mm/s of tracker drift: the first check after 5 poses is far above 0.1 mm
+    let text = config_text("", "", "")
+        .replace("drift_um_per_min = 0.0", "drift_um_per_min = 600000.0")
+        .replace("drift_every = 50", "drift_every = 5");
+    let (outcome, store, id) = run_steered(&text, |e, _cell, control| {
+        if let CampaignEvent::State {
+            state: CampaignState::Paused { reason },
+        } = e
+        {
+            assert!(reason.contains("drift"), "pause reason: {reason}");
+            control.apply(&CampaignCommand::Abort);
+        }
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    let done = Store::open(&store)
+        .expect("store")
+        .done_poses(id)
+        .expect("done");
+    assert_eq!(done.len(), 5, "paused at the first drift check");
+    let states = journal_states(&store, id);
+    assert!(states.iter().any(|s| s["state"] == "paused"), "{states:?}");
+    assert_eq!(states.last().expect("states")["state"], "aborted");
 }

@@ -10,3 +10,4 @@ mod paper;
 mod robust;
 mod significance;
 mod store;
+mod terminal;

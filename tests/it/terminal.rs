@@ -1,0 +1,146 @@
+//! The technician's terminal: the real `cellcal run` binary on a pseudo-terminal with a manual
+//! micrometer stage, answered the way a person would (a typo, an out-of-tolerance reading, then
+//! an abort).
+
+use std::io::{Read, Write};
+use std::os::fd::OwnedFd;
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cellcal::store::Store;
+
+use super::campaign::{config_text, write_config};
+
+/// A child process whose stdin, stdout and stderr are one pseudo-terminal.
+struct PtyChild {
+    child: std::process::Child,
+    master: std::fs::File,
+    output: Arc<Mutex<String>>,
+    seen: usize,
+}
+
+impl PtyChild {
+    fn spawn(mut cmd: Command) -> PtyChild {
+        let pty = nix::pty::openpty(None, None).expect("openpty");
+        let slave: OwnedFd = pty.slave;
+        let io = |fd: &OwnedFd| Stdio::from(fd.try_clone().expect("dup slave"));
+        cmd.stdin(io(&slave)).stdout(io(&slave)).stderr(io(&slave));
+        let child = cmd.spawn().expect("spawn");
+        drop(slave);
+        let master = std::fs::File::from(pty.master);
+        let mut reader = master.try_clone().expect("dup master");
+        let output = Arc::new(Mutex::new(String::new()));
+        let sink = Arc::clone(&output);
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            // EIO once the child and every slave copy are gone
+            while let Ok(n) = reader.read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+                sink.lock()
+                    .expect("output")
+                    .push_str(&String::from_utf8_lossy(&buf[..n]));
+            }
+        });
+        PtyChild {
+            child,
+            master,
+            output,
+            seen: 0,
+        }
+    }
+
+    /// Wait until `text` appears after what was already matched; returns the output up to it.
+    fn expect(&mut self, text: &str) -> String {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            {
+                let out = self.output.lock().expect("output");
+                if let Some(i) = out[self.seen..].find(text) {
+                    let upto = out[self.seen..self.seen + i + text.len()].to_owned();
+                    self.seen += i + text.len();
+                    return upto;
+                }
+            }
+            assert!(
+                Instant::now() < deadline,
+                "`{text}` did not appear; terminal so far:\n{}",
+                self.output.lock().expect("output")
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Type a line.
+    fn send_line(&mut self, line: &str) {
+        self.master
+            .write_all(format!("{line}\r").as_bytes())
+            .expect("type");
+    }
+}
+
+#[test]
+fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "")
+        .replace("kind = \"serial\"", "kind = \"manual\"")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 10");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
+    cmd.args(["run", "--arm", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(&store);
+    let mut t = PtyChild::spawn(cmd);
+    // the drift reference at P1
+    t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    t.send_line("0.000");
+    // first pose: P1 is already set, so the first question is P2
+    t.expect("Set the micrometer to 10.000 mm and enter the reading");
+    t.send_line("ten");
+    t.expect("`ten` is not a number");
+    t.send_line("10.5");
+    t.expect("The reading 10.500 mm, 0.500 mm from the requested 10.000 mm");
+    t.send_line("10.004");
+    t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    t.send_line("0.001");
+    t.expect("[1/20] pose");
+    // second pose
+    t.expect("Set the micrometer to 10.000 mm and enter the reading");
+    t.send_line("10");
+    t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    t.send_line("0");
+    t.expect("[2/20] pose");
+    // third pose: abort at the question
+    t.expect("Set the micrometer to 10.000 mm and enter the reading");
+    t.send_line("a");
+    t.expect("aborted");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(s) = t.child.try_wait().expect("wait") {
+            break s;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "cellcal did not exit after abort"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(130), "abort exit code");
+    let s = Store::open(&store).expect("store");
+    let done = s.done_poses(1).expect("done");
+    assert_eq!(done.len(), 2, "two poses measured before the abort");
+    // the typed readings are what was stored as stage positions
+    let mut p2: Vec<f64> = s
+        .measured_poses(1)
+        .expect("measured")
+        .iter()
+        .map(|(_, m)| m.p2.as_ref().expect("P2").stage_mm)
+        .collect();
+    p2.sort_by(f64::total_cmp);
+    assert_eq!(p2, vec![10.0, 10.004]);
+}
