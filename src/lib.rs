@@ -19,9 +19,11 @@
 //! [`store`] (file I/O by design) and the device code: [`cell`] adapters and the [`sim`] cell (clock, sockets, ptys; no printing).
 
 pub mod analysis;
+pub mod api;
 pub mod campaign;
 pub mod cell;
 pub mod config;
+pub mod daemon;
 pub mod dataset;
 pub mod identify;
 pub mod measure;

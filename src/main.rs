@@ -159,6 +159,21 @@ enum Command {
         #[arg(long, value_parser = ["pause", "fail"])]
         on_fault: Option<String>,
     },
+    /// Run the campaign daemon: the REST API of one cell (`/api/...`, see README), until
+    /// Ctrl-C / SIGTERM (a running campaign is aborted: the robot stops, the campaign stays
+    /// resumable).
+    Serve {
+        /// Cell configuration file (TOML).
+        #[arg(long, default_value = "config/cell.sim.toml")]
+        config: PathBuf,
+        /// Address to listen on (`127.0.0.1:0` picks a free port; the line `listening on
+        /// http://ADDR` tells which).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        listen: String,
+        /// Store file (default: `store` of the configuration).
+        #[arg(long)]
+        store: Option<PathBuf>,
+    },
     /// Write a stored campaign's measurements as an identify CSV.
     Export {
         /// Store file.
@@ -351,6 +366,11 @@ fn main() -> ExitCode {
                 None => FaultPolicy::Fail,
             },
         }),
+        Command::Serve {
+            config,
+            listen,
+            store,
+        } => run_cmd::serve(&config, &listen, store),
         Command::Export {
             store,
             campaign,

@@ -1,4 +1,4 @@
-//! `cellcal run`, `cellcal export`, `cellcal import`: thin front ends over the campaign engine
+//! `cellcal run`, `cellcal serve`, `cellcal export`, `cellcal import`: thin front ends over the campaign engine
 //! and the store.
 
 use std::path::{Path, PathBuf};
@@ -6,10 +6,12 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, Context};
 
+use cellcal::api;
 use cellcal::campaign::session::open_session;
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
+use cellcal::daemon::Daemon;
 use cellcal::dataset::{parse_csv, write_csv, Required};
 use cellcal::model::load_robot;
 use cellcal::report::summary_text;
@@ -36,15 +38,20 @@ pub struct RunOptions {
     pub on_fault: FaultPolicy,
 }
 
+/// The runtime of the campaign front ends (two workers: the engine and the store/front end).
+fn runtime() -> Result<tokio::runtime::Runtime, Failure> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(other)
+}
+
 /// Run a campaign headless (or with terminal prompts for a manual stage).
 pub fn run(opts: RunOptions) -> Result<(), Failure> {
     let cfg = load_cell_config(&opts.config).map_err(input)?;
     let store_path = opts.store.clone().unwrap_or_else(|| cfg.store.clone());
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .map_err(other)?;
+    let rt = runtime()?;
     rt.block_on(async move {
         let prompter: Arc<dyn Prompter> = Arc::new(TerminalPrompter);
         let session = open_session(cfg, &store_path, opts.campaign, prompter)
@@ -128,6 +135,58 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
             )),
         }
     })
+}
+
+/// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
+pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), Failure> {
+    let cfg = load_cell_config(config).map_err(input)?;
+    let addr: std::net::SocketAddr = listen
+        .parse()
+        .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;
+    let store_path = store.unwrap_or_else(|| cfg.store.clone());
+    let rt = runtime()?;
+    rt.block_on(async move {
+        let daemon = Arc::new(Daemon::new(cfg, &store_path).map_err(input)?);
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("cannot listen on {addr}"))
+            .map_err(other)?;
+        let bound = listener.local_addr().map_err(other)?;
+        println!("listening on http://{bound}");
+        eprintln!("campaign store {}", store_path.display());
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let server = axum::serve(listener, api::router(Arc::clone(&daemon)))
+            .with_graceful_shutdown(async move {
+                let _ = stop_rx.await;
+            });
+        let server = std::future::IntoFuture::into_future(server);
+        tokio::pin!(server);
+        tokio::select! {
+            r = &mut server => r.map_err(other)?,
+            _ = shutdown_signal() => {
+                eprintln!("stopping: aborting the loaded campaign");
+                daemon.shutdown().await;
+                let _ = stop_tx.send(());
+                let _ = tokio::time::timeout(std::time::Duration::from_secs(5), server).await;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+        Ok(s) => s,
+        Err(_) => {
+            let _ = tokio::signal::ctrl_c().await;
+            return;
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term.recv() => {}
+    }
 }
 
 /// `cellcal export`: a campaign's measurements in the identify CSV format.

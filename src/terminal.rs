@@ -166,6 +166,7 @@ pub async fn print_events(
                 bar.set_message(text);
             }
             Ok(CampaignEvent::Note { text }) => line(text),
+            Ok(CampaignEvent::Prompt { .. }) => {}
             Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
             Err(broadcast::error::RecvError::Lagged(_)) => {}
             Err(broadcast::error::RecvError::Closed) => break,

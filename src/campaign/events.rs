@@ -115,6 +115,17 @@ pub enum CampaignEvent {
         /// Threshold (mm).
         max_mm: f64,
     },
+    /// A technician question waiting for its answer (front ends answer it by `seq`).
+    Prompt {
+        /// Sequence number of the question (answer with it).
+        seq: u64,
+        /// Short id (`stage_move`, …).
+        id: String,
+        /// The text shown to the technician.
+        text: String,
+        /// Expected numeric answer (mm), if a number is asked for.
+        expected_mm: Option<f64>,
+    },
     /// Free-text progress note.
     Note {
         /// Text.
@@ -128,13 +139,14 @@ pub enum CampaignEvent {
 }
 
 impl CampaignEvent {
-    /// The event's tag (`state`, `measured`, `fault`, `drift`, `note`, `result`).
+    /// The event's tag (`state`, `measured`, `fault`, `drift`, `prompt`, `note`, `result`).
     pub fn kind(&self) -> &'static str {
         match self {
             CampaignEvent::State { .. } => "state",
             CampaignEvent::Measured { .. } => "measured",
             CampaignEvent::Fault { .. } => "fault",
             CampaignEvent::Drift { .. } => "drift",
+            CampaignEvent::Prompt { .. } => "prompt",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",
         }

@@ -179,6 +179,7 @@ pub async fn open_session(
     let mut store = Store::open(store_path)?;
     let req = plan_request(&cfg);
     let fresh = plan_campaign(&nominal, &req)?;
+    let mut model_of_resumed = None;
     let (campaign_id, plan, resumed) = match campaign {
         Some(id) => {
             let row = store.campaign(id)?;
@@ -191,7 +192,8 @@ pub async fn open_session(
                     q_rad: p.q_rad,
                 })
                 .collect();
-            let _ = row;
+            // identify with the model the campaign was created with
+            model_of_resumed = Some(row.model);
             (
                 id,
                 Plan {
@@ -237,6 +239,10 @@ pub async fn open_session(
         return Err(SessionError::Invalid(format!(
             "campaign {campaign_id} has no identification poses"
         )));
+    }
+    let mut cfg = cfg;
+    if let Some(model) = model_of_resumed {
+        cfg.campaign.model = model;
     }
     Ok(Session {
         ctx: CampaignContext {

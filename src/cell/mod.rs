@@ -131,7 +131,7 @@ pub struct TrackerPoint {
 
 /// A laser tracker.
 #[async_trait]
-pub trait Tracker: Send {
+pub trait Tracker: Send + Sync {
     /// Connect if needed and configure for stationary measurement (units, mode, reflector).
     async fn prepare(&mut self) -> Result<(), CellError>;
     /// One stationary measurement of the reflector.
@@ -144,7 +144,7 @@ pub trait Tracker: Send {
 
 /// A robot controller.
 #[async_trait]
-pub trait Robot: Send {
+pub trait Robot: Send + Sync {
     /// Connect if needed, identify, power on and set the speed (percent of maximum).
     async fn prepare(&mut self, speed_pct: f64) -> Result<(), CellError>;
     /// Start a joint move to `q_rad` (returns when accepted, not when finished).
@@ -161,7 +161,7 @@ pub trait Robot: Send {
 
 /// The 1D stage carrying the target ball.
 #[async_trait]
-pub trait Stage: Send {
+pub trait Stage: Send + Sync {
     /// Whether a person moves it (prompts).
     fn is_manual(&self) -> bool;
     /// Prepare (home a motorised stage).

@@ -33,13 +33,13 @@ impl Default for ManualStageConfig {
 
 /// A position gauge read by the software (RS-232 micrometer or indicator).
 #[async_trait]
-pub trait GaugeReader: Send {
+pub trait GaugeReader: Send + Sync {
     /// One reading (mm).
     async fn read_mm(&mut self) -> Result<f64, GaugeError>;
 }
 
 #[async_trait]
-impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeReader for GaugeClient<S> {
+impl<S: AsyncRead + AsyncWrite + Unpin + Send + Sync> GaugeReader for GaugeClient<S> {
     async fn read_mm(&mut self) -> Result<f64, GaugeError> {
         GaugeClient::read_mm(self).await
     }

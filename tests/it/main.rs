@@ -8,6 +8,7 @@ mod frames;
 mod identifiability;
 mod paper;
 mod robust;
+mod serve;
 mod significance;
 mod store;
 mod terminal;

@@ -1,0 +1,157 @@
+//! The REST API of `cellcal serve` over [`crate::daemon::Daemon`] (axum). Every body is JSON;
+//! every error is `{"error": "..."}` with a 4xx/5xx status.
+//!
+//! | method and path | what |
+//! |---|---|
+//! | `GET /api/health` | `{"ok": true, "version"}` |
+//! | `GET /api/campaigns` | every stored campaign (`CampaignView`) |
+//! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
+//! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
+//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"abort"}` or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
+//! | `GET /api/campaigns/{id}/events` | the stored event journal |
+//! | `GET /api/campaigns/{id}/stream` | live events, Server-Sent Events (`event:` = kind, `data:` = JSON) |
+//! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use tokio::sync::broadcast::error::RecvError;
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::{Stream, StreamExt};
+
+use crate::campaign::{CampaignEvent, CampaignState};
+use crate::daemon::{CampaignOverrides, ClientCommand, Daemon, DaemonError};
+
+/// An API error: status and message.
+#[derive(Debug)]
+pub struct ApiError(StatusCode, String);
+
+impl From<DaemonError> for ApiError {
+    fn from(e: DaemonError) -> ApiError {
+        let status = match &e {
+            DaemonError::BadRequest(_) => StatusCode::BAD_REQUEST,
+            DaemonError::NotFound(_) => StatusCode::NOT_FOUND,
+            DaemonError::Conflict(_) => StatusCode::CONFLICT,
+            DaemonError::Session(_) | DaemonError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        ApiError(status, e.to_string())
+    }
+}
+
+/// A JSON body (any content type, so `curl -d` works); errors name the field.
+fn parse_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
+    let mut de = serde_json::Deserializer::from_slice(body);
+    serde_path_to_error::deserialize(&mut de)
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, format!("request body: {e}")))
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.0, Json(serde_json::json!({ "error": self.1 }))).into_response()
+    }
+}
+
+type Shared = Arc<Daemon>;
+
+/// The API's routes over `daemon`.
+pub fn router(daemon: Arc<Daemon>) -> Router {
+    Router::new()
+        .route("/api/health", get(health))
+        .route("/api/campaigns", get(list).post(create))
+        .route("/api/campaigns/{id}", get(one))
+        .route("/api/campaigns/{id}/commands", post(command))
+        .route("/api/campaigns/{id}/events", get(journal))
+        .route("/api/campaigns/{id}/stream", get(stream))
+        .route("/api/campaigns/{id}/result", get(result))
+        .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
+        .with_state(daemon)
+}
+
+async fn health() -> Json<serde_json::Value> {
+    Json(serde_json::json!({ "ok": true, "version": env!("CARGO_PKG_VERSION") }))
+}
+
+async fn list(State(d): State<Shared>) -> Result<Response, ApiError> {
+    Ok(Json(d.list().await?).into_response())
+}
+
+async fn create(State(d): State<Shared>, body: Bytes) -> Result<Response, ApiError> {
+    // an empty body means "the configuration's defaults"
+    let overrides: CampaignOverrides = if body.iter().all(u8::is_ascii_whitespace) {
+        CampaignOverrides::default()
+    } else {
+        parse_body(&body)?
+    };
+    let view = d.create(&overrides).await?;
+    Ok((StatusCode::CREATED, Json(view)).into_response())
+}
+
+async fn one(State(d): State<Shared>, Path(id): Path<i64>) -> Result<Response, ApiError> {
+    Ok(Json(d.get(id).await?).into_response())
+}
+
+async fn command(
+    State(d): State<Shared>,
+    Path(id): Path<i64>,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let cmd: ClientCommand = parse_body(&body)?;
+    Ok(Json(d.command(id, cmd).await?).into_response())
+}
+
+async fn journal(State(d): State<Shared>, Path(id): Path<i64>) -> Result<Response, ApiError> {
+    Ok(Json(d.journal(id).await?).into_response())
+}
+
+async fn result(State(d): State<Shared>, Path(id): Path<i64>) -> Result<Response, ApiError> {
+    match d.result(id).await? {
+        Some(v) => Ok(Json(v).into_response()),
+        None => Err(ApiError(
+            StatusCode::NOT_FOUND,
+            format!("campaign {id} has no result yet"),
+        )),
+    }
+}
+
+async fn stream(
+    State(d): State<Shared>,
+    Path(id): Path<i64>,
+) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+    let mut rx = d.subscribe(id).await?;
+    // forward until the run ends (the terminal state is the last event sent)
+    let (tx, out) = tokio::sync::mpsc::channel::<CampaignEvent>(256);
+    tokio::spawn(async move {
+        loop {
+            match rx.recv().await {
+                Ok(e) => {
+                    let last = matches!(
+                        &e,
+                        CampaignEvent::State {
+                            state: CampaignState::Done
+                                | CampaignState::Aborted
+                                | CampaignState::Failed { .. }
+                        }
+                    );
+                    if tx.send(e).await.is_err() || last {
+                        break;
+                    }
+                }
+                Err(RecvError::Lagged(_)) => {}
+                Err(RecvError::Closed) => break,
+            }
+        }
+    });
+    let events = ReceiverStream::new(out).filter_map(|e| {
+        let data = serde_json::to_string(&e).ok()?;
+        Some(Ok(Event::default().event(e.kind()).data(data)))
+    });
+    Ok(Sse::new(events).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+}
