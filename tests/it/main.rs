@@ -8,5 +8,6 @@ mod frames;
 mod identifiability;
 mod paper;
 mod robust;
+mod setup;
 mod significance;
 mod store;
