@@ -1,12 +1,14 @@
 //! cellcal: industrial-robot calibration from partial-pose laser-tracker measurements.
 //!
 //! Module map (see ARCHITECTURE.md):
-//! - [`model`]: robot model files, MDH chain, forward kinematics, parameter screws (Jacobians).
+//! - [`model`]: robot model files, MDH chain, forward and inverse kinematics, parameter screws
+//!   (Jacobians).
 //! - [`campaign`]: the campaign engine (commands in, events out; measure, store, identify).
 //! - [`cell`]: device traits (Tracker, Robot, Stage, Prompter) and their adapters.
 //! - [`identify`]: observation models, identifiability, Levenberg–Marquardt, robust refit.
 //! - [`analysis`]: accuracy metrics and significance indices.
-//! - [`measure`]: measurement geometry (rigid registration).
+//! - [`measure`]: measurement geometry (rigid registration, sphere fit, tool-frame setup,
+//!   base registration).
 //! - [`plan`]: pose sampling in the workspace box.
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.

@@ -36,6 +36,15 @@ impl Pose {
         }
     }
 
+    /// The inverse transform.
+    pub fn inverse(&self) -> Pose {
+        let rt = self.r.transpose();
+        Pose {
+            r: rt,
+            p: -(rt * self.p),
+        }
+    }
+
     /// Apply to a point.
     pub fn transform_point(&self, x: &Vector3<f64>) -> Vector3<f64> {
         self.r * x + self.p

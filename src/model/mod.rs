@@ -1,12 +1,15 @@
-//! Robot model: MDH chain, robot model files, forward kinematics and analytic Jacobians.
+//! Robot model: MDH chain, robot model files, forward kinematics, analytic Jacobians and
+//! numerical inverse kinematics of the flange.
 //!
 //! Pure code: no I/O except [`file::load_robot`], which reads one TOML file.
 
 pub mod chain;
 pub mod file;
+pub mod ik;
 pub mod kinematics;
 pub mod rotation;
 
 pub use chain::{JointLimit, Mdh, ParamKind, RobotModel};
 pub use file::{load_robot, parse_robot, FileError, RobotFileError};
+pub use ik::{solve_flange, solve_motion, FlangeMotion, IkError, IkOptions, IkSolution};
 pub use kinematics::{forward, Frames, Pose};

@@ -9,6 +9,7 @@ mod identifiability;
 mod paper;
 mod robust;
 mod serve;
+mod setup;
 mod significance;
 mod store;
 mod terminal;

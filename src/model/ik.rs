@@ -1,0 +1,414 @@
+//! Numerical inverse kinematics of the flange for small Cartesian motions.
+//!
+//! Damped Newton (Levenberg–Marquardt) on the flange pose error in the robot base frame:
+//! position error `p* − p(q)` (mm) and rotation error `log(R*·R(q)ᵀ)` (rad, weighted by
+//! [`IkOptions::rotation_scale_mm`]). The joint Jacobian is built from the θ screws of
+//! [`Frames::screws`]: in MDH the derivative with respect to joint `i` equals the derivative
+//! with respect to the θ_i offset. Each iteration's joint step is capped, so the solution stays
+//! on the branch of the start configuration; the result must lie inside the joint limits.
+//! Base and tool transforms are not applied: targets are flange poses in the robot base frame.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+use super::kinematics::{forward, Frames, Pose};
+use super::rotation::{from_rotation_vector, log_so3};
+use super::RobotModel;
+
+/// Options of the inverse-kinematics iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IkOptions {
+    /// Maximum number of accepted Newton steps.
+    pub max_iterations: usize,
+    /// Position tolerance (mm).
+    pub tol_mm: f64,
+    /// Rotation tolerance (rad).
+    pub tol_rad: f64,
+    /// Weight of the rotation error against the position error in the damped step (mm per rad).
+    pub rotation_scale_mm: f64,
+    /// Largest change of any joint in one step (rad); keeps the solution on the start's branch.
+    pub max_step_rad: f64,
+}
+
+impl Default for IkOptions {
+    /// 200 steps, 1e-10 mm, 1e-12 rad, rotation weight 100 mm/rad, steps ≤ 0.1 rad.
+    fn default() -> Self {
+        IkOptions {
+            max_iterations: 200,
+            tol_mm: 1e-10,
+            tol_rad: 1e-12,
+            rotation_scale_mm: 100.0,
+            max_step_rad: 0.1,
+        }
+    }
+}
+
+/// Why the inverse kinematics failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IkError {
+    /// The start configuration does not match the model.
+    #[error(
+        "inverse kinematics: the start has {got} joint values, the model has {expected} joints"
+    )]
+    DofMismatch {
+        /// Joints of the model.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
+    /// The start or the target contains a NaN or an infinity.
+    #[error("inverse kinematics: start or target is not finite")]
+    NotFinite,
+    /// The iteration stopped with the target not reached (out of reach, or singular).
+    #[error(
+        "inverse kinematics did not converge after {iterations} steps: {position_mm:.3e} mm and \
+         {rotation_rad:.3e} rad left (target out of reach or at a singularity)"
+    )]
+    NoConvergence {
+        /// Accepted steps.
+        iterations: usize,
+        /// Remaining position error (mm).
+        position_mm: f64,
+        /// Remaining rotation error (rad).
+        rotation_rad: f64,
+    },
+    /// The solution leaves a joint's limits.
+    #[error(
+        "inverse kinematics: joint {joint} would be at {value_rad:.4} rad, outside its limits \
+         [{min_rad:.4}, {max_rad:.4}] rad"
+    )]
+    OutsideLimits {
+        /// Joint number (1-based).
+        joint: usize,
+        /// Solution value (rad).
+        value_rad: f64,
+        /// Lower limit (rad).
+        min_rad: f64,
+        /// Upper limit (rad).
+        max_rad: f64,
+    },
+}
+
+/// A converged inverse-kinematics solution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IkSolution {
+    /// Joint values (rad).
+    pub q: Vec<f64>,
+    /// Accepted Newton steps.
+    pub iterations: usize,
+    /// Remaining position error (mm).
+    pub position_error_mm: f64,
+    /// Remaining rotation error (rad).
+    pub rotation_error_rad: f64,
+}
+
+/// A motion of the flange expressed in the flange frame at the start configuration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FlangeMotion {
+    /// Translate by `distance_mm` along the unit `axis` (flange frame); orientation kept.
+    Translate {
+        /// Direction in the flange frame (normalised here).
+        axis: Vector3<f64>,
+        /// Distance (mm).
+        distance_mm: f64,
+    },
+    /// Rotate by `angle_rad` about `axis` (flange frame) through the flange origin.
+    Rotate {
+        /// Axis in the flange frame (normalised here).
+        axis: Vector3<f64>,
+        /// Angle (rad, right-handed).
+        angle_rad: f64,
+    },
+    /// A general relative transform `T_start⁻¹ · T_target` in the flange frame.
+    Relative(Pose),
+}
+
+impl FlangeMotion {
+    /// The motion as a transform in the start flange frame.
+    pub fn as_pose(&self) -> Pose {
+        match *self {
+            FlangeMotion::Translate { axis, distance_mm } => Pose {
+                r: Matrix3::identity(),
+                p: axis.normalize() * distance_mm,
+            },
+            FlangeMotion::Rotate { axis, angle_rad } => Pose {
+                r: from_rotation_vector(&(axis.normalize() * angle_rad)),
+                p: Vector3::zeros(),
+            },
+            FlangeMotion::Relative(p) => p,
+        }
+    }
+}
+
+/// The flange pose `A_1 ⋯ A_n` in the robot base frame (base and tool not applied).
+pub fn flange_pose(model: &RobotModel, q: &[f64]) -> Pose {
+    *forward(model, q).flange()
+}
+
+/// Position (mm) and rotation (rad) error `target ⊖ current`, both in the base frame.
+fn pose_error(target: &Pose, current: &Pose) -> (Vector3<f64>, Vector3<f64>) {
+    (
+        target.p - current.p,
+        log_so3(&(target.r * current.r.transpose())),
+    )
+}
+
+/// The 6×n joint Jacobian of the flange (rows: velocity of the flange origin, then angular
+/// velocity scaled by `w` mm/rad), from the θ screws.
+fn jacobian(model: &RobotModel, f: &Frames, w: f64) -> DMatrix<f64> {
+    let n = model.dof();
+    let screws = f.screws(&model.joints);
+    let p = f.flange().p;
+    let mut j = DMatrix::zeros(6, n);
+    for i in 0..n {
+        let s = &screws[5 * i];
+        let v = s.point_rate(&p);
+        for k in 0..3 {
+            j[(k, i)] = v[k];
+            j[(3 + k, i)] = w * s.axis[k];
+        }
+    }
+    j
+}
+
+/// Solve for joints that put the flange at `target` (robot base frame), starting from `q0`.
+pub fn solve_flange(
+    model: &RobotModel,
+    q0: &[f64],
+    target: &Pose,
+    opts: &IkOptions,
+) -> Result<IkSolution, IkError> {
+    let n = model.dof();
+    if q0.len() != n {
+        return Err(IkError::DofMismatch {
+            expected: n,
+            got: q0.len(),
+        });
+    }
+    if q0.iter().any(|v| !v.is_finite())
+        || target.r.iter().any(|v| !v.is_finite())
+        || target.p.iter().any(|v| !v.is_finite())
+    {
+        return Err(IkError::NotFinite);
+    }
+    let w = opts.rotation_scale_mm;
+    let weighted = |ep: &Vector3<f64>, er: &Vector3<f64>| -> DVector<f64> {
+        DVector::from_iterator(6, ep.iter().copied().chain(er.iter().map(|v| v * w)))
+    };
+    let mut q = q0.to_vec();
+    let mut f = forward(model, &q);
+    let (mut ep, mut er) = pose_error(target, f.flange());
+    let mut e = weighted(&ep, &er);
+    let mut cost = e.norm_squared();
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    loop {
+        if ep.norm() <= opts.tol_mm && er.norm() <= opts.tol_rad {
+            break;
+        }
+        if iterations >= opts.max_iterations {
+            return Err(IkError::NoConvergence {
+                iterations,
+                position_mm: ep.norm(),
+                rotation_rad: er.norm(),
+            });
+        }
+        let j = jacobian(model, &f, w);
+        let jt = j.transpose();
+        let h = &jt * &j;
+        let g = &jt * &e;
+        let scale = (h.trace() / n as f64).max(1e-300);
+        let mut accepted = false;
+        while lambda < 1e12 {
+            let mut a = h.clone();
+            for i in 0..n {
+                a[(i, i)] += lambda * scale;
+            }
+            let Some(chol) = a.cholesky() else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut step = chol.solve(&g);
+            let big = step.amax();
+            if big > opts.max_step_rad {
+                step *= opts.max_step_rad / big;
+            }
+            let trial: Vec<f64> = q.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+            let tf = forward(model, &trial);
+            let (tp, tr) = pose_error(target, tf.flange());
+            let te = weighted(&tp, &tr);
+            let tc = te.norm_squared();
+            if tc.is_finite() && tc < cost {
+                q = trial;
+                f = tf;
+                (ep, er, e, cost) = (tp, tr, te, tc);
+                lambda = (lambda / 10.0).max(1e-15);
+                accepted = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !accepted {
+            return Err(IkError::NoConvergence {
+                iterations,
+                position_mm: ep.norm(),
+                rotation_rad: er.norm(),
+            });
+        }
+        iterations += 1;
+    }
+    for (i, (v, l)) in q.iter().zip(&model.limits).enumerate() {
+        if !l.contains(*v) {
+            return Err(IkError::OutsideLimits {
+                joint: i + 1,
+                value_rad: *v,
+                min_rad: l.min,
+                max_rad: l.max,
+            });
+        }
+    }
+    Ok(IkSolution {
+        q,
+        iterations,
+        position_error_mm: ep.norm(),
+        rotation_error_rad: er.norm(),
+    })
+}
+
+/// The flange target of a motion expressed in the flange frame at `q0` (robot base frame).
+pub fn motion_target(model: &RobotModel, q0: &[f64], motion: &FlangeMotion) -> Pose {
+    flange_pose(model, q0).compose(&motion.as_pose())
+}
+
+/// Solve for joints that perform `motion` (flange frame at `q0`), starting from `q0`.
+pub fn solve_motion(
+    model: &RobotModel,
+    q0: &[f64],
+    motion: &FlangeMotion,
+    opts: &IkOptions,
+) -> Result<IkSolution, IkError> {
+    if q0.len() != model.dof() {
+        return Err(IkError::DofMismatch {
+            expected: model.dof(),
+            got: q0.len(),
+        });
+    }
+    solve_flange(model, q0, &motion_target(model, q0, motion), opts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::file::parse_robot;
+
+    fn tx60() -> RobotModel {
+        parse_robot(
+            include_str!("../../config/robots/staubli_tx60.toml"),
+            std::path::Path::new("tx60"),
+        )
+        .unwrap()
+    }
+
+    const HOME: [f64; 6] = [0.1, 0.4, 1.7, 0.3, -0.6, 0.2];
+
+    fn assert_reaches(m: &RobotModel, sol: &IkSolution, target: &Pose) {
+        let got = flange_pose(m, &sol.q);
+        let dp = (got.p - target.p).norm();
+        let dr = log_so3(&(got.r * target.r.transpose())).norm();
+        assert!(dp <= 1e-9 && dr <= 1e-9, "{dp:e} mm {dr:e} rad");
+    }
+
+    #[test]
+    fn round_trip_translations_and_rotations() {
+        let m = tx60();
+        let opts = IkOptions::default();
+        let axes = [
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::z(),
+            Vector3::new(1.0, -2.0, 0.5),
+        ];
+        for axis in axes {
+            for amount in [-50.0, -5.0, 0.001, 20.0, 80.0] {
+                let motion = FlangeMotion::Translate {
+                    axis,
+                    distance_mm: amount,
+                };
+                let sol = solve_motion(&m, &HOME, &motion, &opts).expect("translation solves");
+                assert_reaches(&m, &sol, &motion_target(&m, &HOME, &motion));
+                // orientation kept, displacement along the flange axis
+                let p0 = flange_pose(&m, &HOME);
+                let p1 = flange_pose(&m, &sol.q);
+                let want = p0.r * axis.normalize() * amount;
+                assert!((p1.p - p0.p - want).norm() < 1e-9);
+            }
+            for angle in [-0.6, -0.2, 1e-6, 0.3, 0.6] {
+                let motion = FlangeMotion::Rotate {
+                    axis,
+                    angle_rad: angle,
+                };
+                let sol = solve_motion(&m, &HOME, &motion, &opts).expect("rotation solves");
+                assert_reaches(&m, &sol, &motion_target(&m, &HOME, &motion));
+                assert!((flange_pose(&m, &sol.q).p - flange_pose(&m, &HOME).p).norm() < 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn general_target_from_forward_kinematics() {
+        let m = tx60();
+        let q_true = [0.25, 0.55, 1.5, 0.1, -0.4, 0.5];
+        let target = flange_pose(&m, &q_true);
+        let sol = solve_flange(&m, &HOME, &target, &IkOptions::default()).expect("solves");
+        assert_reaches(&m, &sol, &target);
+        // same branch: the joints themselves come back
+        for (a, b) in sol.q.iter().zip(q_true) {
+            assert!((a - b).abs() < 1e-8, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn out_of_reach_is_an_error() {
+        let m = tx60();
+        let far = FlangeMotion::Translate {
+            axis: Vector3::z(),
+            distance_mm: 1500.0,
+        };
+        match solve_motion(&m, &HOME, &far, &IkOptions::default()) {
+            Err(IkError::NoConvergence { position_mm, .. }) => assert!(position_mm > 100.0),
+            other => panic!("expected no convergence, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn joint_limits_are_enforced() {
+        let m = tx60();
+        let q0 = [0.1, 0.4, 1.7, 0.3, -0.6, 2.9];
+        let spin = FlangeMotion::Rotate {
+            axis: Vector3::z(),
+            angle_rad: 0.5,
+        };
+        match solve_motion(&m, &q0, &spin, &IkOptions::default()) {
+            Err(IkError::OutsideLimits { joint: 6, .. }) => {}
+            other => panic!("expected joint 6 outside its limits, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let m = tx60();
+        let t = flange_pose(&m, &HOME);
+        assert!(matches!(
+            solve_flange(&m, &HOME[..5], &t, &IkOptions::default()),
+            Err(IkError::DofMismatch {
+                expected: 6,
+                got: 5
+            })
+        ));
+        let mut bad = t;
+        bad.p.x = f64::NAN;
+        assert_eq!(
+            solve_flange(&m, &HOME, &bad, &IkOptions::default()),
+            Err(IkError::NotFinite)
+        );
+    }
+}
