@@ -167,6 +167,25 @@ pub async fn print_events(
             }
             Ok(CampaignEvent::Note { text }) => line(text),
             Ok(CampaignEvent::Prompt { .. }) => {}
+            Ok(CampaignEvent::Setup { result }) => {
+                let v = |path: &str| result.pointer(path).cloned().unwrap_or_default();
+                if !v("/tool_frame").is_null() {
+                    line(format!(
+                        "tool frame: ball {} mm in the flange, stage axis {}, sphere fit RMS {} mm",
+                        v("/tool_frame/tool_mm"),
+                        v("/tool_frame/stage_axis"),
+                        v("/tool_frame/sphere_rms_mm")
+                    ));
+                }
+                if !v("/base").is_null() {
+                    line(format!(
+                        "base registration: RMS {} mm over {} poses, tracker at {} mm in the robot base frame",
+                        v("/base/rms_mm"),
+                        v("/base/poses"),
+                        v("/base/tracker_in_base_mm")
+                    ));
+                }
+            }
             Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
             Err(broadcast::error::RecvError::Lagged(_)) => {}
             Err(broadcast::error::RecvError::Closed) => break,

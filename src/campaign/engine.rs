@@ -12,6 +12,10 @@
 //! campaign resumable at the first unmeasured pose. Every state change, fault, drift check and
 //! note is journalled in the store's `events` table.
 
+mod setup;
+
+pub use setup::{BaseResult, SetupResult, ToolFrameResult};
+
 use std::future::Future;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -322,14 +326,17 @@ impl Run<'_> {
         .await
     }
 
+    /// Whether `q` passes the joint-limit and workspace checks (line of sight included).
+    fn target_safe(&self, q: &[f64]) -> bool {
+        self.ctx.nominal.within_limits(q) && target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
+    }
+
     /// Move to a joint target after the safety checks; returns the joints read after settling.
     async fn move_to(&mut self, q: &[f64]) -> Result<Vec<f64>, Stop> {
         if !self.ctx.control.is_armed() {
             return Err(Stop::Failed("the campaign is not armed: no motion".into()));
         }
-        if !self.ctx.nominal.within_limits(q)
-            || !target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
-        {
+        if !self.target_safe(q) {
             return Err(Stop::Failed(format!(
                 "target {q:?} fails the joint-limit/workspace check: not sent"
             )));
@@ -568,6 +575,7 @@ impl Run<'_> {
             .await?;
         }
         with_operator!(self, self.prepare().await);
+        with_operator!(self, self.setup().await);
         let baseline = with_operator!(self, self.drift_point().await);
         self.journal(CampaignEvent::Drift {
             drift_mm: 0.0,
@@ -633,8 +641,20 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
     })
     .await
     .map_err(|e| CampaignError::Task(e.to_string()))??;
-    let opts = identify_options(&ctx.cfg);
-    let nominal = ctx.nominal.clone();
+    let mut opts = identify_options(&ctx.cfg);
+    let mut nominal = ctx.nominal.clone();
+    let store = Arc::clone(&ctx.store);
+    let setup = tokio::task::spawn_blocking(move || {
+        let s = store
+            .lock()
+            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
+        SetupResult::load(&s, id).map_err(CampaignError::Store)
+    })
+    .await
+    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    if let Some(setup) = setup {
+        setup.apply(&mut nominal, &mut opts.obs.stage_axis, opts.identify_base);
+    }
     let travel = ctx.cfg.stage.travel_mm;
     let (report, _) =
         tokio::task::spawn_blocking(move || calibrate(&nominal, &rows, &opts, travel))

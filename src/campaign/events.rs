@@ -115,6 +115,11 @@ pub enum CampaignEvent {
         /// Threshold (mm).
         max_mm: f64,
     },
+    /// The cell setup was measured (tool frame, base registration; `SetupResult` as JSON).
+    Setup {
+        /// The setup result.
+        result: serde_json::Value,
+    },
     /// A technician question waiting for its answer (front ends answer it by `seq`).
     Prompt {
         /// Sequence number of the question (answer with it).
@@ -139,13 +144,14 @@ pub enum CampaignEvent {
 }
 
 impl CampaignEvent {
-    /// The event's tag (`state`, `measured`, `fault`, `drift`, `prompt`, `note`, `result`).
+    /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `note`, `result`).
     pub fn kind(&self) -> &'static str {
         match self {
             CampaignEvent::State { .. } => "state",
             CampaignEvent::Measured { .. } => "measured",
             CampaignEvent::Fault { .. } => "fault",
             CampaignEvent::Drift { .. } => "drift",
+            CampaignEvent::Setup { .. } => "setup",
             CampaignEvent::Prompt { .. } => "prompt",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",

@@ -10,5 +10,7 @@ pub mod engine;
 pub mod events;
 pub mod session;
 
-pub use engine::{run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome};
+pub use engine::{
+    run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome, SetupResult,
+};
 pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control};

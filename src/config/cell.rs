@@ -202,6 +202,51 @@ impl Default for CampaignSection {
     }
 }
 
+/// `[setup]`: the cell setup steps run once per campaign before the first pose.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SetupSection {
+    /// Run the tool-frame procedure of METHOD §4 (jogs along flange x/y, rotations about them,
+    /// sphere fit): the measured ball position and stage axis replace `campaign.tool_mm` and
+    /// `stage.axis` in the identification.
+    pub tool_frame: bool,
+    /// Register tracker ← robot base from `base_poses` spread poses on the nominal model (a
+    /// check of the mounting; the fixed base of the identification when
+    /// `campaign.identify_base = false`).
+    pub base_registration: bool,
+    /// Home pose of the tool-frame procedure (deg); default: the campaign's drift reference
+    /// (the planned pose nearest the box centre).
+    pub home_deg: Option<Vec<f64>>,
+    /// Jog distance along flange x and y (mm).
+    pub jog_mm: f64,
+    /// Rotations about flange x and about flange y (deg); at least two, none zero.
+    pub angles_deg: Vec<f64>,
+    /// P1/P2 pairs measured at home for the stage axis.
+    pub home_pairs: usize,
+    /// Poses of the base registration.
+    pub base_poses: usize,
+    /// Largest accepted RMS of the sphere fit (mm); above it the campaign pauses.
+    pub max_sphere_rms_mm: f64,
+    /// Largest accepted RMS of the base registration (mm); above it the campaign pauses.
+    pub max_base_rms_mm: f64,
+}
+
+impl Default for SetupSection {
+    fn default() -> Self {
+        SetupSection {
+            tool_frame: true,
+            base_registration: true,
+            home_deg: None,
+            jog_mm: 25.0,
+            angles_deg: vec![-28.0, -14.0, 14.0, 28.0],
+            home_pairs: 3,
+            base_poses: 6,
+            max_sphere_rms_mm: 0.1,
+            max_base_rms_mm: 3.0,
+        }
+    }
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CellFile {
@@ -215,6 +260,8 @@ struct CellFile {
     stage: StageSection,
     #[serde(default)]
     campaign: CampaignSection,
+    #[serde(default)]
+    setup: SetupSection,
     sim: Option<toml::Table>,
 }
 
@@ -237,6 +284,8 @@ pub struct CellConfig {
     pub stage: StageSection,
     /// Campaign defaults.
     pub campaign: CampaignSection,
+    /// Setup steps.
+    pub setup: SetupSection,
     /// The `[sim]` table, if any (the simulated world's own configuration).
     pub sim: Option<toml::Table>,
 }
@@ -337,6 +386,42 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
             "must be positive".into(),
         ));
     }
+    let st = &f.setup;
+    if !(st.jog_mm.is_finite() && st.jog_mm > 0.0) {
+        return Err(invalid("setup.jog_mm", "must be positive".into()));
+    }
+    if st.angles_deg.len() < 2
+        || st
+            .angles_deg
+            .iter()
+            .any(|a| !a.is_finite() || *a == 0.0 || a.abs() > 90.0)
+    {
+        return Err(invalid(
+            "setup.angles_deg",
+            "needs at least two non-zero angles within ±90°".into(),
+        ));
+    }
+    if st.home_pairs == 0 {
+        return Err(invalid("setup.home_pairs", "must be at least 1".into()));
+    }
+    if st.base_registration && st.base_poses < 3 {
+        return Err(invalid("setup.base_poses", "must be at least 3".into()));
+    }
+    if st
+        .home_deg
+        .as_ref()
+        .is_some_and(|h| h.iter().any(|v| !v.is_finite()))
+    {
+        return Err(invalid("setup.home_deg", "must be finite numbers".into()));
+    }
+    for (key, v) in [
+        ("setup.max_sphere_rms_mm", st.max_sphere_rms_mm),
+        ("setup.max_base_rms_mm", st.max_base_rms_mm),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(invalid(key, "must be positive".into()));
+        }
+    }
     if f.tracker.max_attempts == 0 || f.robot_controller.max_attempts == 0 {
         return Err(invalid("max_attempts", "must be at least 1".into()));
     }
@@ -352,6 +437,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         robot_controller: f.robot_controller,
         stage: f.stage,
         campaign: f.campaign,
+        setup: f.setup,
         sim: f.sim,
     })
 }

@@ -229,6 +229,42 @@ impl Store {
         tx.commit().ctx("commit save result")
     }
 
+    /// Store a cell setup result (`json` must be valid JSON).
+    pub fn save_setup(&mut self, id: i64, json: &str) -> Result<(), StoreError> {
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin save setup")?;
+        Store::ensure_campaign(&tx, id)?;
+        let valid: bool = tx
+            .query_row("SELECT json_valid(?1)", [json], |r| r.get(0))
+            .ctx("check the setup JSON")?;
+        if !valid {
+            return Err(StoreError::Invalid(
+                "the setup result is not valid JSON".into(),
+            ));
+        }
+        tx.execute(
+            "INSERT INTO setup_results (campaign_id, json) VALUES (?1, ?2)",
+            params![id, json],
+        )
+        .ctx("save a setup result")?;
+        tx.commit().ctx("commit save setup")
+    }
+
+    /// The JSON of the campaign's most recent setup result, if any.
+    pub fn latest_setup(&self, id: i64) -> Result<Option<String>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        self.conn
+            .query_row(
+                "SELECT json FROM setup_results WHERE campaign_id = ?1 ORDER BY id DESC LIMIT 1",
+                [id],
+                |r| r.get(0),
+            )
+            .optional()
+            .ctx("read the setup result")
+    }
+
     /// The JSON of the campaign's most recently saved result, if any.
     pub fn latest_result(&self, id: i64) -> Result<Option<String>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;

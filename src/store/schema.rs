@@ -20,6 +20,9 @@
 //! - `events(id, campaign_id, at_ms, kind, message)`.
 //! - `results(id, campaign_id, created_at_ms, model, json)`; `created_at_ms` is stamped by
 //!   SQLite (wall clock) on insert.
+//!
+//! Version 2 adds `setup_results(id, campaign_id, created_at_ms, json)`: the cell setup of a
+//! campaign (tool frame, base registration) as JSON, append-only; the latest one is used.
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -107,6 +110,20 @@ CREATE TABLE results (
     json          TEXT    NOT NULL CHECK (json_valid(json))
 ) STRICT;
 CREATE INDEX results_by_campaign ON results(campaign_id, id);
+"#,
+    // 1 -> 2: cell setup results (tool frame, base registration), append-only.
+    r#"
+CREATE TABLE setup_results (
+    id            INTEGER PRIMARY KEY,
+    campaign_id   INTEGER NOT NULL REFERENCES campaigns(id),
+    created_at_ms INTEGER NOT NULL DEFAULT (CAST(unixepoch('subsec') * 1000 AS INTEGER)),
+    json          TEXT    NOT NULL CHECK (json_valid(json))
+) STRICT;
+CREATE INDEX setup_results_by_campaign ON setup_results(campaign_id, id);
+CREATE TRIGGER setup_results_no_update BEFORE UPDATE ON setup_results
+BEGIN SELECT RAISE(ABORT, 'setup results are append-only'); END;
+CREATE TRIGGER setup_results_no_delete BEFORE DELETE ON setup_results
+BEGIN SELECT RAISE(ABORT, 'setup results are append-only'); END;
 "#,
 ];
 

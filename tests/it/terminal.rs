@@ -86,6 +86,9 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     let dir = tempfile::tempdir().expect("tempdir");
     let text = config_text("", "", "")
         .replace("kind = \"serial\"", "kind = \"manual\"")
+        // the setup questions are the same kind; this test follows the pose questions
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
         .replace("poses = 300", "poses = 20")
         .replace("ident = 100", "ident = 10");
     let cfg = write_config(dir.path(), &text);

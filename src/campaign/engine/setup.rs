@@ -1,0 +1,290 @@
+//! The cell setup steps, run once per campaign before the drift baseline: the tool-frame
+//! procedure of METHOD §4 and the base registration. Every point is stored (`setup` rows, with
+//! the mark in the note) before the robot moves on; the result is stored as JSON and reused on
+//! resume.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::{record, CampaignError, Run, Stop};
+use crate::campaign::events::CampaignEvent;
+use crate::cell::TrackerPoint;
+use crate::measure::{
+    plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
+    ToolFramePlanRequest,
+};
+use crate::model::rotation::to_rotation_vector;
+use crate::model::{forward, RobotModel};
+use crate::store::{PointKind, Store, StoreError};
+
+/// The measured tool frame (all vectors in the flange frame unless named `_tracker`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToolFrameResult {
+    /// Ball centre at stage P1 in the flange frame (mm).
+    pub tool_mm: [f64; 3],
+    /// Unit stage axis in the flange frame.
+    pub stage_axis: [f64; 3],
+    /// Flange origin (the sphere centre) in the tracker frame (mm).
+    pub flange_origin_tracker_mm: [f64; 3],
+    /// Flange x, y, z axes in the tracker frame (unit vectors, rows).
+    pub flange_axes_tracker: [[f64; 3]; 3],
+    /// Sphere radius = |tool| (mm).
+    pub sphere_radius_mm: f64,
+    /// RMS of the sphere fit (mm).
+    pub sphere_rms_mm: f64,
+    /// Angle between the measured jog axes (deg; 90 for a square flange).
+    pub jog_axes_angle_deg: f64,
+    /// Measured stage travel P1 → P2 (mm, mean over the pairs).
+    pub stage_travel_measured_mm: f64,
+    /// Targets measured.
+    pub targets: usize,
+}
+
+/// The registered base (tracker ← robot base, on the nominal model with the measured tool).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaseResult {
+    /// Translation robot base → tracker frame (mm).
+    pub translation_mm: [f64; 3],
+    /// Rotation robot base → tracker frame, rotation vector (rad).
+    pub rotation_vector_rad: [f64; 3],
+    /// RMS residual (mm): the nominal model's own error at these poses plus noise.
+    pub rms_mm: f64,
+    /// Largest residual (mm).
+    pub max_mm: f64,
+    /// The tracker's position in the robot base frame (mm).
+    pub tracker_in_base_mm: [f64; 3],
+    /// Poses used.
+    pub poses: usize,
+}
+
+/// A campaign's cell setup (each part present when configured).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SetupResult {
+    /// The tool-frame procedure.
+    pub tool_frame: Option<ToolFrameResult>,
+    /// The base registration.
+    pub base: Option<BaseResult>,
+}
+
+impl SetupResult {
+    /// The campaign's stored setup, if any.
+    pub fn load(store: &Store, id: i64) -> Result<Option<SetupResult>, StoreError> {
+        match store.latest_setup(id)? {
+            None => Ok(None),
+            Some(t) => serde_json::from_str(&t)
+                .map(Some)
+                .map_err(|e| StoreError::Corrupt(format!("setup result: {e}"))),
+        }
+    }
+
+    /// The nominal model and stage axis for identification: the measured tool, and the
+    /// registered base when the base is not identified.
+    pub fn apply(
+        &self,
+        model: &mut RobotModel,
+        stage_axis: &mut Vector3<f64>,
+        identify_base: bool,
+    ) {
+        if let Some(t) = &self.tool_frame {
+            model.tool = Vector3::from(t.tool_mm);
+            *stage_axis = Vector3::from(t.stage_axis);
+        }
+        if let (Some(b), false) = (&self.base, identify_base) {
+            model.base_translation = Vector3::from(b.translation_mm);
+            model.base_rotation =
+                crate::model::rotation::from_rotation_vector(&Vector3::from(b.rotation_vector_rad));
+        }
+    }
+}
+
+fn arr(v: &Vector3<f64>) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+impl Run<'_> {
+    /// Store one setup point before anything moves again.
+    async fn setup_point(
+        &self,
+        joints: &[f64],
+        p: &TrackerPoint,
+        stage_mm: f64,
+        note: String,
+    ) -> Result<(), CampaignError> {
+        let id = self.ctx.campaign_id;
+        let rec = record(p, stage_mm);
+        let q = joints.to_vec();
+        self.store(move |s| {
+            s.add_point(id, PointKind::Setup, None, Some(&q), &rec, &note)
+                .map(|_| ())
+        })
+        .await
+    }
+
+    /// The campaign's setup: the stored one on resume, else measured now and stored.
+    pub(super) async fn setup(&mut self) -> Result<SetupResult, Stop> {
+        let id = self.ctx.campaign_id;
+        if let Some(done) = self.store(move |s| SetupResult::load(s, id)).await? {
+            return Ok(done);
+        }
+        let cfg = &self.ctx.cfg.setup;
+        if !cfg.tool_frame && !cfg.base_registration {
+            return Ok(SetupResult::default());
+        }
+        let (do_tool, do_base) = (cfg.tool_frame, cfg.base_registration);
+        let mut model = self.ctx.nominal.clone();
+        let mut result = SetupResult::default();
+        if do_tool {
+            let t = self.tool_frame().await?;
+            model.tool = Vector3::from(t.tool_mm);
+            result.tool_frame = Some(t);
+        }
+        if do_base {
+            result.base = Some(self.base_registration(&model).await?);
+        }
+        let json = serde_json::to_string(&result)
+            .map_err(|e| Stop::Store(CampaignError::Task(e.to_string())))?;
+        self.store(move |s| s.save_setup(id, &json)).await?;
+        self.journal(CampaignEvent::Setup {
+            result: serde_json::to_value(&result).unwrap_or_default(),
+        })
+        .await?;
+        Ok(result)
+    }
+
+    /// METHOD §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
+    async fn tool_frame(&mut self) -> Result<ToolFrameResult, Stop> {
+        let cfg = &self.ctx.cfg.setup;
+        let req = ToolFramePlanRequest {
+            jog_mm: cfg.jog_mm,
+            angles_rad: cfg.angles_deg.iter().map(|d| d.to_radians()).collect(),
+            home_pairs: cfg.home_pairs,
+            ..ToolFramePlanRequest::default()
+        };
+        let max_rms = cfg.max_sphere_rms_mm;
+        let targets = match &cfg.home_deg {
+            Some(h) => {
+                let q0: Vec<f64> = h.iter().map(|d| d.to_radians()).collect();
+                let t = plan_tool_frame(&self.ctx.nominal, &q0, &req)
+                    .map_err(|e| Stop::Failed(format!("setup: {e}")))?;
+                if let Some(bad) = t.iter().find(|t| !self.target_safe(&t.q_rad)) {
+                    return Err(Stop::Failed(format!(
+                        "setup: target {} from setup.home_deg fails the joint-limit/workspace check",
+                        bad.mark.label()
+                    )));
+                }
+                t
+            }
+            None => self.home_targets(&req)?,
+        };
+        let s1 = self.ctx.cfg.stage.p1_mm;
+        let s2 = s1 + self.ctx.cfg.stage.travel_mm;
+        let mut meas = Vec::with_capacity(targets.len());
+        for t in &targets {
+            self.wait_unpaused().await?;
+            let label = t.mark.label();
+            let joints = self.move_to(&t.q_rad).await?;
+            let a1 = self.stage_to(s1).await?;
+            let p1 = self.measure_point(None, &joints, a1).await?;
+            self.setup_point(&joints, &p1, a1, format!("tool frame {label} P1"))
+                .await?;
+            let p2 = if t.measure_p2 {
+                let a2 = self.stage_to(s2).await?;
+                let p2 = self.measure_point(None, &joints, a2).await?;
+                self.setup_point(&joints, &p2, a2, format!("tool frame {label} P2"))
+                    .await?;
+                Some(p2.p_mm)
+            } else {
+                None
+            };
+            meas.push(SetupMeasurement {
+                mark: t.mark,
+                p1: p1.p_mm,
+                p2,
+            });
+        }
+        let f = solve_tool_frame(&meas).map_err(|e| Stop::Fault(format!("tool frame: {e}")))?;
+        if f.sphere.rms_mm > max_rms {
+            return Err(Stop::Fault(format!(
+                "tool frame: sphere fit RMS {:.4} mm above {max_rms} mm: check that the ball sits firmly in its nest, then resume to measure the tool frame again",
+                f.sphere.rms_mm
+            )));
+        }
+        Ok(ToolFrameResult {
+            tool_mm: arr(&f.tool_mm),
+            stage_axis: arr(&f.stage_axis),
+            flange_origin_tracker_mm: arr(&f.origin_mm),
+            flange_axes_tracker: [arr(&f.x_axis), arr(&f.y_axis), arr(&f.z_axis)],
+            sphere_radius_mm: f.sphere.radius_mm,
+            sphere_rms_mm: f.sphere.rms_mm,
+            jog_axes_angle_deg: f.jog_axes_angle_rad.to_degrees(),
+            stage_travel_measured_mm: f.stage_travel_mm,
+            targets: meas.len(),
+        })
+    }
+
+    /// The tool-frame targets from the planned pose nearest the box centre whose every target
+    /// solves and passes the safety checks (a pose near a singularity or a box face cannot
+    /// carry the jogs and rotations).
+    fn home_targets(&self, req: &ToolFramePlanRequest) -> Result<Vec<SetupTarget>, Stop> {
+        let centre = self.ctx.plan_request.workspace.center_mm;
+        let model = &self.ctx.nominal;
+        let mut homes: Vec<(f64, &Vec<f64>)> = std::iter::once(&self.ctx.plan.drift_reference)
+            .chain(self.ctx.plan.poses.iter().map(|p| &p.q_rad))
+            .map(|q| ((forward(model, q).flange().p - centre).norm(), q))
+            .collect();
+        homes.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut last = String::from("no planned pose");
+        for (_, q0) in homes.into_iter().take(100) {
+            match plan_tool_frame(model, q0, req) {
+                Ok(t) if t.iter().all(|t| self.target_safe(&t.q_rad)) => return Ok(t),
+                Ok(_) => last = "a target fails the joint-limit/workspace check".into(),
+                Err(e) => last = e.to_string(),
+            }
+        }
+        Err(Stop::Failed(format!(
+            "setup: no planned pose near the box centre can carry the tool-frame jogs and rotations ({last}); set setup.home_deg"
+        )))
+    }
+
+    /// Tracker ← robot base from spread planned poses on `model` (nominal + measured tool).
+    async fn base_registration(&mut self, model: &RobotModel) -> Result<BaseResult, Stop> {
+        let n = self.ctx.cfg.setup.base_poses;
+        let max_rms = self.ctx.cfg.setup.max_base_rms_mm;
+        let candidates: Vec<Vec<f64>> = self
+            .ctx
+            .plan
+            .poses
+            .iter()
+            .map(|p| p.q_rad.clone())
+            .collect();
+        let chosen = select_spread(model, &candidates, n);
+        let s1 = self.ctx.cfg.stage.p1_mm;
+        let mut pairs = Vec::with_capacity(chosen.len());
+        for (k, i) in chosen.into_iter().enumerate() {
+            self.wait_unpaused().await?;
+            let joints = self.move_to(&candidates[i]).await?;
+            let a1 = self.stage_to(s1).await?;
+            let p = self.measure_point(None, &joints, a1).await?;
+            self.setup_point(&joints, &p, a1, format!("base registration {}", k + 1))
+                .await?;
+            pairs.push((joints, p.p_mm));
+        }
+        let reg = register_base(model, &pairs)
+            .map_err(|e| Stop::Fault(format!("base registration: {e}")))?;
+        if reg.rms_mm > max_rms {
+            return Err(Stop::Fault(format!(
+                "base registration RMS {:.3} mm above {max_rms} mm: check the robot model file, the tool and the tracker's view, then resume",
+                reg.rms_mm
+            )));
+        }
+        let tracker_in_base = reg.rotation.transpose() * (-reg.translation);
+        Ok(BaseResult {
+            translation_mm: arr(&reg.translation),
+            rotation_vector_rad: arr(&to_rotation_vector(&reg.rotation)),
+            rms_mm: reg.rms_mm,
+            max_mm: reg.max_mm,
+            tracker_in_base_mm: arr(&tracker_in_base),
+            poses: pairs.len(),
+        })
+    }
+}
