@@ -29,6 +29,8 @@ pub struct SimWorldConfig {
     pub measure_ms: Option<u64>,
     /// Stage speed (mm/s); fast default 1000, realistic 5.
     pub stage_speed_mm_s: Option<f64>,
+    /// Time added to every stage move (ms): start-up and settling; 5 in both modes.
+    pub stage_settle_ms: u64,
     /// Tracker position in the measurement frame (mm): the range of the noise model.
     pub tracker_position_mm: [f64; 3],
     /// Tracker noise multiplier (1 = AT960 σ = (15 µm + 6 µm/m)/2 per axis, 0 = none).
@@ -91,6 +93,7 @@ impl Default for SimWorldConfig {
             settle_ms: None,
             measure_ms: None,
             stage_speed_mm_s: None,
+            stage_settle_ms: 5,
             tracker_position_mm: [2550.0, 0.0, 0.0],
             tracker_noise_scale: 1.0,
             base_translation_mm: None,

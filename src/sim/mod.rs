@@ -250,6 +250,7 @@ pub async fn start_cell(
             limit_max: (cfg.stage_max_mm * k).round() as i64,
             speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
             homed: false,
+            move_overhead: Duration::from_millis(cfg.stage_settle_ms),
             ..StageSimConfig::default()
         });
         {

@@ -289,6 +289,29 @@ async fn robot_faults_surface_as_their_kind_and_recover() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stage_settle_time_is_added_to_every_stage_move() {
+    bounded(async {
+        let c = cell(SimWorldConfig {
+            stage_speed_mm_s: Some(1.0e9),
+            stage_settle_ms: 60,
+            ..SimWorldConfig::default()
+        })
+        .await;
+        let mut s = ZaberStageAdapter::new(c.stage_config().expect("zaber stage"));
+        s.prepare().await.expect("stage homes");
+        let t = std::time::Instant::now();
+        s.move_to(5.0).await.expect("move");
+        assert!(
+            t.elapsed() >= Duration::from_millis(60),
+            "{:?}",
+            t.elapsed()
+        );
+        c.stop().await;
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stage_faults_surface_as_their_kind_and_recover() {
     bounded(async {
         let c = cell(SimWorldConfig::default()).await;

@@ -717,6 +717,24 @@ async fn handle_command(
     emit_reply(ctx, conn, out, rep).await
 }
 
+/// The last part of a measuring time that is waited on a thread rather than a tokio timer.
+const FINE_WAIT: Duration = Duration::from_millis(2);
+
+/// Wait `d` of measuring time to within about 0.1 ms. Tokio timers round up to the next
+/// millisecond tick (a 1 ms sleep takes about 2 ms), so the last [`FINE_WAIT`] at most is a
+/// thread sleep on the blocking pool.
+async fn wait_measuring_time(d: Duration) {
+    let deadline = Instant::now() + d;
+    if d > FINE_WAIT {
+        tokio::time::sleep_until(deadline - FINE_WAIT).await;
+    }
+    let rest = deadline.saturating_duration_since(Instant::now());
+    if !rest.is_zero() {
+        // A join error can only mean the runtime is shutting down: nothing left to wait for.
+        let _ = tokio::task::spawn_blocking(move || std::thread::sleep(rest)).await;
+    }
+}
+
 /// One measurement's fault plan, taken under one lock.
 struct MeasPlan {
     beam_before: bool,
@@ -780,7 +798,7 @@ async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std
     }
     if plan.beam_during {
         warn!("emscon server: beam break during measurement");
-        tokio::time::sleep(meas_time / 2).await;
+        wait_measuring_time(meas_time / 2).await;
         return beam_lost(ctx, out, plan.beam_error_status, plan.relock_after_ms).await;
     }
     if plan.interleave {
@@ -792,7 +810,7 @@ async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std
         }))
         .await?;
     }
-    tokio::time::sleep(meas_time).await;
+    wait_measuring_time(meas_time).await;
     let point = match ctx.backend.measure(conn.meas_time_ms) {
         BackendMeasurement::Point(p) => p,
         BackendMeasurement::TargetLost => {

@@ -45,6 +45,9 @@ pub struct StageSimConfig {
     pub homed: bool,
     /// Add `:XX` checksums to replies.
     pub checksum_replies: bool,
+    /// Fixed time added to every move (start-up and settling; a move stays BUSY at least this
+    /// long). Zero makes a move at infinite speed end at once.
+    pub move_overhead: Duration,
 }
 
 impl Default for StageSimConfig {
@@ -57,6 +60,7 @@ impl Default for StageSimConfig {
             speed_steps_s: 20_000_000.0,
             homed: false,
             checksum_replies: true,
+            move_overhead: Duration::from_millis(5),
         }
     }
 }
@@ -242,7 +246,7 @@ impl StageSim {
         let stall = take(&mut f.stall);
         let dist = (to - st.pos).abs() as f64;
         let duration = Duration::from_secs_f64((dist / self.cfg.speed_steps_s).min(3600.0))
-            + Duration::from_millis(5);
+            + self.cfg.move_overhead;
         st.mv = Some(Move {
             from: st.pos,
             to,

@@ -54,6 +54,25 @@ async fn full_setup_initializes_and_measures() {
 }
 
 #[tokio::test]
+async fn short_measuring_times_are_never_cut_short() {
+    // Below the timer tick the server finishes the measuring time on a thread sleep.
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    for ms in [1, 2, 3] {
+        c.set_stationary_params(ms, true).await.unwrap();
+        for _ in 0..3 {
+            let m = c.measure_stationary().await.unwrap();
+            let took = m.received_at.duration_since(m.sent_at).unwrap();
+            assert!(
+                took >= Duration::from_millis(ms as u64),
+                "{ms} ms: {took:?}"
+            );
+        }
+    }
+    sim.stop().await;
+}
+
+#[tokio::test]
 async fn setup_skips_initialize_when_already_initialized() {
     let sim = Sim::start_with(SimpleState {
         initialized: true,

@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use zaber::ascii::{append_checksum, parse_command};
-use zaber::sim::serve_stage;
+use zaber::sim::{serve_stage, StageSim, StageSimConfig};
 use zaber::{GaugeClient, GaugeConfig, GaugeError, StageError, ZaberStage};
 
 use crate::common::{sim, stage_cfg};
@@ -17,6 +17,25 @@ async fn stage_sim_over_duplex() {
     let mut st = ZaberStage::from_stream(a, stage_cfg());
     st.home().await.unwrap();
     assert!((st.move_abs_mm(7.0).await.unwrap() - 7.0).abs() < 1e-9);
+}
+
+#[tokio::test]
+async fn move_overhead_keeps_a_move_busy_and_zero_ends_it_at_once() {
+    for (overhead, busy) in [(Duration::from_millis(200), true), (Duration::ZERO, false)] {
+        let (a, b) = tokio::io::duplex(1024);
+        let s = StageSim::new(StageSimConfig {
+            homed: true,
+            speed_steps_s: 1.0e12,
+            move_overhead: overhead,
+            ..StageSimConfig::default()
+        });
+        tokio::spawn(serve_stage(b, s.clone()));
+        let mut st = ZaberStage::from_stream(a, stage_cfg());
+        st.start_move_abs_mm(7.0).await.unwrap();
+        assert_eq!(s.is_busy(), busy, "move overhead {overhead:?}");
+        st.poll_until_idle(Duration::from_secs(1)).await.unwrap();
+        assert!((st.position_mm().await.unwrap() - 7.0).abs() < 1e-9);
+    }
 }
 
 /// Scripted device: skips info/alert lines and a stale reply, answers with checksums.
