@@ -27,6 +27,9 @@ pub struct SimWorldConfig {
     pub settle_ms: Option<u64>,
     /// Measuring time the cell's tracker clients should use (ms); fast default 5, realistic 1000.
     pub measure_ms: Option<u64>,
+    /// The simulated tracker measures for the client's measuring time × this factor (1 = real
+    /// time, 0 = instant: zero-delay devices for overhead benchmarks).
+    pub measure_time_scale: f64,
     /// Stage speed (mm/s); fast default 1000, realistic 5.
     pub stage_speed_mm_s: Option<f64>,
     /// Time added to every stage move (ms): start-up and settling; 5 in both modes.
@@ -92,6 +95,7 @@ impl Default for SimWorldConfig {
             move_speed_deg_s: None,
             settle_ms: None,
             measure_ms: None,
+            measure_time_scale: 1.0,
             stage_speed_mm_s: None,
             stage_settle_ms: 5,
             tracker_position_mm: [2550.0, 0.0, 0.0],

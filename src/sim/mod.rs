@@ -338,9 +338,20 @@ pub async fn start_cell(
     let tracker_backend: Arc<dyn emscon::TrackerBackend> =
         Arc::new(SimTrackerBackend::new(world.clone()));
     let tfaults = tracker_faults.clone();
+    let tracker_options = emscon::ServerOptions {
+        measuring_time_scale: cfg.measure_time_scale,
+        ..emscon::ServerOptions::default()
+    };
     let rx = stop_rx.clone();
     tasks.push(tokio::spawn(async move {
-        if let Err(e) = emscon::serve(tracker_listener, tracker_backend, tfaults, stopped(rx)).await
+        if let Err(e) = emscon::serve_with_options(
+            tracker_listener,
+            tracker_backend,
+            tfaults,
+            tracker_options,
+            stopped(rx),
+        )
+        .await
         {
             warn!(error = %e, "sim tracker server ended");
         }

@@ -40,6 +40,9 @@ pub struct ServerOptions {
     pub shutdown_timeout: Duration,
     /// Reported emScon version.
     pub version: [i32; 3],
+    /// Simulated measuring time = the client's measuring time × this factor (1 = real time;
+    /// 0 = instant, for benchmarks of the orchestration around the tracker).
+    pub measuring_time_scale: f64,
 }
 
 impl Default for ServerOptions {
@@ -49,6 +52,7 @@ impl Default for ServerOptions {
             write_timeout: Duration::from_secs(10),
             shutdown_timeout: Duration::from_secs(2),
             version: [3, 6, 0],
+            measuring_time_scale: 1.0,
         }
     }
 }
@@ -791,7 +795,11 @@ async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std
     if !ctx.reflector_found() {
         return emit_reply(ctx, conn, out, Reply::failed(id, plan.beam_status)).await;
     }
-    let meas_time = Duration::from_millis(u64::try_from(conn.meas_time_ms.max(0)).unwrap_or(0));
+    let meas_time = Duration::from_millis(u64::try_from(conn.meas_time_ms.max(0)).unwrap_or(0))
+        .mul_f64(match ctx.options.measuring_time_scale {
+            s if s.is_finite() => s.clamp(0.0, 1.0e3),
+            _ => 1.0,
+        });
     let send_rt_first = !plan.result_without_rt && !plan.result_before_rt;
     if send_rt_first && emit_reply(ctx, conn, out, Reply::ok(id)).await? == Flow::Close {
         return Ok(Flow::Close);
