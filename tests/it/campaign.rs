@@ -466,3 +466,46 @@ async fn the_tool_frame_setup_measures_the_ball_and_rescues_a_wrong_design_tool(
         None
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stage_fault_after_p1_keeps_p1_as_discarded_and_resume_measures_the_pose_again() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20");
+    let armed = std::sync::atomic::AtomicBool::new(false);
+    let (outcome, store, id) = run_steered(&text, move |e, cell, control| match e {
+        CampaignEvent::Measured { done: 3, .. }
+            if !armed.swap(true, std::sync::atomic::Ordering::SeqCst) =>
+        {
+            // the stage is at P1 already: the next pose's first stage move is the one to P2
+            cell.stage_sim.as_ref().expect("zaber stage").faults().fault = 1;
+        }
+        CampaignEvent::State {
+            state: CampaignState::Paused { reason },
+        } => {
+            assert!(reason.contains("stage"), "pause reason: {reason}");
+            control.apply(&CampaignCommand::Resume);
+        }
+        _ => {}
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    check_complete(&store, id, 40);
+    let conn = rusqlite::Connection::open(&store).expect("sqlite");
+    let (n, pose): (i64, Option<i64>) = conn
+        .query_row(
+            "SELECT count(*), max(pose_index) FROM measurements \
+             WHERE kind = 'discarded' AND note LIKE 'P1 of an unfinished pose%'",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )
+        .expect("query");
+    assert_eq!(n, 1, "the P1 taken before the fault is on disk");
+    // that pose was measured again after the resume and is done once
+    let pose = pose.expect("pose index") as usize;
+    assert!(Store::open(&store)
+        .expect("store")
+        .done_poses(id)
+        .expect("done")
+        .contains(&pose));
+}
