@@ -147,3 +147,42 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     p2.sort_by(f64::total_cmp);
     assert_eq!(p2, vec![10.0, 10.004]);
 }
+
+#[test]
+fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // the first 7 measurements find the beam broken: 5 attempts fail, the campaign pauses
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 10")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
+        .replace(
+            "beam_break_before_measure = 0",
+            "beam_break_before_measure = 7",
+        );
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
+    cmd.args(["run", "--arm", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(&store);
+    let mut t = PtyChild::spawn(cmd);
+    t.expect("Campaign paused: tracker: no acceptable point after 5 attempts");
+    t.expect("press Enter to resume, or type a to abort");
+    t.send_line("");
+    t.expect("[20/20] pose");
+    t.expect("verify  after");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(s) = t.child.try_wait().expect("wait") {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "cellcal did not exit");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status:?}");
+    let s = Store::open(&store).expect("store");
+    assert_eq!(s.done_poses(1).expect("done").len(), 20);
+}
