@@ -16,10 +16,8 @@ use crate::model::RobotModel;
 
 thread_local! {
     /// Per-thread scratch for frames and screws, so the hot loop does not allocate.
-    static SCRATCH: RefCell<(Frames, Vec<Screw>)> = const { RefCell::new((
-        Frames { frames: Vec::new(), angles: Vec::new() },
-        Vec::new(),
-    )) };
+    static SCRATCH: RefCell<(Frames, Vec<Screw>)> =
+        const { RefCell::new((Frames::new(), Vec::new())) };
 }
 
 /// Which quantities the identification uses.

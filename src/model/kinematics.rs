@@ -44,9 +44,43 @@ impl Pose {
 
 /// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
 pub fn link(m: &Mdh, q: f64) -> Pose {
-    let (st, ct) = (m.theta + q).sin_cos();
-    let (sa, ca) = m.alpha.sin_cos();
-    let (sb, cb) = m.beta.sin_cos();
+    link_trig(m, (m.theta + q).sin_cos(), &Twists::of(m))
+}
+
+/// Sines and cosines of a link's constant twists α and β, and the values they belong to.
+#[derive(Debug, Clone, Copy)]
+struct Twists {
+    alpha: f64,
+    beta: f64,
+    sa: f64,
+    ca: f64,
+    sb: f64,
+    cb: f64,
+}
+
+impl Twists {
+    fn of(m: &Mdh) -> Twists {
+        let (sa, ca) = m.alpha.sin_cos();
+        let (sb, cb) = m.beta.sin_cos();
+        Twists {
+            alpha: m.alpha,
+            beta: m.beta,
+            sa,
+            ca,
+            sb,
+            cb,
+        }
+    }
+
+    /// Whether these are the twists of `m` (bitwise).
+    fn belong_to(&self, m: &Mdh) -> bool {
+        self.alpha.to_bits() == m.alpha.to_bits() && self.beta.to_bits() == m.beta.to_bits()
+    }
+}
+
+/// [`link`] from `sin_cos(θ+q)` and the twists' sines and cosines.
+fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &Twists) -> Pose {
+    let (sa, ca, sb, cb) = (t.sa, t.ca, t.sb, t.cb);
     // RotZ·RotX
     let (r00, r01, r02) = (ct, -st * ca, st * sa);
     let (r10, r11, r12) = (st, ct * ca, -ct * sa);
@@ -103,15 +137,39 @@ impl Screw {
 }
 
 /// All frames of the chain at one joint configuration (robot base frame, no base/tool).
+///
+/// Reused storage ([`forward_into`]) also keeps the sines and cosines of the constant twists
+/// α, β and recomputes them only when the joints' twists change, so repeated kinematics of one
+/// chain evaluate one sine/cosine pair per joint.
 #[derive(Debug, Clone)]
 pub struct Frames {
     /// Frames 0 (base) … n (flange).
     pub frames: Vec<Pose>,
     /// θ_i + q_i per joint (rad).
     pub angles: Vec<f64>,
+    /// `sin_cos` of each angle (shared by the link transforms and the screws).
+    sin_cos: Vec<(f64, f64)>,
+    /// Twist trigonometry of the chain of the previous call.
+    twists: Vec<Twists>,
+}
+
+impl Default for Frames {
+    fn default() -> Self {
+        Frames::new()
+    }
 }
 
 impl Frames {
+    /// Empty storage for [`forward_into`].
+    pub const fn new() -> Frames {
+        Frames {
+            frames: Vec::new(),
+            angles: Vec::new(),
+            sin_cos: Vec::new(),
+            twists: Vec::new(),
+        }
+    }
+
     /// The flange frame `A_1 ⋯ A_n`.
     pub fn flange(&self) -> &Pose {
         &self.frames[self.frames.len() - 1]
@@ -131,7 +189,7 @@ impl Frames {
             let prev = &self.frames[i];
             let next = &self.frames[i + 1];
             let z0 = prev.r.column(2).into_owned();
-            let (s, c) = self.angles[i].sin_cos();
+            let (s, c) = self.sin_cos[i];
             let xp = prev.r.column(0) * c + prev.r.column(1) * s;
             out.push(Screw {
                 axis: z0,
@@ -169,23 +227,28 @@ pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
 
 /// Forward kinematics from bare MDH parameters.
 pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
-    let mut f = Frames {
-        frames: Vec::with_capacity(joints.len() + 1),
-        angles: Vec::with_capacity(joints.len()),
-    };
+    let mut f = Frames::new();
     forward_into(joints, q, &mut f);
     f
 }
 
 /// Forward kinematics into reusable storage (no allocation once grown).
 pub fn forward_into(joints: &[Mdh], q: &[f64], f: &mut Frames) {
+    if f.twists.len() != joints.len() || !f.twists.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
+        f.twists.clear();
+        f.twists.extend(joints.iter().map(Twists::of));
+    }
     f.frames.clear();
     f.angles.clear();
+    f.sin_cos.clear();
     let mut t = Pose::identity();
     f.frames.push(t);
-    for (m, qi) in joints.iter().zip(q) {
-        f.angles.push(m.theta + qi);
-        t = t.compose(&link(m, *qi));
+    for ((m, qi), tw) in joints.iter().zip(q).zip(&f.twists) {
+        let angle = m.theta + qi;
+        let sc = angle.sin_cos();
+        f.angles.push(angle);
+        f.sin_cos.push(sc);
+        t = t.compose(&link_trig(m, sc, tw));
         f.frames.push(t);
     }
 }
