@@ -27,6 +27,7 @@ use crate::model::kinematics::forward;
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
 use problem::CalibProblem;
+use solver::Problem;
 
 /// Options of one identification.
 #[derive(Debug, Clone, Copy)]
@@ -247,7 +248,8 @@ pub fn identify(
         });
     }
     let initial = initial_model(nominal, poses, opts)?;
-    let ident = identifiability::analyze(&initial, poses, &opts.obs, &candidates);
+    let (ident, sums) =
+        identifiability::analyze_linearized(&initial, poses, &opts.obs, &candidates);
     let missing: Vec<String> = structural
         .identified
         .iter()
@@ -258,27 +260,35 @@ pub fn identify(
         return Err(IdentifyError::RankDeficient { missing });
     }
     let params = ident.identified.clone();
+    let problem = CalibProblem::new(poses, &opts.obs, &params);
+    // the analysis linearised at the initial model already: start the solver from it
+    let start = sums
+        .linearization(&params, opts.obs.direction_weight_mm)
+        .unwrap_or_else(|| problem.linearize(&initial));
     let (fit, rejected) = match opts.robust {
         None => (
-            solver::solve(
-                &CalibProblem::new(poses, &opts.obs, &params),
-                initial.clone(),
-                &opts.solver,
-            ),
+            solver::solve_from(&problem, initial.clone(), start, &opts.solver),
             Vec::new(),
         ),
-        Some(loss) => {
-            robust::solve_robust(&initial, poses, &opts.obs, &params, loss, &opts.solver)?
-        }
+        Some(loss) => robust::solve_robust(
+            &initial,
+            start,
+            poses,
+            &opts.obs,
+            &params,
+            loss,
+            &opts.solver,
+        )?,
     };
     let used = poses.len() - rejected.len();
     let dof = (used * rows).saturating_sub(params.len()).max(1);
     let sigma0_sq = 2.0 * fit.final_cost / dof as f64;
+    let k = params.len();
     let cov = fit
         .normal_matrix
-        .clone()
-        .try_inverse()
-        .unwrap_or_else(|| DMatrix::from_element(params.len(), params.len(), f64::NAN))
+        .cholesky()
+        .map(|c| c.inverse())
+        .unwrap_or_else(|| DMatrix::from_element(k, k, f64::NAN))
         * sigma0_sq;
     let std: Vec<f64> = (0..params.len())
         .map(|i| cov[(i, i)].max(0.0).sqrt())
