@@ -11,13 +11,26 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_into, Frames, Screw};
-use crate::model::RobotModel;
+use crate::model::kinematics::{forward, forward_into, Frames};
+use crate::model::{ParamKind, RobotModel};
+
+/// Per-pose working storage of [`residual_jacobian`].
+struct Scratch {
+    /// Frames of the chain.
+    frames: Frames,
+    /// Per joint, the screw axes `z`, `x`, `y` of [`crate::model::kinematics::JointAxes`]
+    /// in the measurement frame.
+    axes: Vec<[Vector3<f64>; 3]>,
+    /// Per frame, the ball minus the frame origin (measurement frame): the lever arm of a
+    /// rotation about an axis through that origin.
+    arms: Vec<Vector3<f64>>,
+}
 
 thread_local! {
-    /// Per-thread scratch for frames and screws, so the hot loop does not allocate.
-    static SCRATCH: RefCell<(Frames, Vec<Screw>)> =
-        const { RefCell::new((Frames::new(), Vec::new())) };
+    /// Per-thread scratch, so the hot loop does not allocate.
+    static SCRATCH: RefCell<Scratch> = const {
+        RefCell::new(Scratch { frames: Frames::new(), axes: Vec::new(), arms: Vec::new() })
+    };
 }
 
 /// Which quantities the identification uses.
@@ -159,13 +172,10 @@ pub fn residual_jacobian(
     jac: &mut [f64],
 ) {
     SCRATCH.with(|cell| {
-        let mut guard = cell.borrow_mut();
-        let (frames, screws) = &mut *guard;
-        residual_jacobian_with(model, meas, cfg, params, res, jac, frames, screws);
+        residual_jacobian_with(model, meas, cfg, params, res, jac, &mut cell.borrow_mut());
     });
 }
 
-#[allow(clippy::too_many_arguments)]
 fn residual_jacobian_with(
     model: &RobotModel,
     meas: &Measured,
@@ -173,9 +183,13 @@ fn residual_jacobian_with(
     params: &[ParamId],
     res: &mut [f64],
     jac: &mut [f64],
-    f: &mut Frames,
-    screws: &mut Vec<Screw>,
+    scratch: &mut Scratch,
 ) {
+    let Scratch {
+        frames: f,
+        axes,
+        arms,
+    } = scratch;
     forward_into(&model.joints, &meas.q, f);
     let fl = *f.flange();
     let rb = model.base_rotation;
@@ -214,7 +228,14 @@ fn residual_jacobian_with(
     }
     let np = params.len();
     if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
-        f.screws_into(&model.joints, screws);
+        // each joint's axes and each frame's lever arm once, shared by the joint's five columns
+        axes.clear();
+        axes.extend((0..f.angles.len()).map(|i| {
+            let j = f.joint_axes(i);
+            [rb * j.z, rb * j.x, rb * j.y]
+        }));
+        arms.clear();
+        arms.extend(f.frames.iter().map(|fr| p - (rb * fr.p + tb)));
     }
     let rows = 3 + 3 * ndir;
     debug_assert!(rows * np <= jac.len());
@@ -232,15 +253,23 @@ fn residual_jacobian_with(
         let mut dd = [Vector3::zeros(); 3];
         let dp = match par {
             ParamId::Mdh { joint, kind } => {
-                let s = &screws[5 * joint + *kind as usize];
-                let axis = rb * s.axis;
-                if s.rotation {
-                    for k in 0..ndir {
-                        dd[k] = axis.cross(&dirs[k].0);
+                let [z, x, y] = &axes[*joint];
+                // a rotation: (axis, lever arm); a translation: (axis, none)
+                let (axis, arm) = match kind {
+                    ParamKind::Theta => (z, Some(&arms[*joint])),
+                    ParamKind::D => (z, None),
+                    ParamKind::A => (x, None),
+                    ParamKind::Alpha => (x, Some(&arms[joint + 1])),
+                    ParamKind::Beta => (y, Some(&arms[joint + 1])),
+                };
+                match arm {
+                    Some(arm) => {
+                        for k in 0..ndir {
+                            dd[k] = axis.cross(&dirs[k].0);
+                        }
+                        axis.cross(arm)
                     }
-                    axis.cross(&(p - (rb * s.point + tb)))
-                } else {
-                    axis
+                    None => *axis,
                 }
             }
             ParamId::BaseTranslation(i) => Vector3::ith(*i, 1.0),

@@ -185,39 +185,54 @@ impl Frames {
     /// The 5n parameter screws written into `out` (cleared first; no allocation once grown).
     pub fn screws_into(&self, joints: &[Mdh], out: &mut Vec<Screw>) {
         out.clear();
-        for (i, _) in joints.iter().enumerate() {
-            let prev = &self.frames[i];
-            let next = &self.frames[i + 1];
-            let z0 = prev.r.column(2).into_owned();
-            let (s, c) = self.sin_cos[i];
-            let xp = prev.r.column(0) * c + prev.r.column(1) * s;
-            out.push(Screw {
-                axis: z0,
-                point: prev.p,
-                rotation: true,
-            });
-            out.push(Screw {
-                axis: z0,
-                point: prev.p,
-                rotation: false,
-            });
-            out.push(Screw {
-                axis: xp,
-                point: prev.p,
-                rotation: false,
-            });
-            out.push(Screw {
-                axis: xp,
-                point: next.p,
-                rotation: true,
-            });
-            out.push(Screw {
-                axis: next.r.column(1).into_owned(),
-                point: next.p,
-                rotation: true,
-            });
+        for i in 0..joints.len() {
+            let j = self.joint_axes(i);
+            let screw = |axis, point, rotation| Screw {
+                axis,
+                point,
+                rotation,
+            };
+            out.extend([
+                screw(j.z, j.origin, true),
+                screw(j.z, j.origin, false),
+                screw(j.x, j.origin, false),
+                screw(j.x, j.next, true),
+                screw(j.y, j.next, true),
+            ]);
         }
     }
+
+    /// The axes and points behind the five screws of joint `i` (robot base frame).
+    #[inline]
+    pub fn joint_axes(&self, i: usize) -> JointAxes {
+        let prev = &self.frames[i];
+        let next = &self.frames[i + 1];
+        let (s, c) = self.sin_cos[i];
+        JointAxes {
+            z: prev.r.column(2).into_owned(),
+            x: prev.r.column(0) * c + prev.r.column(1) * s,
+            y: next.r.column(1).into_owned(),
+            origin: prev.p,
+            next: next.p,
+        }
+    }
+}
+
+/// The screws of one joint's parameters share three axes and two points: θ turns about `z`
+/// through `origin`, d moves along `z`, a along `x`, α turns about `x` through `next`, β about
+/// `y` through `next` (robot base frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointAxes {
+    /// Joint axis (θ, d).
+    pub z: Vector3<f64>,
+    /// Common normal after the joint rotation (a, α).
+    pub x: Vector3<f64>,
+    /// y axis of the next frame (β).
+    pub y: Vector3<f64>,
+    /// Origin of the joint's frame (the θ screw's point).
+    pub origin: Vector3<f64>,
+    /// Origin of the next frame (the α and β screws' point).
+    pub next: Vector3<f64>,
 }
 
 /// Forward kinematics: every frame of the chain (robot base frame, base and tool not applied).
