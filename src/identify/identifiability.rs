@@ -15,9 +15,10 @@
 
 use nalgebra::DMatrix;
 
+use super::normal::SplitSums;
 use super::observation::{Measured, ObsConfig};
 use super::params::ParamId;
-use super::problem::{CalibProblem, SplitSums};
+use super::problem::CalibProblem;
 use crate::model::{ParamKind, RobotModel};
 
 /// Scale of direction rows and angle columns for the rank test (mm).

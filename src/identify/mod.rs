@@ -8,6 +8,7 @@
 //! correlations from `σ̂²·(JᵀJ)⁻¹`.
 
 pub mod identifiability;
+pub mod normal;
 pub mod observation;
 pub mod params;
 pub mod problem;

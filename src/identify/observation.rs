@@ -11,7 +11,7 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_into, Frames};
+use crate::model::kinematics::{forward, forward_into, forward_into_trig, Frames};
 use crate::model::{ParamKind, RobotModel};
 
 /// Per-pose working storage of [`residual_jacobian`].
@@ -171,18 +171,88 @@ pub fn residual_jacobian(
     res: &mut [f64],
     jac: &mut [f64],
 ) {
+    let np = params.len();
+    debug_assert!(jac.is_empty() || cfg.model.rows() * np <= jac.len());
+    residual_into(
+        model,
+        meas,
+        None,
+        cfg,
+        params,
+        res,
+        &mut RowMajor { jac, np },
+    );
+}
+
+/// Whether a parameter can turn the measured directions: rotations can; the direction rows of
+/// a translation (MDH d and a, base translation, tool) are zero.
+pub fn turns_directions(p: &ParamId) -> bool {
+    p.is_angle()
+}
+
+/// Receives the weighted Jacobian of one pose, column by column.
+pub trait JacobianSink {
+    /// Whether the Jacobian is wanted at all (else only residuals are computed).
+    fn wanted(&self) -> bool;
+    /// Column `c`: the position rows `dp` and the rows of each measured direction `dd`
+    /// (all zero for a translation parameter).
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]);
+}
+
+/// The row-major Jacobian of [`residual_jacobian`].
+struct RowMajor<'a> {
+    jac: &'a mut [f64],
+    np: usize,
+}
+
+impl JacobianSink for RowMajor<'_> {
+    fn wanted(&self) -> bool {
+        !self.jac.is_empty()
+    }
+
+    #[inline(always)]
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]) {
+        let np = self.np;
+        for r in 0..3 {
+            self.jac[r * np + c] = dp[r];
+        }
+        for (k, d) in dd.iter().enumerate() {
+            for r in 0..3 {
+                self.jac[(3 + 3 * k + r) * np + c] = d[r];
+            }
+        }
+    }
+}
+
+/// Weighted residual (`rows` entries) of one pose, and its Jacobian into `sink`; `q_sin_cos`:
+/// `sin_cos` of the pose's joint values when known (see [`forward_into_trig`]).
+pub fn residual_into<S: JacobianSink>(
+    model: &RobotModel,
+    meas: &Measured,
+    q_sin_cos: Option<&[(f64, f64)]>,
+    cfg: &ObsConfig,
+    params: &[ParamId],
+    res: &mut [f64],
+    sink: &mut S,
+) {
     SCRATCH.with(|cell| {
-        residual_jacobian_with(model, meas, cfg, params, res, jac, &mut cell.borrow_mut());
+        let scratch = &mut *cell.borrow_mut();
+        match q_sin_cos {
+            Some(t) => forward_into_trig(&model.joints, &meas.q, t, &mut scratch.frames),
+            None => forward_into(&model.joints, &meas.q, &mut scratch.frames),
+        }
+        residual_jacobian_with(model, meas, cfg, params, res, sink, scratch);
     });
 }
 
-fn residual_jacobian_with(
+/// [`residual_into`] once the frames in `scratch` are those of the pose.
+fn residual_jacobian_with<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
     cfg: &ObsConfig,
     params: &[ParamId],
     res: &mut [f64],
-    jac: &mut [f64],
+    sink: &mut S,
     scratch: &mut Scratch,
 ) {
     let Scratch {
@@ -190,7 +260,6 @@ fn residual_jacobian_with(
         axes,
         arms,
     } = scratch;
-    forward_into(&model.joints, &meas.q, f);
     let fl = *f.flange();
     let rb = model.base_rotation;
     let tb = model.base_translation;
@@ -223,10 +292,9 @@ fn residual_jacobian_with(
         let v = wd * (dirs[k].0 - dirs[k].1);
         res[3 + 3 * k..6 + 3 * k].copy_from_slice(v.as_slice());
     }
-    if jac.is_empty() {
+    if !sink.wanted() {
         return;
     }
-    let np = params.len();
     if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
         // each joint's axes and each frame's lever arm once, shared by the joint's five columns
         axes.clear();
@@ -237,18 +305,6 @@ fn residual_jacobian_with(
         arms.clear();
         arms.extend(f.frames.iter().map(|fr| p - (rb * fr.p + tb)));
     }
-    let rows = 3 + 3 * ndir;
-    debug_assert!(rows * np <= jac.len());
-    let mut put = |c: usize, dp: Vector3<f64>, dd: &[Vector3<f64>; 3]| {
-        for r in 0..3 {
-            jac[r * np + c] = w * dp[r];
-        }
-        for k in 0..ndir {
-            for r in 0..3 {
-                jac[(3 + 3 * k + r) * np + c] = wd * dd[k][r];
-            }
-        }
-    };
     for (c, par) in params.iter().enumerate() {
         let mut dd = [Vector3::zeros(); 3];
         let dp = match par {
@@ -282,7 +338,10 @@ fn residual_jacobian_with(
             }
             ParamId::Tool(i) => rb * fl.r.column(*i),
         };
-        put(c, dp, &dd);
+        for d in &mut dd[..ndir] {
+            *d *= wd;
+        }
+        sink.column(c, &(w * dp), &dd[..ndir]);
     }
 }
 

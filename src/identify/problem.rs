@@ -1,8 +1,13 @@
 //! The calibration least-squares problem over a set of poses.
 
-use nalgebra::{DMatrix, DVector};
+use std::ops::Range;
 
-use super::observation::{residual_jacobian, Measured, ObsConfig};
+use nalgebra::Vector3;
+
+use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
+use super::observation::{
+    residual_into, residual_jacobian, turns_directions, JacobianSink, Measured, ObsConfig,
+};
 use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
 use crate::model::RobotModel;
@@ -12,12 +17,37 @@ pub struct CalibProblem<'a> {
     poses: &'a [Measured],
     cfg: &'a ObsConfig,
     params: &'a [ParamId],
+    /// `sin_cos` of every pose's joint values, pose after pose (they do not change while the
+    /// parameters do, so each linearisation evaluates no sine or cosine per pose).
+    q_sin_cos: Vec<(f64, f64)>,
+    /// Start of each pose's joint values in `q_sin_cos` (and the end).
+    q_start: Vec<usize>,
 }
 
 impl<'a> CalibProblem<'a> {
     /// A problem over `poses` (weights in each pose) for `params`.
     pub fn new(poses: &'a [Measured], cfg: &'a ObsConfig, params: &'a [ParamId]) -> Self {
-        CalibProblem { poses, cfg, params }
+        let mut q_start = Vec::with_capacity(poses.len() + 1);
+        q_start.push(0);
+        for p in poses {
+            q_start.push(q_start[q_start.len() - 1] + p.q.len());
+        }
+        let q_sin_cos = poses
+            .iter()
+            .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
+            .collect();
+        CalibProblem {
+            poses,
+            cfg,
+            params,
+            q_sin_cos,
+            q_start,
+        }
+    }
+
+    /// `sin_cos` of pose `i`'s joint values.
+    fn q_trig(&self, i: usize) -> &[(f64, f64)] {
+        &self.q_sin_cos[self.q_start[i]..self.q_start[i + 1]]
     }
 
     /// Weighted residual norm of each pose at a state.
@@ -33,185 +63,97 @@ impl<'a> CalibProblem<'a> {
     }
 }
 
-/// Poses per block of Jacobian rows folded into `JᵀJ` at once.
-pub const BLOCK_POSES: usize = 64;
-
 /// Poses above which the work is split over two threads.
 pub const PARALLEL_MIN_POSES: usize = 256;
 
-/// Apply `f` to two fixed halves of `items` on two threads (or to all of them on this thread
-/// when there are few). The split does not depend on the machine, so sums are bit-for-bit
-/// reproducible.
-pub fn split_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&[T]) -> R + Sync) -> Vec<R> {
-    if items.len() < PARALLEL_MIN_POSES {
-        return vec![f(items)];
+/// Apply `f` to two fixed halves of the index range `0..n` on two threads (or to all of it on
+/// this thread when `n` is small). The split does not depend on the machine, so sums are
+/// bit-for-bit reproducible.
+pub fn split_map<R: Send>(n: usize, f: impl Fn(Range<usize>) -> R + Sync) -> Vec<R> {
+    if n < PARALLEL_MIN_POSES {
+        return vec![f(0..n)];
     }
-    let (a, b) = items.split_at(items.len() / 2);
+    let half = n / 2;
     std::thread::scope(|s| {
-        let hb = s.spawn(|| f(b));
-        let ra = f(a);
+        let hb = s.spawn(|| f(half..n));
+        let ra = f(0..half);
         match hb.join() {
             Ok(rb) => vec![ra, rb],
-            Err(_) => vec![ra, f(b)],
+            Err(_) => vec![ra, f(half..n)],
         }
     })
 }
 
-/// Normal-equation sums of residual rows `r` with Jacobian `J`: `rᵀr`, `Jᵀr` and `JᵀJ`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NormalSums {
-    /// `rᵀr`.
-    sum_sq: f64,
-    /// `Jᵀr`.
-    g: DVector<f64>,
-    /// `JᵀJ`.
-    h: DMatrix<f64>,
-}
-
-impl NormalSums {
-    fn zeros(k: usize) -> NormalSums {
-        NormalSums {
-            sum_sq: 0.0,
-            g: DVector::zeros(k),
-            h: DMatrix::zeros(k, k),
-        }
-    }
-
-    /// The sums of two fixed halves added in order (or the one part, or zeros).
-    fn merge(parts: Vec<NormalSums>, k: usize) -> NormalSums {
-        let mut it = parts.into_iter();
-        let mut sums = it.next().unwrap_or_else(|| NormalSums::zeros(k));
-        for p in it {
-            sums.sum_sq += p.sum_sq;
-            sums.g += p.g;
-            sums.h += p.h;
-        }
-        sums
-    }
-
-    /// Cost `½rᵀr`, gradient `Jᵀr` and `JᵀJ`.
-    pub fn linearization(self) -> Linearization {
-        (0.5 * self.sum_sq, self.g, self.h)
-    }
-}
-
-/// The normal-equation sums of the position rows and of the direction rows apart (direction
-/// rows at unit direction weight), so that any direction weight can be applied afterwards.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SplitSums {
-    /// The parameters (columns).
-    params: Vec<ParamId>,
-    /// Position rows.
-    position: NormalSums,
-    /// Direction rows, unweighted by the direction weight.
-    direction: NormalSums,
-}
-
-impl SplitSums {
-    /// `JᵀJ` over all parameters with direction rows weighted by `w` (mm).
-    pub fn normal_matrix(&self, w: f64) -> DMatrix<f64> {
-        &self.position.h + (w * w) * &self.direction.h
-    }
-
-    /// The linearisation over `params` (each one of these sums' parameters) with direction rows
-    /// weighted by `w` (mm); `None` when a parameter is missing.
-    pub fn linearization(&self, params: &[ParamId], w: f64) -> Option<Linearization> {
-        let cols = params
-            .iter()
-            .map(|p| self.params.iter().position(|q| q == p))
-            .collect::<Option<Vec<usize>>>()?;
-        let (p, d, w2) = (&self.position, &self.direction, w * w);
-        let n = cols.len();
-        Some((
-            0.5 * (p.sum_sq + w2 * d.sum_sq),
-            DVector::from_fn(n, |i, _| p.g[cols[i]] + w2 * d.g[cols[i]]),
-            DMatrix::from_fn(n, n, |i, j| {
-                p.h[(cols[i], cols[j])] + w2 * d.h[(cols[i], cols[j])]
-            }),
-        ))
-    }
-}
-
-/// Jacobian rows gathered in blocks and folded into `JᵀJ` by one matrix product per block
-/// (cache-friendly GEMM instead of a scalar loop per row); `Jᵀr` and `rᵀr` row by row.
-struct Folder {
-    /// Parameters (columns).
+/// Writes one pose's Jacobian into a position block (all columns) and a direction block (the
+/// columns that turn directions).
+struct BlockSink<'a> {
+    pos: &'a mut [f64],
+    dir: &'a mut [f64],
     k: usize,
-    /// Entries per block (rows × k).
-    cap: usize,
-    /// The block, row after row; read as a column-major matrix it is `Jᵀ`.
-    buf: Vec<f64>,
-    sums: NormalSums,
+    /// Per column, its index in the direction block.
+    dir_col: &'a [Option<usize>],
+    kd: usize,
 }
 
-impl Folder {
-    fn new(k: usize, rows: usize) -> Folder {
-        Folder {
-            k,
-            cap: rows * k,
-            buf: Vec::with_capacity(rows * k),
-            sums: NormalSums::zeros(k),
-        }
+impl JacobianSink for BlockSink<'_> {
+    fn wanted(&self) -> bool {
+        true
     }
 
-    /// Add rows: residuals `res` and their row-major Jacobian `jac` (`res.len() × k`).
-    fn push(&mut self, jac: &[f64], res: &[f64]) {
-        let k = self.k;
-        for (i, r) in res.iter().enumerate() {
-            let row = &jac[i * k..(i + 1) * k];
-            self.sums.sum_sq += r * r;
-            for (g, j) in self.sums.g.as_mut_slice().iter_mut().zip(row) {
-                *g += j * r;
-            }
-            self.buf.extend_from_slice(row);
-            if self.buf.len() == self.cap && k > 0 {
-                self.flush();
+    #[inline(always)]
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]) {
+        for r in 0..3 {
+            self.pos[r * self.k + c] = dp[r];
+        }
+        if let Some(j) = self.dir_col[c] {
+            for (m, d) in dd.iter().enumerate() {
+                for r in 0..3 {
+                    self.dir[(3 * m + r) * self.kd + j] = d[r];
+                }
             }
         }
-    }
-
-    fn flush(&mut self) {
-        let jt = nalgebra::DMatrixView::from_slice(&self.buf, self.k, self.buf.len() / self.k);
-        self.sums.h.gemm(1.0, &jt, &jt.transpose(), 1.0);
-        self.buf.clear();
-    }
-
-    fn finish(mut self) -> NormalSums {
-        if !self.buf.is_empty() {
-            self.flush();
-        }
-        self.sums
     }
 }
 
 impl CalibProblem<'_> {
-    /// Normal-equation sums over a chunk of poses under `cfg`: of all rows, or (`split`) of the
-    /// position rows and of the direction rows apart.
+    /// Normal-equation sums of the position rows and of the direction rows (embedded in all
+    /// columns) over the poses `range` under `cfg`.
     fn accumulate(
         &self,
         state: &RobotModel,
-        chunk: &[Measured],
+        range: Range<usize>,
         cfg: &ObsConfig,
-        split: bool,
-    ) -> Vec<NormalSums> {
+    ) -> (NormalSums, NormalSums) {
         let k = self.params.len();
-        let rows = cfg.model.rows();
-        let cut = if split { 3 } else { rows };
-        let block = BLOCK_POSES.min(chunk.len()).max(1);
-        let mut folders = vec![Folder::new(k, block * cut)];
-        if cut < rows {
-            folders.push(Folder::new(k, block * (rows - cut)));
+        let nd = cfg.model.rows() - 3;
+        let turning: Vec<usize> = (0..k)
+            .filter(|&c| turns_directions(&self.params[c]))
+            .collect();
+        let mut dir_col = vec![None; k];
+        for (j, &c) in turning.iter().enumerate() {
+            dir_col[c] = Some(j);
         }
-        let mut res = vec![0.0; rows];
-        let mut jac = vec![0.0; rows * k];
-        for p in chunk.iter().filter(|p| p.weight != 0.0) {
-            residual_jacobian(state, p, cfg, self.params, &mut res, &mut jac);
-            folders[0].push(&jac[..cut * k], &res[..cut]);
-            if let Some(f) = folders.get_mut(1) {
-                f.push(&jac[cut * k..], &res[cut..]);
-            }
+        let kd = turning.len();
+        let block = BLOCK_POSES.min(range.len()).max(1);
+        let mut pos = Folder::new((0..k).collect(), k, block * 3);
+        let mut dir = Folder::new(turning, k, block * nd);
+        let mut res = vec![0.0; 3 + nd];
+        for i in range.filter(|&i| self.poses[i].weight != 0.0) {
+            let (pj, pr) = pos.rows(3);
+            let (dj, dr) = dir.rows(nd);
+            let mut sink = BlockSink {
+                pos: pj,
+                dir: dj,
+                k,
+                dir_col: &dir_col,
+                kd,
+            };
+            let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+            residual_into(state, p, t, cfg, self.params, &mut res, &mut sink);
+            pr.copy_from_slice(&res[..3]);
+            dr.copy_from_slice(&res[3..]);
         }
-        folders.into_iter().map(Folder::finish).collect()
+        (pos.finish(), dir.finish())
     }
 
     /// The sums of the position rows and of the direction rows at `state`, apart (the direction
@@ -222,16 +164,10 @@ impl CalibProblem<'_> {
             direction_weight_mm: 1.0,
             ..*self.cfg
         };
-        let parts = split_map(self.poses, |chunk| {
-            self.accumulate(state, chunk, &unit, true)
-        });
-        let (mut pos, mut dir) = (Vec::new(), Vec::new());
-        for mut part in parts {
-            if part.len() > 1 {
-                dir.push(part.remove(1));
-            }
-            pos.push(part.remove(0));
-        }
+        let (pos, dir): (Vec<_>, Vec<_>) =
+            split_map(self.poses.len(), |r| self.accumulate(state, r, &unit))
+                .into_iter()
+                .unzip();
         SplitSums {
             params: self.params.to_vec(),
             position: NormalSums::merge(pos, k),
@@ -252,18 +188,19 @@ impl Problem for CalibProblem<'_> {
     }
 
     fn linearize(&self, state: &RobotModel) -> Linearization {
-        let parts = split_map(self.poses, |chunk| {
-            let mut sums = self.accumulate(state, chunk, self.cfg, false);
-            sums.remove(0)
-        });
-        NormalSums::merge(parts, self.params.len()).linearization()
+        let k = self.params.len();
+        let (pos, dir): (Vec<_>, Vec<_>) =
+            split_map(self.poses.len(), |r| self.accumulate(state, r, self.cfg))
+                .into_iter()
+                .unzip();
+        NormalSums::merge([NormalSums::merge(pos, k), NormalSums::merge(dir, k)], k).linearization()
     }
 
     fn cost(&self, state: &RobotModel) -> f64 {
-        let parts = split_map(self.poses, |chunk| {
+        let parts = split_map(self.poses.len(), |range| {
             let mut res = vec![0.0; self.cfg.model.rows()];
             let mut cost = 0.0;
-            for p in chunk.iter().filter(|p| p.weight != 0.0) {
+            for p in self.poses[range].iter().filter(|p| p.weight != 0.0) {
                 residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
                 cost += res.iter().map(|r| r * r).sum::<f64>();
             }

@@ -44,27 +44,34 @@ impl Pose {
 
 /// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
 pub fn link(m: &Mdh, q: f64) -> Pose {
-    link_trig(m, (m.theta + q).sin_cos(), &Twists::of(m))
+    link_trig(m, (m.theta + q).sin_cos(), &LinkTrig::of(m))
 }
 
-/// Sines and cosines of a link's constant twists α and β, and the values they belong to.
+/// Sines and cosines of a link's constant angles θ, α, β, and the values they belong to.
 #[derive(Debug, Clone, Copy)]
-struct Twists {
+struct LinkTrig {
+    theta: f64,
     alpha: f64,
     beta: f64,
+    st: f64,
+    ct: f64,
     sa: f64,
     ca: f64,
     sb: f64,
     cb: f64,
 }
 
-impl Twists {
-    fn of(m: &Mdh) -> Twists {
+impl LinkTrig {
+    fn of(m: &Mdh) -> LinkTrig {
+        let (st, ct) = m.theta.sin_cos();
         let (sa, ca) = m.alpha.sin_cos();
         let (sb, cb) = m.beta.sin_cos();
-        Twists {
+        LinkTrig {
+            theta: m.theta,
             alpha: m.alpha,
             beta: m.beta,
+            st,
+            ct,
             sa,
             ca,
             sb,
@@ -72,14 +79,16 @@ impl Twists {
         }
     }
 
-    /// Whether these are the twists of `m` (bitwise).
+    /// Whether these are the angles of `m` (bitwise).
     fn belong_to(&self, m: &Mdh) -> bool {
-        self.alpha.to_bits() == m.alpha.to_bits() && self.beta.to_bits() == m.beta.to_bits()
+        self.theta.to_bits() == m.theta.to_bits()
+            && self.alpha.to_bits() == m.alpha.to_bits()
+            && self.beta.to_bits() == m.beta.to_bits()
     }
 }
 
 /// [`link`] from `sin_cos(θ+q)` and the twists' sines and cosines.
-fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &Twists) -> Pose {
+fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &LinkTrig) -> Pose {
     let (sa, ca, sb, cb) = (t.sa, t.ca, t.sb, t.cb);
     // RotZ·RotX
     let (r00, r01, r02) = (ct, -st * ca, st * sa);
@@ -138,9 +147,10 @@ impl Screw {
 
 /// All frames of the chain at one joint configuration (robot base frame, no base/tool).
 ///
-/// Reused storage ([`forward_into`]) also keeps the sines and cosines of the constant twists
-/// α, β and recomputes them only when the joints' twists change, so repeated kinematics of one
-/// chain evaluate one sine/cosine pair per joint.
+/// Reused storage ([`forward_into`]) also keeps the sines and cosines of the constant angles
+/// θ, α, β and recomputes them only when the joints change, so repeated kinematics of one chain
+/// evaluate one sine/cosine pair per joint, or none given those of the joint values
+/// ([`forward_into_trig`]).
 #[derive(Debug, Clone)]
 pub struct Frames {
     /// Frames 0 (base) … n (flange).
@@ -149,8 +159,8 @@ pub struct Frames {
     pub angles: Vec<f64>,
     /// `sin_cos` of each angle (shared by the link transforms and the screws).
     sin_cos: Vec<(f64, f64)>,
-    /// Twist trigonometry of the chain of the previous call.
-    twists: Vec<Twists>,
+    /// Trigonometry of the constant angles of the chain of the previous call.
+    trig: Vec<LinkTrig>,
 }
 
 impl Default for Frames {
@@ -166,7 +176,7 @@ impl Frames {
             frames: Vec::new(),
             angles: Vec::new(),
             sin_cos: Vec::new(),
-            twists: Vec::new(),
+            trig: Vec::new(),
         }
     }
 
@@ -203,7 +213,7 @@ impl Frames {
     }
 
     /// The axes and points behind the five screws of joint `i` (robot base frame).
-    #[inline]
+    #[inline(always)]
     pub fn joint_axes(&self, i: usize) -> JointAxes {
         let prev = &self.frames[i];
         let next = &self.frames[i + 1];
@@ -249,21 +259,39 @@ pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
 
 /// Forward kinematics into reusable storage (no allocation once grown).
 pub fn forward_into(joints: &[Mdh], q: &[f64], f: &mut Frames) {
-    if f.twists.len() != joints.len() || !f.twists.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
-        f.twists.clear();
-        f.twists.extend(joints.iter().map(Twists::of));
+    forward_with(joints, q, f, |_, m, qi, _| (m.theta + qi).sin_cos());
+}
+
+/// [`forward_into`] given `sin_cos` of each joint value: `sin_cos(θ+q)` by the angle-sum
+/// formulas, so no sine or cosine is evaluated once the chain's own are known.
+pub fn forward_into_trig(joints: &[Mdh], q: &[f64], q_sin_cos: &[(f64, f64)], f: &mut Frames) {
+    forward_with(joints, q, f, |i, _, _, t| {
+        let (sq, cq) = q_sin_cos[i];
+        (t.st * cq + t.ct * sq, t.ct * cq - t.st * sq)
+    });
+}
+
+/// Forward kinematics with `sin_cos(θ_i + q_i)` from `sc(i, joint, q_i, trig)`.
+fn forward_with(
+    joints: &[Mdh],
+    q: &[f64],
+    f: &mut Frames,
+    sc: impl Fn(usize, &Mdh, f64, &LinkTrig) -> (f64, f64),
+) {
+    if f.trig.len() != joints.len() || !f.trig.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
+        f.trig.clear();
+        f.trig.extend(joints.iter().map(LinkTrig::of));
     }
     f.frames.clear();
     f.angles.clear();
     f.sin_cos.clear();
     let mut t = Pose::identity();
     f.frames.push(t);
-    for ((m, qi), tw) in joints.iter().zip(q).zip(&f.twists) {
-        let angle = m.theta + qi;
-        let sc = angle.sin_cos();
-        f.angles.push(angle);
-        f.sin_cos.push(sc);
-        t = t.compose(&link_trig(m, sc, tw));
+    for (i, ((m, qi), lt)) in joints.iter().zip(q).zip(&f.trig).enumerate() {
+        let s = sc(i, m, *qi, lt);
+        f.angles.push(m.theta + qi);
+        f.sin_cos.push(s);
+        t = t.compose(&link_trig(m, s, lt));
         f.frames.push(t);
     }
 }
