@@ -3,7 +3,8 @@
 //! Pure code. Flow: [`identify`] → initial state (given base/tool, or a rigid registration of
 //! the nominal model to the data when the base is identified) → [`identifiability::analyze`]
 //! on the actual poses, checked against generic poses so that too few or too similar poses are
-//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]) →
+//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]), started
+//! from the linearisation the analysis computed at the initial state ([`normal::SplitSums`]) →
 //! optional iteratively reweighted robust refit ([`robust`]) → standard deviations and
 //! correlations from `σ̂²·(JᵀJ)⁻¹`.
 

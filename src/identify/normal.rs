@@ -105,7 +105,7 @@ impl SplitSums {
 
 /// Rows of `[J r]` over some of the problem's columns, gathered in blocks and folded into
 /// normal-equation sums one block at a time.
-pub struct Folder {
+pub(crate) struct Folder {
     /// The problem's columns held here, in order.
     cols: Vec<usize>,
     /// Columns of the problem.

@@ -22,6 +22,10 @@ pub struct CalibProblem<'a> {
     q_sin_cos: Vec<(f64, f64)>,
     /// Start of each pose's joint values in `q_sin_cos` (and the end).
     q_start: Vec<usize>,
+    /// The columns of parameters that turn directions (the direction blocks hold only these).
+    turning: Vec<usize>,
+    /// Per column, its index among `turning`.
+    dir_col: Vec<Option<usize>>,
 }
 
 impl<'a> CalibProblem<'a> {
@@ -36,12 +40,21 @@ impl<'a> CalibProblem<'a> {
             .iter()
             .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
             .collect();
+        let turning: Vec<usize> = (0..params.len())
+            .filter(|&c| turns_directions(&params[c]))
+            .collect();
+        let mut dir_col = vec![None; params.len()];
+        for (j, &c) in turning.iter().enumerate() {
+            dir_col[c] = Some(j);
+        }
         CalibProblem {
             poses,
             cfg,
             params,
             q_sin_cos,
             q_start,
+            turning,
+            dir_col,
         }
     }
 
@@ -126,17 +139,10 @@ impl CalibProblem<'_> {
     ) -> (NormalSums, NormalSums) {
         let k = self.params.len();
         let nd = cfg.model.rows() - 3;
-        let turning: Vec<usize> = (0..k)
-            .filter(|&c| turns_directions(&self.params[c]))
-            .collect();
-        let mut dir_col = vec![None; k];
-        for (j, &c) in turning.iter().enumerate() {
-            dir_col[c] = Some(j);
-        }
-        let kd = turning.len();
+        let kd = self.turning.len();
         let block = BLOCK_POSES.min(range.len()).max(1);
         let mut pos = Folder::new((0..k).collect(), k, block * 3);
-        let mut dir = Folder::new(turning, k, block * nd);
+        let mut dir = Folder::new(self.turning.clone(), k, block * nd);
         let mut res = vec![0.0; 3 + nd];
         for i in range.filter(|&i| self.poses[i].weight != 0.0) {
             let (pj, pr) = pos.rows(3);
@@ -145,7 +151,7 @@ impl CalibProblem<'_> {
                 pos: pj,
                 dir: dj,
                 k,
-                dir_col: &dir_col,
+                dir_col: &self.dir_col,
                 kd,
             };
             let (p, t) = (&self.poses[i], Some(self.q_trig(i)));

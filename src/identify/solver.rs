@@ -2,7 +2,7 @@
 //! damping update.
 //!
 //! Own implementation rather than the `levenberg-marquardt` crate: the problems here have few
-//! parameters (≤ 39) and many rows (up to 120 000), so accumulating `JᵀJ` pose by pose and
+//! parameters (≤ 39) and many rows (up to 120 000), so accumulating `JᵀJ` block by block and
 //! solving a 39×39 Cholesky system is far cheaper than MINPACK's dense QR of the whole
 //! Jacobian, never stores the Jacobian, and supports the manifold update of the base rotation.
 //! After column scaling the identified Jacobian has a condition number below ~50, so the
