@@ -8,6 +8,7 @@
 //! optional iteratively reweighted robust refit ([`robust`]) → standard deviations and
 //! correlations from `σ̂²·(JᵀJ)⁻¹`.
 
+pub mod covariance;
 pub mod identifiability;
 pub mod normal;
 pub mod observation;
@@ -28,6 +29,7 @@ use crate::measure::fit_rigid;
 use crate::model::kinematics::forward;
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
+use covariance::{covariance, Covariance};
 use problem::CalibProblem;
 use solver::Problem;
 
@@ -285,19 +287,7 @@ pub fn identify(
     let used = poses.len() - rejected.len();
     let dof = (used * rows).saturating_sub(params.len()).max(1);
     let sigma0_sq = 2.0 * fit.final_cost / dof as f64;
-    let k = params.len();
-    let cov = fit
-        .normal_matrix
-        .cholesky()
-        .map(|c| c.inverse())
-        .unwrap_or_else(|| DMatrix::from_element(k, k, f64::NAN))
-        * sigma0_sq;
-    let std: Vec<f64> = (0..params.len())
-        .map(|i| cov[(i, i)].max(0.0).sqrt())
-        .collect();
-    let correlation = DMatrix::from_fn(params.len(), params.len(), |i, j| {
-        cov[(i, j)] / (std[i] * std[j])
-    });
+    let Covariance { std, correlation } = covariance(fit.normal_matrix, sigma0_sq);
     let corrected = fit.state;
     let base_dr =
         to_rotation_vector(&(corrected.base_rotation * initial.base_rotation.transpose()));
