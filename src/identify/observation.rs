@@ -11,26 +11,12 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_into, forward_into_trig, Frames};
+use crate::model::kinematics::{forward, forward_from, Frames, Pose};
 use crate::model::{ParamKind, RobotModel};
 
-/// Per-pose working storage of [`residual_jacobian`].
-struct Scratch {
-    /// Frames of the chain.
-    frames: Frames,
-    /// Per joint, the screw axes `z`, `x`, `y` of [`crate::model::kinematics::JointAxes`]
-    /// in the measurement frame.
-    axes: Vec<[Vector3<f64>; 3]>,
-    /// Per frame, the ball minus the frame origin (measurement frame): the lever arm of a
-    /// rotation about an axis through that origin.
-    arms: Vec<Vector3<f64>>,
-}
-
 thread_local! {
-    /// Per-thread scratch, so the hot loop does not allocate.
-    static SCRATCH: RefCell<Scratch> = const {
-        RefCell::new(Scratch { frames: Frames::new(), axes: Vec::new(), arms: Vec::new() })
-    };
+    /// Per-thread frames of the chain, so the hot loop does not allocate.
+    static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
 }
 
 /// Which quantities the identification uses.
@@ -225,7 +211,7 @@ impl JacobianSink for RowMajor<'_> {
 }
 
 /// Weighted residual (`rows` entries) of one pose, and its Jacobian into `sink`; `q_sin_cos`:
-/// `sin_cos` of the pose's joint values when known (see [`forward_into_trig`]).
+/// `sin_cos` of the pose's joint values when known (see [`forward_from`]).
 pub fn residual_into<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
@@ -235,17 +221,18 @@ pub fn residual_into<S: JacobianSink>(
     res: &mut [f64],
     sink: &mut S,
 ) {
-    SCRATCH.with(|cell| {
-        let scratch = &mut *cell.borrow_mut();
-        match q_sin_cos {
-            Some(t) => forward_into_trig(&model.joints, &meas.q, t, &mut scratch.frames),
-            None => forward_into(&model.joints, &meas.q, &mut scratch.frames),
-        }
-        residual_jacobian_with(model, meas, cfg, params, res, sink, scratch);
+    FRAMES.with(|cell| {
+        let f = &mut *cell.borrow_mut();
+        let base = Pose {
+            r: model.base_rotation,
+            p: model.base_translation,
+        };
+        forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
+        residual_jacobian_with(model, meas, cfg, params, res, sink, f);
     });
 }
 
-/// [`residual_into`] once the frames in `scratch` are those of the pose.
+/// [`residual_into`] once `f` holds the pose's frames in the measurement frame.
 fn residual_jacobian_with<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
@@ -253,18 +240,10 @@ fn residual_jacobian_with<S: JacobianSink>(
     params: &[ParamId],
     res: &mut [f64],
     sink: &mut S,
-    scratch: &mut Scratch,
+    f: &Frames,
 ) {
-    let Scratch {
-        frames: f,
-        axes,
-        arms,
-    } = scratch;
-    let fl = *f.flange();
-    let rb = model.base_rotation;
-    let tb = model.base_translation;
-    let pb = fl.transform_point(&model.tool); // ball, robot base frame
-    let p = rb * pb + tb; // ball, measurement frame
+    let fl = f.flange(); // measurement frame
+    let p = fl.transform_point(&model.tool); // ball, measurement frame
     let w = meas.weight;
     let wd = cfg.direction_weight_mm * w;
 
@@ -274,14 +253,13 @@ fn residual_jacobian_with<S: JacobianSink>(
         ObsModel::Position => 0,
         ObsModel::Np | ObsModel::Op => {
             let d = meas.direction.unwrap_or_else(Vector3::zeros);
-            dirs[0] = (rb * (fl.r * cfg.stage_axis), d);
+            dirs[0] = (fl.r * cfg.stage_axis, d);
             1
         }
         ObsModel::Full => {
             let r = meas.rotation.unwrap_or_else(Matrix3::zeros);
-            let rm = rb * fl.r;
             for (k, dir) in dirs.iter_mut().enumerate() {
-                *dir = (rm.column(k).into_owned(), r.column(k).into_owned());
+                *dir = (fl.r.column(k).into_owned(), r.column(k).into_owned());
             }
             3
         }
@@ -295,53 +273,66 @@ fn residual_jacobian_with<S: JacobianSink>(
     if !sink.wanted() {
         return;
     }
-    if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
-        // each joint's axes and each frame's lever arm once, shared by the joint's five columns
-        axes.clear();
-        axes.extend((0..f.angles.len()).map(|i| {
-            let j = f.joint_axes(i);
-            [rb * j.z, rb * j.x, rb * j.y]
-        }));
-        arms.clear();
-        arms.extend(f.frames.iter().map(|fr| p - (rb * fr.p + tb)));
+    let cols = Columns {
+        params,
+        frames: f,
+        tb: &model.base_translation,
+        p: &p,
+        w,
+        wd,
+    };
+    // the number of directions as a constant: the column loop unrolls over them
+    let models = [dirs[0].0, dirs[1].0, dirs[2].0];
+    match ndir {
+        0 => cols.emit::<0, S>(&[], sink),
+        1 => cols.emit::<1, S>(&[models[0]], sink),
+        _ => cols.emit::<3, S>(&models, sink),
     }
-    for (c, par) in params.iter().enumerate() {
-        let mut dd = [Vector3::zeros(); 3];
-        let dp = match par {
-            ParamId::Mdh { joint, kind } => {
-                let [z, x, y] = &axes[*joint];
-                // a rotation: (axis, lever arm); a translation: (axis, none)
-                let (axis, arm) = match kind {
-                    ParamKind::Theta => (z, Some(&arms[*joint])),
-                    ParamKind::D => (z, None),
-                    ParamKind::A => (x, None),
-                    ParamKind::Alpha => (x, Some(&arms[joint + 1])),
-                    ParamKind::Beta => (y, Some(&arms[joint + 1])),
-                };
-                match arm {
-                    Some(arm) => {
-                        for k in 0..ndir {
-                            dd[k] = axis.cross(&dirs[k].0);
-                        }
-                        axis.cross(arm)
+}
+
+/// What the Jacobian columns of one pose are built from (measurement frame).
+struct Columns<'a> {
+    params: &'a [ParamId],
+    /// The chain's frames, frame 0 being the base.
+    frames: &'a Frames,
+    /// Base translation (the base rotation's pivot).
+    tb: &'a Vector3<f64>,
+    /// The ball.
+    p: &'a Vector3<f64>,
+    /// Weight of position rows and of direction rows.
+    w: f64,
+    wd: f64,
+}
+
+impl Columns<'_> {
+    /// Every column into `sink`, given the `N` modelled directions.
+    #[inline(always)]
+    fn emit<const N: usize, S: JacobianSink>(&self, dirs: &[Vector3<f64>; N], sink: &mut S) {
+        let turn = |axis: &Vector3<f64>| dirs.map(|d| self.wd * axis.cross(&d));
+        for (c, par) in self.params.iter().enumerate() {
+            let (dp, dd) = match par {
+                ParamId::Mdh { joint, kind } => {
+                    let j = self.frames.joint_axes(*joint);
+                    match kind {
+                        ParamKind::Theta => (j.z.cross(&(self.p - j.origin)), turn(&j.z)),
+                        ParamKind::D => (j.z, [Vector3::zeros(); N]),
+                        ParamKind::A => (j.x, [Vector3::zeros(); N]),
+                        ParamKind::Alpha => (j.x.cross(&(self.p - j.next)), turn(&j.x)),
+                        ParamKind::Beta => (j.y.cross(&(self.p - j.next)), turn(&j.y)),
                     }
-                    None => *axis,
                 }
-            }
-            ParamId::BaseTranslation(i) => Vector3::ith(*i, 1.0),
-            ParamId::BaseRotation(i) => {
-                let e = Vector3::ith(*i, 1.0);
-                for k in 0..ndir {
-                    dd[k] = e.cross(&dirs[k].0);
+                ParamId::BaseTranslation(i) => (Vector3::ith(*i, 1.0), [Vector3::zeros(); N]),
+                ParamId::BaseRotation(i) => {
+                    let e = Vector3::ith(*i, 1.0);
+                    (e.cross(&(self.p - self.tb)), turn(&e))
                 }
-                e.cross(&(p - tb))
-            }
-            ParamId::Tool(i) => rb * fl.r.column(*i),
-        };
-        for d in &mut dd[..ndir] {
-            *d *= wd;
+                ParamId::Tool(i) => (
+                    self.frames.flange().r.column(*i).into_owned(),
+                    [Vector3::zeros(); N],
+                ),
+            };
+            sink.column(c, &(self.w * dp), &dd);
         }
-        sink.column(c, &(w * dp), &dd[..ndir]);
     }
 }
 

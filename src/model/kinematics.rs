@@ -145,12 +145,13 @@ impl Screw {
     }
 }
 
-/// All frames of the chain at one joint configuration (robot base frame, no base/tool).
+/// All frames of the chain at one joint configuration (robot base frame, or that of the base
+/// given to [`forward_from`]; no tool).
 ///
 /// Reused storage ([`forward_into`]) also keeps the sines and cosines of the constant angles
 /// θ, α, β and recomputes them only when the joints change, so repeated kinematics of one chain
 /// evaluate one sine/cosine pair per joint, or none given those of the joint values
-/// ([`forward_into_trig`]).
+/// ([`forward_from`]).
 #[derive(Debug, Clone)]
 pub struct Frames {
     /// Frames 0 (base) … n (flange).
@@ -180,7 +181,7 @@ impl Frames {
         }
     }
 
-    /// The flange frame `A_1 ⋯ A_n`.
+    /// The flange frame `A_1 ⋯ A_n` (after the base given to [`forward_from`], if any).
     pub fn flange(&self) -> &Pose {
         &self.frames[self.frames.len() - 1]
     }
@@ -212,7 +213,7 @@ impl Frames {
         }
     }
 
-    /// The axes and points behind the five screws of joint `i` (robot base frame).
+    /// The axes and points behind the five screws of joint `i` (in the frame of frame 0).
     #[inline(always)]
     pub fn joint_axes(&self, i: usize) -> JointAxes {
         let prev = &self.frames[i];
@@ -230,7 +231,7 @@ impl Frames {
 
 /// The screws of one joint's parameters share three axes and two points: θ turns about `z`
 /// through `origin`, d moves along `z`, a along `x`, α turns about `x` through `next`, β about
-/// `y` through `next` (robot base frame).
+/// `y` through `next` (robot base frame, or the frame the chain was computed in).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JointAxes {
     /// Joint axis (θ, d).
@@ -259,20 +260,31 @@ pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
 
 /// Forward kinematics into reusable storage (no allocation once grown).
 pub fn forward_into(joints: &[Mdh], q: &[f64], f: &mut Frames) {
-    forward_with(joints, q, f, |_, m, qi, _| (m.theta + qi).sin_cos());
+    forward_from(&Pose::identity(), joints, q, None, f);
 }
 
-/// [`forward_into`] given `sin_cos` of each joint value: `sin_cos(θ+q)` by the angle-sum
+/// [`forward_into`] with every frame expressed in the frame of `base` (frame 0 is `base`), and,
+/// when `q_sin_cos` gives `sin_cos` of each joint value, `sin_cos(θ+q)` by the angle-sum
 /// formulas, so no sine or cosine is evaluated once the chain's own are known.
-pub fn forward_into_trig(joints: &[Mdh], q: &[f64], q_sin_cos: &[(f64, f64)], f: &mut Frames) {
-    forward_with(joints, q, f, |i, _, _, t| {
-        let (sq, cq) = q_sin_cos[i];
-        (t.st * cq + t.ct * sq, t.ct * cq - t.st * sq)
-    });
+pub fn forward_from(
+    base: &Pose,
+    joints: &[Mdh],
+    q: &[f64],
+    q_sin_cos: Option<&[(f64, f64)]>,
+    f: &mut Frames,
+) {
+    match q_sin_cos {
+        None => forward_with(base, joints, q, f, |_, m, qi, _| (m.theta + qi).sin_cos()),
+        Some(sc) => forward_with(base, joints, q, f, |i, _, _, t| {
+            let (sq, cq) = sc[i];
+            (t.st * cq + t.ct * sq, t.ct * cq - t.st * sq)
+        }),
+    }
 }
 
-/// Forward kinematics with `sin_cos(θ_i + q_i)` from `sc(i, joint, q_i, trig)`.
+/// Forward kinematics from `base` with `sin_cos(θ_i + q_i)` from `sc(i, joint, q_i, trig)`.
 fn forward_with(
+    base: &Pose,
     joints: &[Mdh],
     q: &[f64],
     f: &mut Frames,
@@ -285,7 +297,7 @@ fn forward_with(
     f.frames.clear();
     f.angles.clear();
     f.sin_cos.clear();
-    let mut t = Pose::identity();
+    let mut t = *base;
     f.frames.push(t);
     for (i, ((m, qi), lt)) in joints.iter().zip(q).zip(&f.trig).enumerate() {
         let s = sc(i, m, *qi, lt);
