@@ -44,34 +44,27 @@ impl Pose {
 
 /// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
 pub fn link(m: &Mdh, q: f64) -> Pose {
-    link_trig(m, (m.theta + q).sin_cos(), &LinkTrig::of(m))
+    link_trig(m, (m.theta + q).sin_cos(), &Twists::of(m))
 }
 
-/// Sines and cosines of a link's constant angles θ, α, β, and the values they belong to.
+/// Sines and cosines of a link's constant twists α and β, and the values they belong to.
 #[derive(Debug, Clone, Copy)]
-struct LinkTrig {
-    theta: f64,
+struct Twists {
     alpha: f64,
     beta: f64,
-    st: f64,
-    ct: f64,
     sa: f64,
     ca: f64,
     sb: f64,
     cb: f64,
 }
 
-impl LinkTrig {
-    fn of(m: &Mdh) -> LinkTrig {
-        let (st, ct) = m.theta.sin_cos();
+impl Twists {
+    fn of(m: &Mdh) -> Twists {
         let (sa, ca) = m.alpha.sin_cos();
         let (sb, cb) = m.beta.sin_cos();
-        LinkTrig {
-            theta: m.theta,
+        Twists {
             alpha: m.alpha,
             beta: m.beta,
-            st,
-            ct,
             sa,
             ca,
             sb,
@@ -79,16 +72,14 @@ impl LinkTrig {
         }
     }
 
-    /// Whether these are the angles of `m` (bitwise).
+    /// Whether these are the twists of `m` (bitwise).
     fn belong_to(&self, m: &Mdh) -> bool {
-        self.theta.to_bits() == m.theta.to_bits()
-            && self.alpha.to_bits() == m.alpha.to_bits()
-            && self.beta.to_bits() == m.beta.to_bits()
+        self.alpha.to_bits() == m.alpha.to_bits() && self.beta.to_bits() == m.beta.to_bits()
     }
 }
 
 /// [`link`] from `sin_cos(θ+q)` and the twists' sines and cosines.
-fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &LinkTrig) -> Pose {
+fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &Twists) -> Pose {
     let (sa, ca, sb, cb) = (t.sa, t.ca, t.sb, t.cb);
     // RotZ·RotX
     let (r00, r01, r02) = (ct, -st * ca, st * sa);
@@ -160,8 +151,11 @@ pub struct Frames {
     pub angles: Vec<f64>,
     /// `sin_cos` of each angle (shared by the link transforms and the screws).
     sin_cos: Vec<(f64, f64)>,
-    /// Trigonometry of the constant angles of the chain of the previous call.
-    trig: Vec<LinkTrig>,
+    /// Twist trigonometry of the chain of the previous call.
+    twists: Vec<Twists>,
+    /// `(θ, sin θ, cos θ)` per joint of the chain of the previous [`forward_from`] call given
+    /// the joint values' sines and cosines.
+    offsets: Vec<(f64, f64, f64)>,
 }
 
 impl Default for Frames {
@@ -177,7 +171,19 @@ impl Frames {
             frames: Vec::new(),
             angles: Vec::new(),
             sin_cos: Vec::new(),
-            trig: Vec::new(),
+            twists: Vec::new(),
+            offsets: Vec::new(),
+        }
+    }
+
+    /// Empty storage with room for a chain of `n` joints.
+    fn with_capacity(n: usize) -> Frames {
+        Frames {
+            frames: Vec::with_capacity(n + 1),
+            angles: Vec::with_capacity(n),
+            sin_cos: Vec::with_capacity(n),
+            twists: Vec::with_capacity(n),
+            offsets: Vec::new(),
         }
     }
 
@@ -253,7 +259,7 @@ pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
 
 /// Forward kinematics from bare MDH parameters.
 pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
-    let mut f = Frames::new();
+    let mut f = Frames::with_capacity(joints.len());
     forward_into(joints, q, &mut f);
     f
 }
@@ -273,37 +279,37 @@ pub fn forward_from(
     q_sin_cos: Option<&[(f64, f64)]>,
     f: &mut Frames,
 ) {
-    match q_sin_cos {
-        None => forward_with(base, joints, q, f, |_, m, qi, _| (m.theta + qi).sin_cos()),
-        Some(sc) => forward_with(base, joints, q, f, |i, _, _, t| {
-            let (sq, cq) = sc[i];
-            (t.st * cq + t.ct * sq, t.ct * cq - t.st * sq)
-        }),
+    if f.twists.len() != joints.len() || !f.twists.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
+        f.twists.clear();
+        f.twists.extend(joints.iter().map(Twists::of));
     }
-}
-
-/// Forward kinematics from `base` with `sin_cos(θ_i + q_i)` from `sc(i, joint, q_i, trig)`.
-fn forward_with(
-    base: &Pose,
-    joints: &[Mdh],
-    q: &[f64],
-    f: &mut Frames,
-    sc: impl Fn(usize, &Mdh, f64, &LinkTrig) -> (f64, f64),
-) {
-    if f.trig.len() != joints.len() || !f.trig.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
-        f.trig.clear();
-        f.trig.extend(joints.iter().map(LinkTrig::of));
-    }
-    f.frames.clear();
     f.angles.clear();
     f.sin_cos.clear();
+    f.angles
+        .extend(joints.iter().zip(q).map(|(m, qi)| m.theta + qi));
+    match q_sin_cos {
+        None => f.sin_cos.extend(f.angles.iter().map(|a| a.sin_cos())),
+        Some(sc) => {
+            let same = |(o, m): (&(f64, f64, f64), &Mdh)| o.0.to_bits() == m.theta.to_bits();
+            if f.offsets.len() != joints.len() || !f.offsets.iter().zip(joints).all(same) {
+                f.offsets.clear();
+                f.offsets.extend(joints.iter().map(|m| {
+                    let (s, c) = m.theta.sin_cos();
+                    (m.theta, s, c)
+                }));
+            }
+            let sum = |(&(_, st, ct), &(sq, cq)): (&(f64, f64, f64), &(f64, f64))| {
+                (st * cq + ct * sq, ct * cq - st * sq)
+            };
+            f.sin_cos
+                .extend(f.offsets.iter().zip(sc).take(f.angles.len()).map(sum));
+        }
+    }
+    f.frames.clear();
     let mut t = *base;
     f.frames.push(t);
-    for (i, ((m, qi), lt)) in joints.iter().zip(q).zip(&f.trig).enumerate() {
-        let s = sc(i, m, *qi, lt);
-        f.angles.push(m.theta + qi);
-        f.sin_cos.push(s);
-        t = t.compose(&link_trig(m, s, lt));
+    for ((m, sc), tw) in joints.iter().zip(&f.sin_cos).zip(&f.twists) {
+        t = t.compose(&link_trig(m, *sc, tw));
         f.frames.push(t);
     }
 }
