@@ -2,7 +2,7 @@
 //!
 //! The stacked Jacobian over the actual poses is scaled as METHOD.md §2 fixes (direction rows
 //! ×1000 mm, angle columns ÷1000 so every column is in mm per mm-at-one-metre), reduced to its
-//! column-normalised Gram matrix (accumulated pose by pose, so 10 000 poses cost no big
+//! column-normalised Gram matrix (accumulated block by block, so 10 000 poses cost no big
 //! matrix), and the columns are taken greedily in a fixed priority order by an incremental
 //! Cholesky factorisation: a column is kept when the squared sine of its angle to the span of
 //! the columns already kept exceeds `1e-10` (kept columns of the TX60 are above 1e-4, dependent
