@@ -2,7 +2,7 @@
 //!
 //! The stacked Jacobian over the actual poses is scaled as METHOD.md §2 fixes (direction rows
 //! ×1000 mm, angle columns ÷1000 so every column is in mm per mm-at-one-metre), reduced to its
-//! column-normalised Gram matrix (accumulated pose by pose, so 10 000 poses cost no big
+//! column-normalised Gram matrix (accumulated block by block, so 10 000 poses cost no big
 //! matrix), and the columns are taken greedily in a fixed priority order by an incremental
 //! Cholesky factorisation: a column is kept when the squared sine of its angle to the span of
 //! the columns already kept exceeds `1e-10` (kept columns of the TX60 are above 1e-4, dependent
@@ -15,10 +15,10 @@
 
 use nalgebra::DMatrix;
 
+use super::normal::SplitSums;
 use super::observation::{Measured, ObsConfig};
 use super::params::ParamId;
 use super::problem::CalibProblem;
-use super::solver::Problem;
 use crate::model::{ParamKind, RobotModel};
 
 /// Scale of direction rows and angle columns for the rank test (mm).
@@ -133,9 +133,14 @@ pub fn scaled_gram(
     cfg: &ObsConfig,
     params: &[ParamId],
 ) -> DMatrix<f64> {
-    let k = params.len();
-    let mut scfg = *cfg;
-    scfg.direction_weight_mm = RANK_SCALE_MM;
+    scale_gram(
+        &CalibProblem::new(poses, cfg, params).linearize_split(model),
+        params,
+    )
+}
+
+/// [`scaled_gram`] from split sums over `params`: direction rows ×1000 mm, angle columns ÷1000.
+fn scale_gram(sums: &SplitSums, params: &[ParamId]) -> DMatrix<f64> {
     let colscale: Vec<f64> = params
         .iter()
         .map(|p| {
@@ -147,7 +152,8 @@ pub fn scaled_gram(
         })
         .collect();
     // pose weights only scale rows: they change no rank (zero-weight poses are left out)
-    let (_, _, g) = CalibProblem::new(poses, &scfg, params).linearize(model);
+    let g = sums.normal_matrix(RANK_SCALE_MM);
+    let k = params.len();
     DMatrix::from_fn(k, k, |a, b| g[(a, b)] * colscale[a] * colscale[b])
 }
 
@@ -158,8 +164,20 @@ pub fn analyze(
     cfg: &ObsConfig,
     candidates: &[ParamId],
 ) -> Identifiability {
+    analyze_linearized(model, poses, cfg, candidates).0
+}
+
+/// [`analyze`], also returning the sums it computed at `model` over all candidates: the
+/// solver's first linearisation is a restriction of them.
+pub fn analyze_linearized(
+    model: &RobotModel,
+    poses: &[Measured],
+    cfg: &ObsConfig,
+    candidates: &[ParamId],
+) -> (Identifiability, SplitSums) {
     let order = priority_order(model, candidates);
-    let g = scaled_gram(model, poses, cfg, &order);
+    let sums = CalibProblem::new(poses, cfg, &order).linearize_split(model);
+    let g = scale_gram(&sums, &order);
     let n = order.len();
     let max_diag = (0..n).map(|c| g[(c, c)]).fold(0.0, f64::max);
     // column-normalised Gram matrix: entries are cosines between columns
@@ -238,9 +256,10 @@ pub fn analyze(
     dropped.sort_by_key(|d| candidates.iter().position(|p| *p == d.param));
     // singular values of the scaled (not normalised) identified Jacobian
     let gs = DMatrix::from_fn(kept.len(), kept.len(), |i, j| g[(kept[i], kept[j])]);
-    Identifiability {
+    let result = Identifiability {
         identified,
         dropped,
         gram: gs,
-    }
+    };
+    (result, sums)
 }

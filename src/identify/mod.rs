@@ -3,11 +3,14 @@
 //! Pure code. Flow: [`identify`] → initial state (given base/tool, or a rigid registration of
 //! the nominal model to the data when the base is identified) → [`identifiability::analyze`]
 //! on the actual poses, checked against generic poses so that too few or too similar poses are
-//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]) →
+//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]), started
+//! from the linearisation the analysis computed at the initial state ([`normal::SplitSums`]) →
 //! optional iteratively reweighted robust refit ([`robust`]) → standard deviations and
 //! correlations from `σ̂²·(JᵀJ)⁻¹`.
 
+pub mod covariance;
 pub mod identifiability;
+pub mod normal;
 pub mod observation;
 pub mod params;
 pub mod problem;
@@ -26,7 +29,9 @@ use crate::measure::fit_rigid;
 use crate::model::kinematics::forward;
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
+use covariance::{covariance, Covariance};
 use problem::CalibProblem;
+use solver::Problem;
 
 /// Options of one identification.
 #[derive(Debug, Clone, Copy)]
@@ -247,7 +252,8 @@ pub fn identify(
         });
     }
     let initial = initial_model(nominal, poses, opts)?;
-    let ident = identifiability::analyze(&initial, poses, &opts.obs, &candidates);
+    let (ident, sums) =
+        identifiability::analyze_linearized(&initial, poses, &opts.obs, &candidates);
     let missing: Vec<String> = structural
         .identified
         .iter()
@@ -258,34 +264,30 @@ pub fn identify(
         return Err(IdentifyError::RankDeficient { missing });
     }
     let params = ident.identified.clone();
+    let problem = CalibProblem::new(poses, &opts.obs, &params);
+    // the analysis linearised at the initial model already: start the solver from it
+    let start = sums
+        .linearization(&params, opts.obs.direction_weight_mm)
+        .unwrap_or_else(|| problem.linearize(&initial));
     let (fit, rejected) = match opts.robust {
         None => (
-            solver::solve(
-                &CalibProblem::new(poses, &opts.obs, &params),
-                initial.clone(),
-                &opts.solver,
-            ),
+            solver::solve_from(&problem, initial.clone(), start, &opts.solver),
             Vec::new(),
         ),
-        Some(loss) => {
-            robust::solve_robust(&initial, poses, &opts.obs, &params, loss, &opts.solver)?
-        }
+        Some(loss) => robust::solve_robust(
+            &initial,
+            start,
+            poses,
+            &opts.obs,
+            &params,
+            loss,
+            &opts.solver,
+        )?,
     };
     let used = poses.len() - rejected.len();
     let dof = (used * rows).saturating_sub(params.len()).max(1);
     let sigma0_sq = 2.0 * fit.final_cost / dof as f64;
-    let cov = fit
-        .normal_matrix
-        .clone()
-        .try_inverse()
-        .unwrap_or_else(|| DMatrix::from_element(params.len(), params.len(), f64::NAN))
-        * sigma0_sq;
-    let std: Vec<f64> = (0..params.len())
-        .map(|i| cov[(i, i)].max(0.0).sqrt())
-        .collect();
-    let correlation = DMatrix::from_fn(params.len(), params.len(), |i, j| {
-        cov[(i, j)] / (std[i] * std[j])
-    });
+    let Covariance { std, correlation } = covariance(fit.normal_matrix, sigma0_sq);
     let corrected = fit.state;
     let base_dr =
         to_rotation_vector(&(corrected.base_rotation * initial.base_rotation.transpose()));

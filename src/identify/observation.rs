@@ -11,15 +11,12 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_into, Frames, Screw};
-use crate::model::RobotModel;
+use crate::model::kinematics::{forward, forward_from, Frames, Pose};
+use crate::model::{ParamKind, RobotModel};
 
 thread_local! {
-    /// Per-thread scratch for frames and screws, so the hot loop does not allocate.
-    static SCRATCH: RefCell<(Frames, Vec<Screw>)> = const { RefCell::new((
-        Frames { frames: Vec::new(), angles: Vec::new() },
-        Vec::new(),
-    )) };
+    /// Per-thread frames of the chain, so the hot loop does not allocate.
+    static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
 }
 
 /// Which quantities the identification uses.
@@ -160,30 +157,93 @@ pub fn residual_jacobian(
     res: &mut [f64],
     jac: &mut [f64],
 ) {
-    SCRATCH.with(|cell| {
-        let mut guard = cell.borrow_mut();
-        let (frames, screws) = &mut *guard;
-        residual_jacobian_with(model, meas, cfg, params, res, jac, frames, screws);
+    let np = params.len();
+    debug_assert!(jac.is_empty() || cfg.model.rows() * np <= jac.len());
+    residual_into(
+        model,
+        meas,
+        None,
+        cfg,
+        params,
+        res,
+        &mut RowMajor { jac, np },
+    );
+}
+
+/// Whether a parameter can turn the measured directions: rotations can; the direction rows of
+/// a translation (MDH d and a, base translation, tool) are zero.
+pub fn turns_directions(p: &ParamId) -> bool {
+    p.is_angle()
+}
+
+/// Receives the weighted Jacobian of one pose, column by column.
+pub trait JacobianSink {
+    /// Whether the Jacobian is wanted at all (else only residuals are computed).
+    fn wanted(&self) -> bool;
+    /// Column `c`: the position rows `dp` and the rows of each measured direction `dd`
+    /// (all zero for a translation parameter).
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]);
+}
+
+/// The row-major Jacobian of [`residual_jacobian`].
+struct RowMajor<'a> {
+    jac: &'a mut [f64],
+    np: usize,
+}
+
+impl JacobianSink for RowMajor<'_> {
+    fn wanted(&self) -> bool {
+        !self.jac.is_empty()
+    }
+
+    #[inline(always)]
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]) {
+        let np = self.np;
+        for r in 0..3 {
+            self.jac[r * np + c] = dp[r];
+        }
+        for (k, d) in dd.iter().enumerate() {
+            for r in 0..3 {
+                self.jac[(3 + 3 * k + r) * np + c] = d[r];
+            }
+        }
+    }
+}
+
+/// Weighted residual (`rows` entries) of one pose, and its Jacobian into `sink`; `q_sin_cos`:
+/// `sin_cos` of the pose's joint values when known (see [`forward_from`]).
+pub fn residual_into<S: JacobianSink>(
+    model: &RobotModel,
+    meas: &Measured,
+    q_sin_cos: Option<&[(f64, f64)]>,
+    cfg: &ObsConfig,
+    params: &[ParamId],
+    res: &mut [f64],
+    sink: &mut S,
+) {
+    FRAMES.with(|cell| {
+        let f = &mut *cell.borrow_mut();
+        let base = Pose {
+            r: model.base_rotation,
+            p: model.base_translation,
+        };
+        forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
+        residual_jacobian_with(model, meas, cfg, params, res, sink, f);
     });
 }
 
-#[allow(clippy::too_many_arguments)]
-fn residual_jacobian_with(
+/// [`residual_into`] once `f` holds the pose's frames in the measurement frame.
+fn residual_jacobian_with<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
     cfg: &ObsConfig,
     params: &[ParamId],
     res: &mut [f64],
-    jac: &mut [f64],
-    f: &mut Frames,
-    screws: &mut Vec<Screw>,
+    sink: &mut S,
+    f: &Frames,
 ) {
-    forward_into(&model.joints, &meas.q, f);
-    let fl = *f.flange();
-    let rb = model.base_rotation;
-    let tb = model.base_translation;
-    let pb = fl.transform_point(&model.tool); // ball, robot base frame
-    let p = rb * pb + tb; // ball, measurement frame
+    let fl = f.flange(); // measurement frame
+    let p = fl.transform_point(&model.tool); // ball, measurement frame
     let w = meas.weight;
     let wd = cfg.direction_weight_mm * w;
 
@@ -193,14 +253,13 @@ fn residual_jacobian_with(
         ObsModel::Position => 0,
         ObsModel::Np | ObsModel::Op => {
             let d = meas.direction.unwrap_or_else(Vector3::zeros);
-            dirs[0] = (rb * (fl.r * cfg.stage_axis), d);
+            dirs[0] = (fl.r * cfg.stage_axis, d);
             1
         }
         ObsModel::Full => {
             let r = meas.rotation.unwrap_or_else(Matrix3::zeros);
-            let rm = rb * fl.r;
             for (k, dir) in dirs.iter_mut().enumerate() {
-                *dir = (rm.column(k).into_owned(), r.column(k).into_owned());
+                *dir = (fl.r.column(k).into_owned(), r.column(k).into_owned());
             }
             3
         }
@@ -211,51 +270,69 @@ fn residual_jacobian_with(
         let v = wd * (dirs[k].0 - dirs[k].1);
         res[3 + 3 * k..6 + 3 * k].copy_from_slice(v.as_slice());
     }
-    if jac.is_empty() {
+    if !sink.wanted() {
         return;
     }
-    let np = params.len();
-    if params.iter().any(|p| matches!(p, ParamId::Mdh { .. })) {
-        f.screws_into(&model.joints, screws);
-    }
-    let rows = 3 + 3 * ndir;
-    debug_assert!(rows * np <= jac.len());
-    let mut put = |c: usize, dp: Vector3<f64>, dd: &[Vector3<f64>; 3]| {
-        for r in 0..3 {
-            jac[r * np + c] = w * dp[r];
-        }
-        for k in 0..ndir {
-            for r in 0..3 {
-                jac[(3 + 3 * k + r) * np + c] = wd * dd[k][r];
-            }
-        }
+    let cols = Columns {
+        params,
+        frames: f,
+        tb: &model.base_translation,
+        p: &p,
+        w,
+        wd,
     };
-    for (c, par) in params.iter().enumerate() {
-        let mut dd = [Vector3::zeros(); 3];
-        let dp = match par {
-            ParamId::Mdh { joint, kind } => {
-                let s = &screws[5 * joint + *kind as usize];
-                let axis = rb * s.axis;
-                if s.rotation {
-                    for k in 0..ndir {
-                        dd[k] = axis.cross(&dirs[k].0);
+    // the number of directions as a constant: the column loop unrolls over them
+    let models = [dirs[0].0, dirs[1].0, dirs[2].0];
+    match ndir {
+        0 => cols.emit::<0, S>(&[], sink),
+        1 => cols.emit::<1, S>(&[models[0]], sink),
+        _ => cols.emit::<3, S>(&models, sink),
+    }
+}
+
+/// What the Jacobian columns of one pose are built from (measurement frame).
+struct Columns<'a> {
+    params: &'a [ParamId],
+    /// The chain's frames, frame 0 being the base.
+    frames: &'a Frames,
+    /// Base translation (the base rotation's pivot).
+    tb: &'a Vector3<f64>,
+    /// The ball.
+    p: &'a Vector3<f64>,
+    /// Weight of position rows and of direction rows.
+    w: f64,
+    wd: f64,
+}
+
+impl Columns<'_> {
+    /// Every column into `sink`, given the `N` modelled directions.
+    #[inline(always)]
+    fn emit<const N: usize, S: JacobianSink>(&self, dirs: &[Vector3<f64>; N], sink: &mut S) {
+        let turn = |axis: &Vector3<f64>| dirs.map(|d| self.wd * axis.cross(&d));
+        for (c, par) in self.params.iter().enumerate() {
+            let (dp, dd) = match par {
+                ParamId::Mdh { joint, kind } => {
+                    let j = self.frames.joint_axes(*joint);
+                    match kind {
+                        ParamKind::Theta => (j.z.cross(&(self.p - j.origin)), turn(&j.z)),
+                        ParamKind::D => (j.z, [Vector3::zeros(); N]),
+                        ParamKind::A => (j.x, [Vector3::zeros(); N]),
+                        ParamKind::Alpha => (j.x.cross(&(self.p - j.next)), turn(&j.x)),
+                        ParamKind::Beta => (j.y.cross(&(self.p - j.next)), turn(&j.y)),
                     }
-                    axis.cross(&(p - (rb * s.point + tb)))
-                } else {
-                    axis
                 }
-            }
-            ParamId::BaseTranslation(i) => Vector3::ith(*i, 1.0),
-            ParamId::BaseRotation(i) => {
-                let e = Vector3::ith(*i, 1.0);
-                for k in 0..ndir {
-                    dd[k] = e.cross(&dirs[k].0);
+                ParamId::BaseTranslation(i) => (Vector3::ith(*i, 1.0), [Vector3::zeros(); N]),
+                ParamId::BaseRotation(i) => {
+                    let e = Vector3::ith(*i, 1.0);
+                    (e.cross(&(self.p - self.tb)), turn(&e))
                 }
-                e.cross(&(p - tb))
-            }
-            ParamId::Tool(i) => rb * fl.r.column(*i),
-        };
-        put(c, dp, &dd);
+                ParamId::Tool(i) => (
+                    self.frames.flange().r.column(*i).into_owned(),
+                    [Vector3::zeros(); N],
+                ),
+            };
+            sink.column(c, &(self.w * dp), &dd);
+        }
     }
 }
 

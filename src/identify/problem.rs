@@ -1,10 +1,15 @@
 //! The calibration least-squares problem over a set of poses.
 
-use nalgebra::{DMatrix, DVector};
+use std::ops::Range;
 
-use super::observation::{residual_jacobian, Measured, ObsConfig};
+use nalgebra::Vector3;
+
+use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
+use super::observation::{
+    residual_into, residual_jacobian, turns_directions, JacobianSink, Measured, ObsConfig,
+};
 use super::params::{retract, ParamId};
-use super::solver::Problem;
+use super::solver::{Linearization, Problem};
 use crate::model::RobotModel;
 
 /// Stacked residuals of all poses with respect to the chosen parameters.
@@ -12,12 +17,50 @@ pub struct CalibProblem<'a> {
     poses: &'a [Measured],
     cfg: &'a ObsConfig,
     params: &'a [ParamId],
+    /// `sin_cos` of every pose's joint values, pose after pose (they do not change while the
+    /// parameters do, so each linearisation evaluates no sine or cosine per pose).
+    q_sin_cos: Vec<(f64, f64)>,
+    /// Start of each pose's joint values in `q_sin_cos` (and the end).
+    q_start: Vec<usize>,
+    /// The columns of parameters that turn directions (the direction blocks hold only these).
+    turning: Vec<usize>,
+    /// Per column, its index among `turning`.
+    dir_col: Vec<Option<usize>>,
 }
 
 impl<'a> CalibProblem<'a> {
     /// A problem over `poses` (weights in each pose) for `params`.
     pub fn new(poses: &'a [Measured], cfg: &'a ObsConfig, params: &'a [ParamId]) -> Self {
-        CalibProblem { poses, cfg, params }
+        let mut q_start = Vec::with_capacity(poses.len() + 1);
+        q_start.push(0);
+        for p in poses {
+            q_start.push(q_start[q_start.len() - 1] + p.q.len());
+        }
+        let q_sin_cos = poses
+            .iter()
+            .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
+            .collect();
+        let turning: Vec<usize> = (0..params.len())
+            .filter(|&c| turns_directions(&params[c]))
+            .collect();
+        let mut dir_col = vec![None; params.len()];
+        for (j, &c) in turning.iter().enumerate() {
+            dir_col[c] = Some(j);
+        }
+        CalibProblem {
+            poses,
+            cfg,
+            params,
+            q_sin_cos,
+            q_start,
+            turning,
+            dir_col,
+        }
+    }
+
+    /// `sin_cos` of pose `i`'s joint values.
+    fn q_trig(&self, i: usize) -> &[(f64, f64)] {
+        &self.q_sin_cos[self.q_start[i]..self.q_start[i + 1]]
     }
 
     /// Weighted residual norm of each pose at a state.
@@ -33,72 +76,109 @@ impl<'a> CalibProblem<'a> {
     }
 }
 
-/// Poses per block of Jacobian rows folded into `JᵀJ` at once.
-pub const BLOCK_POSES: usize = 64;
-
 /// Poses above which the work is split over two threads.
 pub const PARALLEL_MIN_POSES: usize = 256;
 
-/// Apply `f` to two fixed halves of `items` on two threads (or to all of them on this thread
-/// when there are few). The split does not depend on the machine, so sums are bit-for-bit
-/// reproducible.
-pub fn split_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&[T]) -> R + Sync) -> Vec<R> {
-    if items.len() < PARALLEL_MIN_POSES {
-        return vec![f(items)];
+/// Apply `f` to two fixed halves of the index range `0..n` on two threads (or to all of it on
+/// this thread when `n` is small). The split does not depend on the machine, so sums are
+/// bit-for-bit reproducible.
+pub fn split_map<R: Send>(n: usize, f: impl Fn(Range<usize>) -> R + Sync) -> Vec<R> {
+    if n < PARALLEL_MIN_POSES {
+        return vec![f(0..n)];
     }
-    let (a, b) = items.split_at(items.len() / 2);
+    let half = n / 2;
     std::thread::scope(|s| {
-        let hb = s.spawn(|| f(b));
-        let ra = f(a);
+        let hb = s.spawn(|| f(half..n));
+        let ra = f(0..half);
         match hb.join() {
             Ok(rb) => vec![ra, rb],
-            Err(_) => vec![ra, f(b)],
+            Err(_) => vec![ra, f(half..n)],
         }
     })
 }
 
-impl CalibProblem<'_> {
-    /// Cost, gradient and `JᵀJ` (row-major) over a chunk of poses.
-    ///
-    /// Jacobian rows are gathered in blocks of [`BLOCK_POSES`] poses and folded into `JᵀJ` by
-    /// one matrix product per block (cache-friendly GEMM instead of a scalar loop per row).
-    fn accumulate(&self, state: &RobotModel, chunk: &[Measured]) -> (f64, Vec<f64>, Vec<f64>) {
-        let k = self.params.len();
-        let rows = self.cfg.model.rows();
-        // Each pose writes its row-major Jacobian block (rows × k) straight into `buf`; read as
-        // a column-major matrix, `buf` is Jᵀ (k × block rows), so no reshuffling is needed.
-        let cap = BLOCK_POSES * rows;
-        let mut buf = vec![0.0; cap * k];
-        let mut rb = vec![0.0; cap];
-        let mut h = DMatrix::<f64>::zeros(k, k);
-        let mut g = DVector::<f64>::zeros(k);
-        let mut cost = 0.0;
-        let mut filled = 0;
-        let flush =
-            |buf: &[f64], rb: &[f64], n: usize, h: &mut DMatrix<f64>, g: &mut DVector<f64>| {
-                let jt = nalgebra::DMatrixView::from_slice(&buf[..n * k], k, n);
-                let r = nalgebra::DVectorView::from_slice(&rb[..n], n);
-                h.gemm(1.0, &jt, &jt.transpose(), 1.0);
-                g.gemv(1.0, &jt, &r, 1.0);
-            };
-        for p in chunk.iter().filter(|p| p.weight != 0.0) {
-            let (res, jac) = (
-                &mut rb[filled..filled + rows],
-                &mut buf[filled * k..(filled + rows) * k],
-            );
-            residual_jacobian(state, p, self.cfg, self.params, res, jac);
-            cost += res.iter().map(|r| r * r).sum::<f64>();
-            filled += rows;
-            if filled == cap {
-                flush(&buf, &rb, filled, &mut h, &mut g);
-                filled = 0;
+/// Writes one pose's Jacobian into a position block (all columns) and a direction block (the
+/// columns that turn directions).
+struct BlockSink<'a> {
+    pos: &'a mut [f64],
+    dir: &'a mut [f64],
+    k: usize,
+    /// Per column, its index in the direction block.
+    dir_col: &'a [Option<usize>],
+    kd: usize,
+}
+
+impl JacobianSink for BlockSink<'_> {
+    fn wanted(&self) -> bool {
+        true
+    }
+
+    #[inline(always)]
+    fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]) {
+        for r in 0..3 {
+            self.pos[r * self.k + c] = dp[r];
+        }
+        if let Some(j) = self.dir_col[c] {
+            for (m, d) in dd.iter().enumerate() {
+                for r in 0..3 {
+                    self.dir[(3 * m + r) * self.kd + j] = d[r];
+                }
             }
         }
-        if filled > 0 {
-            flush(&buf, &rb, filled, &mut h, &mut g);
+    }
+}
+
+impl CalibProblem<'_> {
+    /// Normal-equation sums of the position rows and of the direction rows (embedded in all
+    /// columns) over the poses `range` under `cfg`.
+    fn accumulate(
+        &self,
+        state: &RobotModel,
+        range: Range<usize>,
+        cfg: &ObsConfig,
+    ) -> (NormalSums, NormalSums) {
+        let k = self.params.len();
+        let nd = cfg.model.rows() - 3;
+        let kd = self.turning.len();
+        let block = BLOCK_POSES.min(range.len()).max(1);
+        let mut pos = Folder::new((0..k).collect(), k, block * 3);
+        let mut dir = Folder::new(self.turning.clone(), k, block * nd);
+        let mut res = vec![0.0; 3 + nd];
+        for i in range.filter(|&i| self.poses[i].weight != 0.0) {
+            let (pj, pr) = pos.rows(3);
+            let (dj, dr) = dir.rows(nd);
+            let mut sink = BlockSink {
+                pos: pj,
+                dir: dj,
+                k,
+                dir_col: &self.dir_col,
+                kd,
+            };
+            let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+            residual_into(state, p, t, cfg, self.params, &mut res, &mut sink);
+            pr.copy_from_slice(&res[..3]);
+            dr.copy_from_slice(&res[3..]);
         }
-        let h_rows: Vec<f64> = (0..k * k).map(|i| h[(i / k, i % k)]).collect();
-        (cost, g.as_slice().to_vec(), h_rows)
+        (pos.finish(), dir.finish())
+    }
+
+    /// The sums of the position rows and of the direction rows at `state`, apart (the direction
+    /// weight of the configuration is not applied).
+    pub fn linearize_split(&self, state: &RobotModel) -> SplitSums {
+        let k = self.params.len();
+        let unit = ObsConfig {
+            direction_weight_mm: 1.0,
+            ..*self.cfg
+        };
+        let (pos, dir): (Vec<_>, Vec<_>) =
+            split_map(self.poses.len(), |r| self.accumulate(state, r, &unit))
+                .into_iter()
+                .unzip();
+        SplitSums {
+            params: self.params.to_vec(),
+            position: NormalSums::merge(pos, k),
+            direction: NormalSums::merge(dir, k),
+        }
     }
 }
 
@@ -113,29 +193,20 @@ impl Problem for CalibProblem<'_> {
         self.poses.len() * self.cfg.model.rows()
     }
 
-    fn linearize(&self, state: &RobotModel) -> (f64, DVector<f64>, DMatrix<f64>) {
+    fn linearize(&self, state: &RobotModel) -> Linearization {
         let k = self.params.len();
-        let parts = split_map(self.poses, |chunk| self.accumulate(state, chunk));
-        let mut cost = 0.0;
-        let mut g = vec![0.0; k];
-        let mut h = vec![0.0; k * k];
-        for (c, gp, hp) in parts {
-            cost += c;
-            g.iter_mut().zip(&gp).for_each(|(a, b)| *a += b);
-            h.iter_mut().zip(&hp).for_each(|(a, b)| *a += b);
-        }
-        (
-            0.5 * cost,
-            DVector::from_vec(g),
-            DMatrix::from_row_slice(k, k, &h),
-        )
+        let (pos, dir): (Vec<_>, Vec<_>) =
+            split_map(self.poses.len(), |r| self.accumulate(state, r, self.cfg))
+                .into_iter()
+                .unzip();
+        NormalSums::merge([NormalSums::merge(pos, k), NormalSums::merge(dir, k)], k).linearization()
     }
 
     fn cost(&self, state: &RobotModel) -> f64 {
-        let parts = split_map(self.poses, |chunk| {
+        let parts = split_map(self.poses.len(), |range| {
             let mut res = vec![0.0; self.cfg.model.rows()];
             let mut cost = 0.0;
-            for p in chunk.iter().filter(|p| p.weight != 0.0) {
+            for p in self.poses[range].iter().filter(|p| p.weight != 0.0) {
                 residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
                 cost += res.iter().map(|r| r * r).sum::<f64>();
             }

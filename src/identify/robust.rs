@@ -10,7 +10,7 @@
 use super::observation::{Measured, ObsConfig};
 use super::params::ParamId;
 use super::problem::CalibProblem;
-use super::solver::{self, Options, Solution};
+use super::solver::{self, Linearization, Options, Solution};
 use super::IdentifyError;
 use crate::model::RobotModel;
 
@@ -57,9 +57,11 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// IRLS fit; returns the final inlier fit and the rejected pose indices.
+/// IRLS fit from `initial` (`start`: the plain problem's linearisation there); returns the
+/// final inlier fit and the rejected pose indices.
 pub fn solve_robust(
     initial: &RobotModel,
+    start: Linearization,
     poses: &[Measured],
     cfg: &ObsConfig,
     params: &[ParamId],
@@ -68,9 +70,10 @@ pub fn solve_robust(
 ) -> Result<(Solution<RobotModel>, Vec<usize>), IdentifyError> {
     let base: Vec<f64> = poses.iter().map(|p| p.weight).collect();
     let mut work: Vec<Measured> = poses.to_vec();
-    let mut sol = solver::solve(
+    let mut sol = solver::solve_from(
         &CalibProblem::new(&work, cfg, params),
         initial.clone(),
+        start,
         opts,
     );
     let mut u = Vec::new();

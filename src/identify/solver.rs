@@ -2,7 +2,7 @@
 //! damping update.
 //!
 //! Own implementation rather than the `levenberg-marquardt` crate: the problems here have few
-//! parameters (≤ 39) and many rows (up to 120 000), so accumulating `JᵀJ` pose by pose and
+//! parameters (≤ 39) and many rows (up to 120 000), so accumulating `JᵀJ` block by block and
 //! solving a 39×39 Cholesky system is far cheaper than MINPACK's dense QR of the whole
 //! Jacobian, never stores the Jacobian, and supports the manifold update of the base rotation.
 //! After column scaling the identified Jacobian has a condition number below ~50, so the
@@ -10,6 +10,9 @@
 //! and cross-checked against the SciPy reference in the tests).
 
 use nalgebra::{DMatrix, DVector};
+
+/// Cost `½‖r‖²`, gradient `Jᵀr` and Gauss–Newton matrix `JᵀJ` at one state.
+pub type Linearization = (f64, DVector<f64>, DMatrix<f64>);
 
 /// A nonlinear least-squares problem `min ½‖r(x)‖²` over a state with a local step.
 pub trait Problem {
@@ -20,7 +23,7 @@ pub trait Problem {
     /// Number of residual rows.
     fn rows(&self) -> usize;
     /// Cost `½‖r‖²`, gradient `Jᵀr` and Gauss–Newton matrix `JᵀJ` at a state.
-    fn linearize(&self, state: &Self::State) -> (f64, DVector<f64>, DMatrix<f64>);
+    fn linearize(&self, state: &Self::State) -> Linearization;
     /// Cost `½‖r‖²` at a state.
     fn cost(&self, state: &Self::State) -> f64;
     /// Apply a step.
@@ -105,9 +108,21 @@ pub struct Solution<S> {
 
 /// Run Levenberg–Marquardt from `x0`.
 pub fn solve<P: Problem>(problem: &P, x0: P::State, opts: &Options) -> Solution<P::State> {
+    let start = problem.linearize(&x0);
+    solve_from(problem, x0, start, opts)
+}
+
+/// Run Levenberg–Marquardt from `x0`, given the linearisation there (e.g. from an analysis
+/// that already computed it).
+pub fn solve_from<P: Problem>(
+    problem: &P,
+    x0: P::State,
+    start: Linearization,
+    opts: &Options,
+) -> Solution<P::State> {
     let n = problem.dim();
     let mut state = x0;
-    let (mut cost, mut g, mut h) = problem.linearize(&state);
+    let (mut cost, mut g, mut h) = start;
     let initial_cost = cost;
     let mut evaluations = 1;
     let mut diag: Vec<f64> = (0..n).map(|i| h[(i, i)].sqrt().max(1e-300)).collect();
@@ -207,7 +222,7 @@ mod tests {
         fn rows(&self) -> usize {
             2
         }
-        fn linearize(&self, s: &[f64; 2]) -> (f64, DVector<f64>, DMatrix<f64>) {
+        fn linearize(&self, s: &[f64; 2]) -> Linearization {
             let r = DVector::from_vec(vec![10.0 * (s[1] - s[0] * s[0]), 1.0 - s[0]]);
             let j = DMatrix::from_row_slice(2, 2, &[-20.0 * s[0], 10.0, -1.0, 0.0]);
             (

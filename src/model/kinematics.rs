@@ -53,9 +53,43 @@ impl Pose {
 
 /// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
 pub fn link(m: &Mdh, q: f64) -> Pose {
-    let (st, ct) = (m.theta + q).sin_cos();
-    let (sa, ca) = m.alpha.sin_cos();
-    let (sb, cb) = m.beta.sin_cos();
+    link_trig(m, (m.theta + q).sin_cos(), &Twists::of(m))
+}
+
+/// Sines and cosines of a link's constant twists α and β, and the values they belong to.
+#[derive(Debug, Clone, Copy)]
+struct Twists {
+    alpha: f64,
+    beta: f64,
+    sa: f64,
+    ca: f64,
+    sb: f64,
+    cb: f64,
+}
+
+impl Twists {
+    fn of(m: &Mdh) -> Twists {
+        let (sa, ca) = m.alpha.sin_cos();
+        let (sb, cb) = m.beta.sin_cos();
+        Twists {
+            alpha: m.alpha,
+            beta: m.beta,
+            sa,
+            ca,
+            sb,
+            cb,
+        }
+    }
+
+    /// Whether these are the twists of `m` (bitwise).
+    fn belong_to(&self, m: &Mdh) -> bool {
+        self.alpha.to_bits() == m.alpha.to_bits() && self.beta.to_bits() == m.beta.to_bits()
+    }
+}
+
+/// [`link`] from `sin_cos(θ+q)` and the twists' sines and cosines.
+fn link_trig(m: &Mdh, (st, ct): (f64, f64), t: &Twists) -> Pose {
+    let (sa, ca, sb, cb) = (t.sa, t.ca, t.sb, t.cb);
     // RotZ·RotX
     let (r00, r01, r02) = (ct, -st * ca, st * sa);
     let (r10, r11, r12) = (st, ct * ca, -ct * sa);
@@ -111,17 +145,58 @@ impl Screw {
     }
 }
 
-/// All frames of the chain at one joint configuration (robot base frame, no base/tool).
+/// All frames of the chain at one joint configuration (robot base frame, or that of the base
+/// given to [`forward_from`]; no tool).
+///
+/// Reused storage ([`forward_into`]) also keeps the sines and cosines of the constant angles
+/// θ, α, β and recomputes them only when the joints change, so repeated kinematics of one chain
+/// evaluate one sine/cosine pair per joint, or none given those of the joint values
+/// ([`forward_from`]).
 #[derive(Debug, Clone)]
 pub struct Frames {
     /// Frames 0 (base) … n (flange).
     pub frames: Vec<Pose>,
     /// θ_i + q_i per joint (rad).
     pub angles: Vec<f64>,
+    /// `sin_cos` of each angle (shared by the link transforms and the screws).
+    sin_cos: Vec<(f64, f64)>,
+    /// Twist trigonometry of the chain of the previous call.
+    twists: Vec<Twists>,
+    /// `(θ, sin θ, cos θ)` per joint of the chain of the previous [`forward_from`] call given
+    /// the joint values' sines and cosines.
+    offsets: Vec<(f64, f64, f64)>,
+}
+
+impl Default for Frames {
+    fn default() -> Self {
+        Frames::new()
+    }
 }
 
 impl Frames {
-    /// The flange frame `A_1 ⋯ A_n`.
+    /// Empty storage for [`forward_into`].
+    pub const fn new() -> Frames {
+        Frames {
+            frames: Vec::new(),
+            angles: Vec::new(),
+            sin_cos: Vec::new(),
+            twists: Vec::new(),
+            offsets: Vec::new(),
+        }
+    }
+
+    /// Empty storage with room for a chain of `n` joints.
+    fn with_capacity(n: usize) -> Frames {
+        Frames {
+            frames: Vec::with_capacity(n + 1),
+            angles: Vec::with_capacity(n),
+            sin_cos: Vec::with_capacity(n),
+            twists: Vec::with_capacity(n),
+            offsets: Vec::new(),
+        }
+    }
+
+    /// The flange frame `A_1 ⋯ A_n` (after the base given to [`forward_from`], if any).
     pub fn flange(&self) -> &Pose {
         &self.frames[self.frames.len() - 1]
     }
@@ -136,39 +211,54 @@ impl Frames {
     /// The 5n parameter screws written into `out` (cleared first; no allocation once grown).
     pub fn screws_into(&self, joints: &[Mdh], out: &mut Vec<Screw>) {
         out.clear();
-        for (i, _) in joints.iter().enumerate() {
-            let prev = &self.frames[i];
-            let next = &self.frames[i + 1];
-            let z0 = prev.r.column(2).into_owned();
-            let (s, c) = self.angles[i].sin_cos();
-            let xp = prev.r.column(0) * c + prev.r.column(1) * s;
-            out.push(Screw {
-                axis: z0,
-                point: prev.p,
-                rotation: true,
-            });
-            out.push(Screw {
-                axis: z0,
-                point: prev.p,
-                rotation: false,
-            });
-            out.push(Screw {
-                axis: xp,
-                point: prev.p,
-                rotation: false,
-            });
-            out.push(Screw {
-                axis: xp,
-                point: next.p,
-                rotation: true,
-            });
-            out.push(Screw {
-                axis: next.r.column(1).into_owned(),
-                point: next.p,
-                rotation: true,
-            });
+        for i in 0..joints.len() {
+            let j = self.joint_axes(i);
+            let screw = |axis, point, rotation| Screw {
+                axis,
+                point,
+                rotation,
+            };
+            out.extend([
+                screw(j.z, j.origin, true),
+                screw(j.z, j.origin, false),
+                screw(j.x, j.origin, false),
+                screw(j.x, j.next, true),
+                screw(j.y, j.next, true),
+            ]);
         }
     }
+
+    /// The axes and points behind the five screws of joint `i` (in the frame of frame 0).
+    #[inline(always)]
+    pub fn joint_axes(&self, i: usize) -> JointAxes {
+        let prev = &self.frames[i];
+        let next = &self.frames[i + 1];
+        let (s, c) = self.sin_cos[i];
+        JointAxes {
+            z: prev.r.column(2).into_owned(),
+            x: prev.r.column(0) * c + prev.r.column(1) * s,
+            y: next.r.column(1).into_owned(),
+            origin: prev.p,
+            next: next.p,
+        }
+    }
+}
+
+/// The screws of one joint's parameters share three axes and two points: θ turns about `z`
+/// through `origin`, d moves along `z`, a along `x`, α turns about `x` through `next`, β about
+/// `y` through `next` (robot base frame, or the frame the chain was computed in).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointAxes {
+    /// Joint axis (θ, d).
+    pub z: Vector3<f64>,
+    /// Common normal after the joint rotation (a, α).
+    pub x: Vector3<f64>,
+    /// y axis of the next frame (β).
+    pub y: Vector3<f64>,
+    /// Origin of the joint's frame (the θ screw's point).
+    pub origin: Vector3<f64>,
+    /// Origin of the next frame (the α and β screws' point).
+    pub next: Vector3<f64>,
 }
 
 /// Forward kinematics: every frame of the chain (robot base frame, base and tool not applied).
@@ -178,23 +268,57 @@ pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
 
 /// Forward kinematics from bare MDH parameters.
 pub fn forward_joints(joints: &[Mdh], q: &[f64]) -> Frames {
-    let mut f = Frames {
-        frames: Vec::with_capacity(joints.len() + 1),
-        angles: Vec::with_capacity(joints.len()),
-    };
+    let mut f = Frames::with_capacity(joints.len());
     forward_into(joints, q, &mut f);
     f
 }
 
 /// Forward kinematics into reusable storage (no allocation once grown).
 pub fn forward_into(joints: &[Mdh], q: &[f64], f: &mut Frames) {
-    f.frames.clear();
+    forward_from(&Pose::identity(), joints, q, None, f);
+}
+
+/// [`forward_into`] with every frame expressed in the frame of `base` (frame 0 is `base`), and,
+/// when `q_sin_cos` gives `sin_cos` of each joint value, `sin_cos(θ+q)` by the angle-sum
+/// formulas, so no sine or cosine is evaluated once the chain's own are known.
+pub fn forward_from(
+    base: &Pose,
+    joints: &[Mdh],
+    q: &[f64],
+    q_sin_cos: Option<&[(f64, f64)]>,
+    f: &mut Frames,
+) {
+    if f.twists.len() != joints.len() || !f.twists.iter().zip(joints).all(|(t, m)| t.belong_to(m)) {
+        f.twists.clear();
+        f.twists.extend(joints.iter().map(Twists::of));
+    }
     f.angles.clear();
-    let mut t = Pose::identity();
+    f.sin_cos.clear();
+    f.angles
+        .extend(joints.iter().zip(q).map(|(m, qi)| m.theta + qi));
+    match q_sin_cos {
+        None => f.sin_cos.extend(f.angles.iter().map(|a| a.sin_cos())),
+        Some(sc) => {
+            let same = |(o, m): (&(f64, f64, f64), &Mdh)| o.0.to_bits() == m.theta.to_bits();
+            if f.offsets.len() != joints.len() || !f.offsets.iter().zip(joints).all(same) {
+                f.offsets.clear();
+                f.offsets.extend(joints.iter().map(|m| {
+                    let (s, c) = m.theta.sin_cos();
+                    (m.theta, s, c)
+                }));
+            }
+            let sum = |(&(_, st, ct), &(sq, cq)): (&(f64, f64, f64), &(f64, f64))| {
+                (st * cq + ct * sq, ct * cq - st * sq)
+            };
+            f.sin_cos
+                .extend(f.offsets.iter().zip(sc).take(f.angles.len()).map(sum));
+        }
+    }
+    f.frames.clear();
+    let mut t = *base;
     f.frames.push(t);
-    for (m, qi) in joints.iter().zip(q) {
-        f.angles.push(m.theta + qi);
-        t = t.compose(&link(m, *qi));
+    for ((m, sc), tw) in joints.iter().zip(&f.sin_cos).zip(&f.twists) {
+        t = t.compose(&link_trig(m, *sc, tw));
         f.frames.push(t);
     }
 }
