@@ -289,7 +289,8 @@ impl Run<'_> {
                     last = note.clone();
                     self.fault(DeviceKind::Tracker, FaultKind::Device, &note, "retry")
                         .await?;
-                    self.discard(pose, joints, &p, stage_mm, note).await?;
+                    self.keep_point(PointKind::Discarded, pose, joints, &p, stage_mm, note)
+                        .await?;
                 }
                 Ok(p) => return Ok(p),
                 Err(e) if e.is_transient() => {
@@ -307,9 +308,10 @@ impl Run<'_> {
         )))
     }
 
-    /// Keep a point that was taken but is not used, with the reason.
-    async fn discard(
+    /// Store a tracker point outside a pose commit (drift, setup, discarded) with its note.
+    async fn keep_point(
         &self,
+        kind: PointKind,
         pose: Option<usize>,
         joints: &[f64],
         p: &TrackerPoint,
@@ -320,7 +322,7 @@ impl Run<'_> {
         let rec = record(p, stage_mm);
         let q = joints.to_vec();
         self.store(move |s| {
-            s.add_point(id, PointKind::Discarded, pose, Some(&q), &rec, &note)
+            s.add_point(id, kind, pose, Some(&q), &rec, &note)
                 .map(|_| ())
         })
         .await
@@ -407,19 +409,14 @@ impl Run<'_> {
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s = self.stage_to(s1).await?;
         let p = self.measure_point(None, &joints, s).await?;
-        let id = self.ctx.campaign_id;
-        let rec = record(&p, s);
-        self.store(move |st| {
-            st.add_point(
-                id,
-                PointKind::Drift,
-                None,
-                Some(&joints),
-                &rec,
-                "drift reference",
-            )
-            .map(|_| ())
-        })
+        self.keep_point(
+            PointKind::Drift,
+            None,
+            &joints,
+            &p,
+            s,
+            "drift reference".into(),
+        )
         .await?;
         Ok(p.p_mm)
     }
@@ -556,8 +553,15 @@ impl Run<'_> {
                     Stop::Store(_) => String::new(),
                 };
                 let note = format!("P1 of an unfinished pose ({why})");
-                self.discard(Some(entry.index), &joints, &p1, a1, note)
-                    .await?;
+                self.keep_point(
+                    PointKind::Discarded,
+                    Some(entry.index),
+                    &joints,
+                    &p1,
+                    a1,
+                    note,
+                )
+                .await?;
                 Err(e)
             }
         }

@@ -73,6 +73,18 @@ impl PtyChild {
         }
     }
 
+    /// Wait for the process to exit.
+    fn wait_exit(&mut self) -> std::process::ExitStatus {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Some(s) = self.child.try_wait().expect("wait") {
+                return s;
+            }
+            assert!(Instant::now() < deadline, "cellcal did not exit");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// Type a line.
     fn send_line(&mut self, line: &str) {
         self.master
@@ -122,17 +134,7 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     t.expect("Set the micrometer to 10.000 mm and enter the reading");
     t.send_line("a");
     t.expect("aborted");
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let status = loop {
-        if let Some(s) = t.child.try_wait().expect("wait") {
-            break s;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "cellcal did not exit after abort"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = t.wait_exit();
     assert_eq!(status.code(), Some(130), "abort exit code");
     let s = Store::open(&store).expect("store");
     let done = s.done_poses(1).expect("done");
@@ -174,14 +176,7 @@ fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
     t.send_line("");
     t.expect("[20/20] pose");
     t.expect("verify  after");
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let status = loop {
-        if let Some(s) = t.child.try_wait().expect("wait") {
-            break s;
-        }
-        assert!(Instant::now() < deadline, "cellcal did not exit");
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = t.wait_exit();
     assert!(status.success(), "{status:?}");
     let s = Store::open(&store).expect("store");
     assert_eq!(s.done_poses(1).expect("done").len(), 20);

@@ -6,9 +6,8 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::{record, CampaignError, Run, Stop};
+use super::{CampaignError, Run, Stop};
 use crate::campaign::events::CampaignEvent;
-use crate::cell::TrackerPoint;
 use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
@@ -102,24 +101,6 @@ fn arr(v: &Vector3<f64>) -> [f64; 3] {
 }
 
 impl Run<'_> {
-    /// Store one setup point before anything moves again.
-    async fn setup_point(
-        &self,
-        joints: &[f64],
-        p: &TrackerPoint,
-        stage_mm: f64,
-        note: String,
-    ) -> Result<(), CampaignError> {
-        let id = self.ctx.campaign_id;
-        let rec = record(p, stage_mm);
-        let q = joints.to_vec();
-        self.store(move |s| {
-            s.add_point(id, PointKind::Setup, None, Some(&q), &rec, &note)
-                .map(|_| ())
-        })
-        .await
-    }
-
     /// The campaign's setup: the stored one on resume, else measured now and stored.
     pub(super) async fn setup(&mut self) -> Result<SetupResult, Stop> {
         let id = self.ctx.campaign_id;
@@ -185,13 +166,27 @@ impl Run<'_> {
             let joints = self.move_to(&t.q_rad).await?;
             let a1 = self.stage_to(s1).await?;
             let p1 = self.measure_point(None, &joints, a1).await?;
-            self.setup_point(&joints, &p1, a1, format!("tool frame {label} P1"))
-                .await?;
+            self.keep_point(
+                PointKind::Setup,
+                None,
+                &joints,
+                &p1,
+                a1,
+                format!("tool frame {label} P1"),
+            )
+            .await?;
             let p2 = if t.measure_p2 {
                 let a2 = self.stage_to(s2).await?;
                 let p2 = self.measure_point(None, &joints, a2).await?;
-                self.setup_point(&joints, &p2, a2, format!("tool frame {label} P2"))
-                    .await?;
+                self.keep_point(
+                    PointKind::Setup,
+                    None,
+                    &joints,
+                    &p2,
+                    a2,
+                    format!("tool frame {label} P2"),
+                )
+                .await?;
                 Some(p2.p_mm)
             } else {
                 None
@@ -265,8 +260,15 @@ impl Run<'_> {
             let joints = self.move_to(&candidates[i]).await?;
             let a1 = self.stage_to(s1).await?;
             let p = self.measure_point(None, &joints, a1).await?;
-            self.setup_point(&joints, &p, a1, format!("base registration {}", k + 1))
-                .await?;
+            self.keep_point(
+                PointKind::Setup,
+                None,
+                &joints,
+                &p,
+                a1,
+                format!("base registration {}", k + 1),
+            )
+            .await?;
             pairs.push((joints, p.p_mm));
         }
         let reg = register_base(model, &pairs)
