@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, Mutex};
 use tokio::task::JoinHandle;
 
-use crate::campaign::session::{open_session, SessionError};
+use crate::campaign::session::{open_session, Resume, SessionError};
 use crate::campaign::{run_campaign, CampaignCommand, CampaignEvent, Control, Outcome};
 use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
 use crate::config::CellConfig;
@@ -179,6 +179,17 @@ fn lock<T>(m: &StdMutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Session errors that are a conflict with the campaign's state, not a daemon failure: a done
+/// campaign, a changed configuration, a campaign another process runs.
+fn refusal(e: SessionError) -> DaemonError {
+    match e {
+        SessionError::Done(_)
+        | SessionError::ConfigChanged { .. }
+        | SessionError::Store(StoreError::Locked { .. }) => DaemonError::Conflict(e.to_string()),
+        e => DaemonError::Session(e),
+    }
+}
+
 impl Daemon {
     /// A daemon for the cell of `cfg`, storing campaigns in `store_path` (created if missing).
     pub fn new(cfg: CellConfig, store_path: &Path) -> Result<Daemon, DaemonError> {
@@ -278,7 +289,14 @@ impl Daemon {
             )));
         }
         let (prompter, mut prompts) = ChannelPrompter::new(4);
-        let session = open_session(cfg, &self.store_path, id, Arc::new(prompter)).await?;
+        let session = open_session(
+            cfg,
+            &self.store_path,
+            id.map(Resume::strict),
+            Arc::new(prompter),
+        )
+        .await
+        .map_err(refusal)?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
         let pending: Arc<StdMutex<Option<PendingPrompt>>> = Arc::default();
@@ -370,6 +388,11 @@ impl Daemon {
                 }
                 ClientCommand::Arm => l.control.apply(&CampaignCommand::Arm),
                 ClientCommand::Disarm => l.control.apply(&CampaignCommand::Disarm),
+                ClientCommand::Start if !l.control.is_armed() => {
+                    return Err(DaemonError::Conflict(format!(
+                        "campaign {id} is not armed: arm it first (a start before arm is refused, not remembered)"
+                    )));
+                }
                 ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
                 ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
                 ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),

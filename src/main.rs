@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
 mod run_cmd;
+mod signals;
 mod terminal;
 
 use cellcal::analysis::significance;
@@ -158,9 +159,13 @@ enum Command {
         /// abort) or `fail` (stop, resumable). Default: `pause` when stdin is a terminal.
         #[arg(long, value_parser = ["pause", "fail"])]
         on_fault: Option<String>,
+        /// Resume `--campaign` although the configuration or robot model changed since it was
+        /// created (the changed keys are journalled).
+        #[arg(long, requires = "campaign")]
+        accept_changed_config: bool,
     },
     /// Run the campaign daemon: the REST API of one cell (`/api/...`, see README), until
-    /// Ctrl-C / SIGTERM (a running campaign is aborted: the robot stops, the campaign stays
+    /// Ctrl-C / SIGTERM / SIGHUP (a running campaign is aborted: the robot stops, the campaign stays
     /// resumable).
     Serve {
         /// Cell configuration file (TOML).
@@ -352,6 +357,7 @@ fn main() -> ExitCode {
             campaign,
             quiet,
             on_fault,
+            accept_changed_config,
         } => run_cmd::run(run_cmd::RunOptions {
             config,
             arm,
@@ -365,6 +371,7 @@ fn main() -> ExitCode {
                 None if std::io::stdin().is_terminal() => FaultPolicy::Pause,
                 None => FaultPolicy::Fail,
             },
+            accept_changed_config,
         }),
         Command::Serve {
             config,
@@ -657,21 +664,6 @@ fn sim_robot_path(table: &toml::Table, dir: &Path, file: &Path) -> Result<PathBu
     })
 }
 
-async fn shutdown_signal() {
-    use tokio::signal::unix::{signal, SignalKind};
-    match signal(SignalKind::terminate()) {
-        Ok(mut term) => {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-        }
-        Err(_) => {
-            let _ = tokio::signal::ctrl_c().await;
-        }
-    }
-}
-
 fn run_sim(config: &Path) -> Result<(), Failure> {
     use std::io::Write;
     let text = std::fs::read_to_string(config)
@@ -690,13 +682,13 @@ fn run_sim(config: &Path) -> Result<(), Failure> {
     }
     let robot_path = sim_robot_path(&table, dir, config)?;
     let robot = load_robot(&robot_path).map_err(input)?;
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .map_err(other)?;
+    let rt = run_cmd::runtime()?;
     let result = rt.block_on(async move {
-        let cell = cellcal::sim::start_cell(robot, cfg, shutdown_signal())
+        let mut signals = signals::StopSignals::install().map_err(other)?;
+        let stop = async move {
+            signals.next().await;
+        };
+        let cell = cellcal::sim::start_cell(robot, cfg, stop)
             .await
             .with_context(|| format!("{}: [sim]", config.display()))
             .map_err(input)?;

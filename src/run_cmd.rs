@@ -7,16 +7,17 @@ use std::sync::Arc;
 use anyhow::{anyhow, Context};
 
 use cellcal::api;
-use cellcal::campaign::session::open_session;
+use cellcal::campaign::session::{open_session, Resume, SessionError};
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
 use cellcal::daemon::Daemon;
 use cellcal::dataset::{parse_csv, write_csv, Required};
 use cellcal::model::load_robot;
-use cellcal::report::summary_text;
+use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
 
+use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
 
@@ -36,10 +37,12 @@ pub struct RunOptions {
     pub quiet: bool,
     /// What an operator fault does (pause and ask at the terminal, or stop resumable).
     pub on_fault: FaultPolicy,
+    /// Resume although the configuration or robot model changed since the campaign was created.
+    pub accept_changed_config: bool,
 }
 
 /// The runtime of the campaign front ends (two workers: the engine and the store/front end).
-fn runtime() -> Result<tokio::runtime::Runtime, Failure> {
+pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, Failure> {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -52,11 +55,17 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
     let cfg = load_cell_config(&opts.config).map_err(input)?;
     let store_path = opts.store.clone().unwrap_or_else(|| cfg.store.clone());
     let rt = runtime()?;
-    rt.block_on(async move {
+    let result = rt.block_on(async move {
         let prompter: Arc<dyn Prompter> = Arc::new(TerminalPrompter);
-        let session = open_session(cfg, &store_path, opts.campaign, prompter)
-            .await
-            .map_err(input)?;
+        let resume = opts.campaign.map(|id| Resume {
+            id,
+            accept_changed_config: opts.accept_changed_config,
+        });
+        let session = match open_session(cfg, &store_path, resume, prompter).await {
+            Ok(s) => s,
+            Err(SessionError::Done(id)) => return print_stored_result(&store_path, id, opts.json.as_deref()),
+            Err(e) => return Err(input(e)),
+        };
         let mut ctx = session.ctx;
         ctx.on_fault = opts.on_fault;
         let mut devices = session.devices;
@@ -102,11 +111,15 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         if opts.on_fault == FaultPolicy::Pause {
             tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
         }
+        // SIGINT, SIGTERM and SIGHUP abort: the engine stops the robot and stores `aborted`
+        let mut signals = StopSignals::install().map_err(other)?;
         let abort = control.clone();
+        let caught = Arc::new(std::sync::OnceLock::new());
+        let seen = Arc::clone(&caught);
         tokio::spawn(async move {
-            if tokio::signal::ctrl_c().await.is_ok() {
-                abort.apply(&CampaignCommand::Abort);
-            }
+            let sig = signals.next().await;
+            let _ = seen.set(sig);
+            abort.apply(&CampaignCommand::Abort);
         });
         let outcome = run_campaign(&ctx, &mut devices).await.map_err(other)?;
         drop(ctx);
@@ -125,16 +138,44 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
                 }
                 Ok(())
             }
-            Outcome::Aborted => Err(Failure(
-                130,
-                anyhow!("campaign {id} aborted; the robot was stopped. Resume with --campaign {id} --arm"),
-            )),
+            Outcome::Aborted => {
+                let (code, by) = match caught.get() {
+                    Some(sig) => (sig.exit_code(), format!(" by {}", sig.name())),
+                    None => (130, String::new()),
+                };
+                Err(Failure(
+                    code,
+                    anyhow!("campaign {id} aborted{by}; the robot was stopped. Resume with --campaign {id} --arm"),
+                ))
+            }
             Outcome::Failed(reason) => Err(Failure(
                 1,
                 anyhow!("campaign {id} stopped: {reason}. Resume with --campaign {id} --arm"),
             )),
         }
-    })
+    });
+    // a technician question may still be blocked reading the terminal: do not wait for it
+    rt.shutdown_background();
+    result
+}
+
+/// A done campaign: nothing moves; print (and with `--json` write) its stored result.
+fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Result<(), Failure> {
+    let text = Store::open(store_path)
+        .and_then(|s| s.latest_result(id))
+        .map_err(other)?
+        .ok_or_else(|| other(anyhow!("campaign {id} is done but has no stored result")))?;
+    let report: IdentifyReport = serde_json::from_str(&text)
+        .with_context(|| format!("campaign {id}: the stored result does not parse"))
+        .map_err(other)?;
+    eprintln!("campaign {id} is done: nothing moves. Its stored result:");
+    print!("{}", summary_text(&report));
+    if let Some(path) = json {
+        std::fs::write(path, &text)
+            .with_context(|| format!("{}: cannot write", path.display()))
+            .map_err(other)?;
+    }
+    Ok(())
 }
 
 /// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
@@ -154,6 +195,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         let bound = listener.local_addr().map_err(other)?;
         println!("listening on http://{bound}");
         eprintln!("campaign store {}", store_path.display());
+        let mut signals = StopSignals::install().map_err(other)?;
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
         let server = axum::serve(listener, api::router(Arc::clone(&daemon)))
             .with_graceful_shutdown(async move {
@@ -163,7 +205,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         tokio::pin!(server);
         tokio::select! {
             r = &mut server => r.map_err(other)?,
-            _ = shutdown_signal() => {
+            _ = signals.next() => {
                 eprintln!("stopping: aborting the loaded campaign");
                 daemon.shutdown().await;
                 let _ = stop_tx.send(());
@@ -172,21 +214,6 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         }
         Ok(())
     })
-}
-
-/// Ctrl-C or SIGTERM.
-async fn shutdown_signal() {
-    let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-        Ok(s) => s,
-        Err(_) => {
-            let _ = tokio::signal::ctrl_c().await;
-            return;
-        }
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = term.recv() => {}
-    }
 }
 
 /// `cellcal export`: a campaign's measurements in the identify CSV format.

@@ -6,14 +6,14 @@
 //! stage axis; position model — not measured (`None`).
 
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::identify::observation::{predict, Measured, ObsConfig, ObsModel};
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
 
 /// Accuracy of a model on a set of poses (the `M` object of the JSON contract).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
     /// Number of poses.
     pub poses: usize,

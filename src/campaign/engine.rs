@@ -135,6 +135,71 @@ fn record(p: &TrackerPoint, stage_mm: f64) -> PointRecord {
     }
 }
 
+/// Why a robot fault after a reconnect pauses instead of retrying: the arm is not powered on
+/// behind the operator's back.
+const ROBOT_RECONNECTED: &str = "robot controller reconnected: check the cell, then resume";
+
+/// Which joint settled farther than `tol` (rad) from its target, if any.
+fn settle_error(target: &[f64], settled: &[f64], tol: f64) -> Option<String> {
+    if target.len() != settled.len() {
+        return Some(format!(
+            "the controller reported {} joints for a {}-joint target",
+            settled.len(),
+            target.len()
+        ));
+    }
+    let (k, off) = target
+        .iter()
+        .zip(settled)
+        .map(|(t, s)| (s - t).abs())
+        .enumerate()
+        .fold((0, 0.0_f64), |best, (k, d)| {
+            if d.is_nan() || d > best.1 {
+                (k, d)
+            } else {
+                best
+            }
+        });
+    (off.is_nan() || off > tol).then(|| {
+        format!(
+            "joint {} settled {:.4} deg from its target (tolerance {:.4} deg)",
+            k + 1,
+            off.to_degrees(),
+            tol.to_degrees()
+        )
+    })
+}
+
+/// Whether the measured stage travel |P2 − P1| agrees with the stage's own travel (the two
+/// readings' difference) within the stage tolerance plus three standard deviations of the two
+/// points; `Err` says by how much it does not (a slipped stage, a lock on a stray reflector).
+fn check_travel(
+    p1: &PointRecord,
+    p2: &PointRecord,
+    tol_mm: f64,
+    gate_mm: f64,
+) -> Result<(), String> {
+    let sd = |p: &PointRecord| {
+        if p.std_total_mm.is_finite() {
+            p.std_total_mm
+        } else {
+            gate_mm
+        }
+    };
+    let allowed = tol_mm + 3.0 * sd(p1).hypot(sd(p2));
+    let d = [p2.x_mm - p1.x_mm, p2.y_mm - p1.y_mm, p2.z_mm - p1.z_mm];
+    let measured = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let expected = (p2.stage_mm - p1.stage_mm).abs();
+    let off = (measured - expected).abs();
+    if off.is_finite() && off <= allowed {
+        Ok(())
+    } else {
+        Err(format!(
+            "|P2 − P1| = {measured:.4} mm but the stage moved {expected:.4} mm (off by {off:.4} mm, allowed {allowed:.4} mm)"
+        ))
+    }
+}
+
 /// Await a device call unless the campaign is aborted first.
 async fn guarded<T>(
     abort: &tokio_util::sync::CancellationToken,
@@ -152,6 +217,8 @@ struct Run<'a> {
     /// The stage reading after its last successful move (mm); `None` once anything may have
     /// moved it (a fault, a pause, a new preparation).
     stage_mm: Option<f64>,
+    /// Joints of the drift reference (the frame reference's, once known).
+    drift_q: Vec<f64>,
 }
 
 /// Retry a step after the operator fixed a fault: `Stop::Fault` pauses (or fails, per the
@@ -224,6 +291,8 @@ impl Run<'_> {
     async fn recover(&mut self, e: &CellError) -> Result<&'static str, Stop> {
         let action = match (e.device, e.kind) {
             (DeviceKind::Tracker, FaultKind::BeamBroken) => "relock",
+            // the connection is intact: stop what may still move, then the caller retries
+            (DeviceKind::Robot, FaultKind::Timeout) => "stop, retry",
             (_, FaultKind::Disconnected | FaultKind::Protocol | FaultKind::Timeout) => "reconnect",
             (_, FaultKind::NotReady) => "wait",
             _ => "pause",
@@ -238,12 +307,18 @@ impl Run<'_> {
                     .await
             }
             ("reconnect", DeviceKind::Robot) => {
-                let r = &mut self.dev.robot;
-                let speed = self.ctx.cfg.robot_controller.speed_pct;
-                match abort.run_until_cancelled(r.reconnect()).await {
-                    Some(Ok(())) => abort.run_until_cancelled(r.prepare(speed)).await,
-                    other => other,
+                // never powers the arm on: after a reconnect somebody must look at the cell
+                match abort.run_until_cancelled(self.dev.robot.reconnect()).await {
+                    None => return Err(Stop::Aborted),
+                    Some(_) => return Err(Stop::Fault(ROBOT_RECONNECTED.into())),
                 }
+            }
+            ("stop, retry", _) => {
+                let stop = self.dev.robot.stop();
+                let _ = abort
+                    .run_until_cancelled(tokio::time::timeout(Duration::from_secs(2), stop))
+                    .await;
+                Some(Ok(()))
             }
             ("wait", _) => {
                 tokio::time::sleep(Duration::from_millis(200)).await;
@@ -308,7 +383,8 @@ impl Run<'_> {
         )))
     }
 
-    /// Store a tracker point outside a pose commit (drift, setup, discarded) with its note.
+    /// Store a tracker point outside a pose commit (drift, setup, discarded) with its note;
+    /// returns its row id.
     async fn keep_point(
         &self,
         kind: PointKind,
@@ -317,15 +393,65 @@ impl Run<'_> {
         p: &TrackerPoint,
         stage_mm: f64,
         note: String,
-    ) -> Result<(), CampaignError> {
+    ) -> Result<i64, CampaignError> {
+        self.keep_record(kind, pose, joints, record(p, stage_mm), note)
+            .await
+    }
+
+    /// [`Run::keep_point`] of an already recorded point.
+    async fn keep_record(
+        &self,
+        kind: PointKind,
+        pose: Option<usize>,
+        joints: &[f64],
+        rec: PointRecord,
+        note: String,
+    ) -> Result<i64, CampaignError> {
         let id = self.ctx.campaign_id;
-        let rec = record(p, stage_mm);
         let q = joints.to_vec();
-        self.store(move |s| {
-            s.add_point(id, kind, pose, Some(&q), &rec, &note)
-                .map(|_| ())
-        })
-        .await
+        self.store(move |s| s.add_point(id, kind, pose, Some(&q), &rec, &note))
+            .await
+    }
+
+    /// A pose whose |P2 − P1| agrees with the stage travel: a disagreeing pair is kept as
+    /// `discarded` and the pose measured again, up to the tracker's `max_attempts`, then the
+    /// operator is asked.
+    async fn measure_sane_pose(
+        &mut self,
+        entry: &PlanEntry,
+        s1: f64,
+        s2: f64,
+    ) -> Result<PoseMeasurement, Stop> {
+        let max = self.ctx.cfg.tracker.max_attempts;
+        let tol = self.ctx.cfg.stage.tolerance_mm;
+        let gate = self.ctx.cfg.tracker.max_std_total_mm;
+        let mut last = String::new();
+        for _ in 0..max {
+            let m = self.measure_pose(entry, s1, s2).await?;
+            let Some(p2) = m.p2 else { return Ok(m) };
+            let Err(why) = check_travel(&m.p1, &p2, tol, gate) else {
+                return Ok(m);
+            };
+            self.fault(DeviceKind::Stage, FaultKind::Device, &why, "measure again")
+                .await?;
+            for p in [m.p1, p2] {
+                let note = format!("pose {}: {why}", entry.index);
+                self.keep_record(
+                    PointKind::Discarded,
+                    Some(entry.index),
+                    &m.joints_rad,
+                    p,
+                    note,
+                )
+                .await?;
+            }
+            self.stage_mm = None;
+            last = why;
+        }
+        Err(Stop::Fault(format!(
+            "pose {}: {last}, {max} times: check the stage and the ball",
+            entry.index
+        )))
     }
 
     /// Whether `q` passes the joint-limit and workspace checks (line of sight included).
@@ -334,10 +460,9 @@ impl Run<'_> {
     }
 
     /// Move to a joint target after the safety checks; returns the joints read after settling.
+    /// Every attempt re-checks that the campaign is armed; joints that settle farther than
+    /// `settle_tolerance_deg` from the target count as a failed attempt.
     async fn move_to(&mut self, q: &[f64]) -> Result<Vec<f64>, Stop> {
-        if !self.ctx.control.is_armed() {
-            return Err(Stop::Failed("the campaign is not armed: no motion".into()));
-        }
         if !self.target_safe(q) {
             return Err(Stop::Failed(format!(
                 "target {q:?} fails the joint-limit/workspace check: not sent"
@@ -345,8 +470,17 @@ impl Run<'_> {
         }
         let max = self.ctx.cfg.robot_controller.max_attempts;
         let timeout = Duration::from_millis(self.ctx.cfg.robot_controller.settle_timeout_ms);
+        let tol = self
+            .ctx
+            .cfg
+            .robot_controller
+            .settle_tolerance_deg
+            .to_radians();
         let mut last = String::new();
         for _ in 0..max {
+            if !self.ctx.control.is_armed() {
+                return Err(Stop::Failed("the campaign is not armed: no motion".into()));
+            }
             let r = {
                 let robot = &mut self.dev.robot;
                 guarded(&self.ctx.control.abort, async {
@@ -356,7 +490,14 @@ impl Run<'_> {
                 .await?
             };
             match r {
-                Ok(joints) => return Ok(joints),
+                Ok(joints) => match settle_error(q, &joints, tol) {
+                    None => return Ok(joints),
+                    Some(why) => {
+                        self.fault(DeviceKind::Robot, FaultKind::Device, &why, "repeat move")
+                            .await?;
+                        last = why;
+                    }
+                },
                 Err(e) if e.is_transient() => {
                     last = e.to_string();
                     self.recover(&e).await?;
@@ -402,27 +543,69 @@ impl Run<'_> {
         }
     }
 
-    /// Measure the drift reference; returns the point.
-    async fn drift_point(&mut self) -> Result<Vector3<f64>, Stop> {
-        let q = self.ctx.plan.drift_reference.clone();
-        let joints = self.move_to(&q).await?;
+    /// Measure the drift reference at `q` (stage at P1); returns the point and its row id.
+    async fn drift_point(&mut self, q: &[f64]) -> Result<(Vector3<f64>, i64), Stop> {
+        let joints = self.move_to(q).await?;
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s = self.stage_to(s1).await?;
         let p = self.measure_point(None, &joints, s).await?;
-        self.keep_point(
-            PointKind::Drift,
-            None,
-            &joints,
-            &p,
-            s,
-            "drift reference".into(),
-        )
+        let row = self
+            .keep_point(
+                PointKind::Drift,
+                None,
+                &joints,
+                &p,
+                s,
+                "drift reference".into(),
+            )
+            .await?;
+        Ok((p.p_mm, row))
+    }
+
+    /// The reference point of the campaign's tracker frame. At the first start it is measured
+    /// and stored (frame segment 0); every later start measures it again at the same joints
+    /// and compares: farther than `drift_max_mm` means the tracker or the robot moved between
+    /// sessions, and measuring on would mix two frames in one campaign (an operator fault).
+    async fn frame_reference(&mut self, poses_done: usize) -> Result<Vector3<f64>, Stop> {
+        let id = self.ctx.campaign_id;
+        let refs = self.store(move |s| s.frame_refs(id)).await?;
+        let max = self.ctx.cfg.campaign.drift_max_mm;
+        let Some(last) = refs.last() else {
+            let q = self.ctx.plan.drift_reference.clone();
+            let (p, row) = self.drift_point(&q).await?;
+            self.store(move |s| s.add_frame_ref(id, row, poses_done))
+                .await?;
+            self.drift_q = q;
+            self.journal(CampaignEvent::Drift {
+                drift_mm: 0.0,
+                max_mm: max,
+            })
+            .await?;
+            return Ok(p);
+        };
+        self.drift_q = last.joints_rad.clone();
+        let stored = Vector3::new(last.point.x_mm, last.point.y_mm, last.point.z_mm);
+        let q = self.drift_q.clone();
+        let (p, _) = self.drift_point(&q).await?;
+        let moved = (p - stored).norm();
+        self.journal(CampaignEvent::Drift {
+            drift_mm: moved,
+            max_mm: max,
+        })
         .await?;
-        Ok(p.p_mm)
+        if moved > max {
+            return Err(Stop::Fault(format!(
+                "the tracker or the robot moved by {moved:.3} mm since pose {poses_done} (limit {max} mm): \
+                 measuring on would mix two tracker frames in one campaign. Put it back and resume \
+                 (the reference is measured again), or abort"
+            )));
+        }
+        Ok(stored)
     }
 
     async fn check_drift(&mut self, baseline: &Vector3<f64>) -> Result<(), Stop> {
-        let p = self.drift_point().await?;
+        let q = self.drift_q.clone();
+        let (p, _) = self.drift_point(&q).await?;
         let drift = (p - baseline).norm();
         let max = self.ctx.cfg.campaign.drift_max_mm;
         self.journal(CampaignEvent::Drift {
@@ -438,11 +621,16 @@ impl Run<'_> {
         Ok(())
     }
 
+    /// Wait for Start while armed. A Start that arrives while disarmed is forgotten (it must
+    /// not turn a later Arm into motion).
     async fn wait_start(&self) -> Result<(), Stop> {
         let mut start = self.ctx.control.start.subscribe();
         loop {
-            if *start.borrow() && self.ctx.control.is_armed() {
-                return Ok(());
+            if *start.borrow_and_update() {
+                if self.ctx.control.is_armed() {
+                    return Ok(());
+                }
+                self.ctx.control.start.send_replace(false);
             }
             tokio::select! {
                 _ = start.changed() => {}
@@ -580,12 +768,7 @@ impl Run<'_> {
         }
         with_operator!(self, self.prepare().await);
         with_operator!(self, self.setup().await);
-        let baseline = with_operator!(self, self.drift_point().await);
-        self.journal(CampaignEvent::Drift {
-            drift_mm: 0.0,
-            max_mm: self.ctx.cfg.campaign.drift_max_mm,
-        })
-        .await?;
+        let baseline = with_operator!(self, self.frame_reference(count).await);
         let every = self.ctx.cfg.campaign.drift_every;
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s2 = s1 + self.ctx.cfg.stage.travel_mm;
@@ -595,7 +778,7 @@ impl Run<'_> {
                 continue;
             }
             self.wait_unpaused().await?;
-            let m = with_operator!(self, self.measure_pose(&entry, s1, s2).await);
+            let m = with_operator!(self, self.measure_sane_pose(&entry, s1, s2).await);
             let p1_mm = [m.p1.x_mm, m.p1.y_mm, m.p1.z_mm];
             // durable before the robot moves again
             self.store(move |s| s.commit_pose(id, &m)).await?;
@@ -689,6 +872,7 @@ pub async fn run_campaign(
         ctx,
         dev: devices,
         stage_mm: None,
+        drift_q: ctx.plan.drift_reference.clone(),
     };
     run.set_state(if ctx.control.is_armed() {
         CampaignState::Armed

@@ -9,18 +9,20 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use nalgebra::Vector3;
 
 use super::engine::{CampaignContext, Devices, FaultPolicy};
-use super::events::Control;
+use super::events::{CampaignEvent, Control};
+use super::lock::CampaignLock;
 use crate::cell::stage_manual::{ManualStage, ManualStageConfig};
 use crate::cell::{
     EmsconTracker, EmsconTrackerConfig, LinkRobot, LinkRobotConfig, Prompter, ZaberStageAdapter,
     ZaberStageAdapterConfig,
 };
+use crate::config::diff::changed_keys;
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::{plan_campaign, Plan, PlanEntry, PlanRequest, Workspace};
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
-use crate::store::{NewCampaign, PlannedPose, Store};
+use crate::store::{CampaignRow, EventRecord, NewCampaign, PlannedPose, Store};
 
 /// Why a session could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -45,6 +47,44 @@ pub enum SessionError {
     /// Inconsistent request.
     #[error("{0}")]
     Invalid(String),
+    /// The campaign is done: nothing to measure (its result is stored).
+    #[error("campaign {0} is done: nothing moves; its result is stored")]
+    Done(i64),
+    /// The configuration or robot model differs from the one the campaign was created with.
+    #[error(
+        "campaign {id} was created with another {what}; changed: {}. Resuming would mix two \
+         cells in one campaign; restore the file, or accept the change with \
+         --accept-changed-config",
+        keys.join(", ")
+    )]
+    ConfigChanged {
+        /// Campaign id.
+        id: i64,
+        /// `configuration` or `robot model`.
+        what: &'static str,
+        /// The dotted keys that differ.
+        keys: Vec<String>,
+    },
+}
+
+/// A stored campaign to resume.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Resume {
+    /// Campaign id.
+    pub id: i64,
+    /// Resume although the configuration or robot model changed since the campaign was
+    /// created (the changed keys are journalled).
+    pub accept_changed_config: bool,
+}
+
+impl Resume {
+    /// Resume `id` only with the configuration and robot model it was created with.
+    pub fn strict(id: i64) -> Resume {
+        Resume {
+            id,
+            accept_changed_config: false,
+        }
+    }
 }
 
 /// A ready campaign: context, devices and (when simulated) the running simulated cell.
@@ -57,6 +97,8 @@ pub struct Session {
     pub sim: Option<RunningSimCell>,
     /// Whether the campaign was resumed from the store.
     pub resumed: bool,
+    /// This process is the campaign's one runner while this is held.
+    pub lock: CampaignLock,
 }
 
 /// Planning request from the configuration.
@@ -85,163 +127,62 @@ fn now_ms() -> i64 {
         .unwrap_or(0)
 }
 
-/// Set up a campaign session. `campaign` resumes a stored campaign; otherwise a new one is
-/// planned and stored (the split is fixed before the first measurement).
+/// Set up a campaign session. `campaign` resumes a stored campaign (refused when it is done,
+/// or when its configuration or robot model changed unless accepted); otherwise a new one is
+/// planned and stored (the split is fixed before the first measurement). Either way this
+/// process then holds the campaign ([`CampaignLock`]) until the session is dropped; only then
+/// are the simulated devices (if any) started and the adapters built.
 pub async fn open_session(
     cfg: CellConfig,
     store_path: &Path,
-    campaign: Option<i64>,
+    campaign: Option<Resume>,
     prompter: Arc<dyn Prompter>,
 ) -> Result<Session, SessionError> {
     let mut nominal: RobotModel = load_robot(&cfg.robot)?;
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
-    // simulated devices
-    let sim = if cfg.any_simulated() {
-        let table = cfg.sim.clone().unwrap_or_default();
-        let mut sc: SimWorldConfig =
-            table
-                .try_into()
-                .map_err(|e: toml::de::Error| SessionError::Sim {
-                    path: cfg.path.display().to_string(),
-                    message: e.to_string().trim_end().replace('\n', " "),
-                })?;
-        if !matches!(sc.errors.as_str(), "paper" | "random" | "none" | "") {
-            let dir = cfg.path.parent().unwrap_or(Path::new("."));
-            sc.errors = dir.join(&sc.errors).to_string_lossy().into_owned();
-        }
-        if cfg.stage.kind != StageMode::Serial {
-            sc.stage_mode = crate::sim::config::StageMode::Manual;
-        }
-        let cell = start_cell(nominal.bare(), sc, std::future::pending())
-            .await
-            .map_err(|e| SessionError::Sim {
-                path: cfg.path.display().to_string(),
-                message: e.to_string(),
-            })?;
-        Some(cell)
-    } else {
-        None
-    };
-    let mut tcfg = match (&sim, cfg.tracker.mode) {
-        (Some(s), DeviceMode::Sim) => s.tracker_config(),
-        _ => EmsconTrackerConfig {
-            address: cfg.tracker.address.clone(),
-            reflector_id: cfg.tracker.reflector_id,
-            ..EmsconTrackerConfig::default()
-        },
-    };
-    tcfg.meas_time_ms = cfg.tracker.measure_ms as i32;
-    let rcfg = match (&sim, cfg.robot_controller.mode) {
-        (Some(s), DeviceMode::Sim) => s.robot_config(),
-        _ => LinkRobotConfig {
-            address: cfg.robot_controller.address.clone(),
-            ..LinkRobotConfig::default()
-        },
-    };
-    let stage: Box<dyn crate::cell::Stage> = match cfg.stage.kind {
-        StageMode::Serial => {
-            let scfg = match (&sim, cfg.stage.mode) {
-                (Some(s), DeviceMode::Sim) => s.stage_config().ok_or_else(|| {
-                    SessionError::Invalid("the simulated cell has no serial stage".into())
-                })?,
-                _ => ZaberStageAdapterConfig {
-                    port: cfg.stage.serial_path.clone(),
-                    microsteps_per_mm: cfg.stage.microsteps_per_mm,
-                    ..ZaberStageAdapterConfig::default()
-                },
-            };
-            Box::new(ZaberStageAdapter::new(ZaberStageAdapterConfig {
-                tolerance_mm: cfg.stage.tolerance_mm,
-                ..scfg
-            }))
-        }
-        StageMode::Manual | StageMode::ManualGauge => Box::new(ManualStage::new(
-            match (&sim, cfg.stage.mode) {
-                // the simulated micrometer follows the technician's answers
-                (Some(s), DeviceMode::Sim) => {
-                    Arc::new(SimTechnician::new(Arc::clone(&prompter), s.world.clone()))
-                }
-                _ => Arc::clone(&prompter),
-            },
-            ManualStageConfig {
-                tolerance_mm: cfg.stage.tolerance_mm,
-                ..ManualStageConfig::default()
-            },
-        )),
-    };
-    let devices = Devices {
-        tracker: Box::new(EmsconTracker::new(tcfg)),
-        robot: Box::new(LinkRobot::new(rcfg)),
-        stage,
-    };
-    // store and plan
     let mut store = Store::open(store_path)?;
     let req = plan_request(&cfg);
+    let resumed = campaign
+        .map(|r| stored_campaign(&store, r, &cfg.text, &robot_text))
+        .transpose()?;
     let fresh = plan_campaign(&nominal, &req)?;
-    let mut model_of_resumed = None;
-    let (campaign_id, plan, resumed) = match campaign {
-        Some(id) => {
-            let row = store.campaign(id)?;
-            let stored = store.plan(id)?;
-            let poses = stored
-                .into_iter()
-                .map(|p| PlanEntry {
-                    index: p.index,
-                    set: p.set,
-                    q_rad: p.q_rad,
-                })
-                .collect();
-            // identify with the model the campaign was created with
-            model_of_resumed = Some(row.model);
-            (
-                id,
-                Plan {
-                    poses,
-                    drift_reference: fresh.drift_reference.clone(),
-                },
-                true,
-            )
+    let (campaign_id, plan, model_of_resumed, accepted_changes) = match resumed {
+        Some(s) => {
+            let plan = Plan {
+                poses: s.poses,
+                drift_reference: fresh.drift_reference,
+            };
+            (s.id, plan, Some(s.model), s.accepted_changes)
         }
         None => {
-            let planned: Vec<PlannedPose> = fresh
-                .poses
-                .iter()
-                .enumerate()
-                .map(|(order, e)| PlannedPose {
-                    index: e.index,
-                    set: e.set,
-                    order,
-                    q_rad: e.q_rad.clone(),
-                })
-                .collect();
-            let id = store.create_campaign(
-                &NewCampaign {
-                    name: format!("{} {}", nominal.name, cfg.campaign.model),
-                    created_at_ms: now_ms(),
-                    model: cfg.campaign.model.clone(),
-                    seed: cfg.campaign.seed,
-                    config_toml: cfg.text.clone(),
-                    robot_toml: robot_text,
-                },
-                &planned,
-            )?;
-            (id, fresh, false)
+            let id = store_new_campaign(&mut store, &cfg, &nominal, robot_text, &fresh)?;
+            (id, fresh, None, Vec::new())
         }
     };
-    if plan
-        .poses
-        .iter()
-        .filter(|p| p.set == PoseSet::Ident)
-        .count()
-        == 0
-    {
+    if !plan.poses.iter().any(|p| p.set == PoseSet::Ident) {
         return Err(SessionError::Invalid(format!(
             "campaign {campaign_id} has no identification poses"
         )));
     }
+    let (lock, took_over) = CampaignLock::acquire(&mut store, store_path, campaign_id)?;
+    if let Some(h) = took_over {
+        let text = format!("took over the campaign from {h}, which no longer runs");
+        note(&mut store, campaign_id, text)?;
+    }
+    for (what, keys) in accepted_changes {
+        let text = format!(
+            "resumed with a changed {what} (accepted): {}",
+            keys.join(", ")
+        );
+        note(&mut store, campaign_id, text)?;
+    }
+    let sim = simulated_cell(&cfg, &nominal).await?;
+    let devices = cell_devices(&cfg, sim.as_ref(), prompter)?;
+    let resumed = model_of_resumed.is_some();
     let mut cfg = cfg;
     if let Some(model) = model_of_resumed {
+        // identify with the model the campaign was created with
         cfg.campaign.model = model;
     }
     Ok(Session {
@@ -258,5 +199,222 @@ pub async fn open_session(
         devices,
         sim,
         resumed,
+        lock,
     })
+}
+
+/// A stored campaign that may be resumed.
+struct StoredCampaign {
+    id: i64,
+    model: String,
+    poses: Vec<PlanEntry>,
+    accepted_changes: Vec<(&'static str, Vec<String>)>,
+}
+
+/// Load campaign `r.id` to resume it, refusing a done campaign and (unless accepted) changed
+/// files.
+fn stored_campaign(
+    store: &Store,
+    r: Resume,
+    config_text: &str,
+    robot_text: &str,
+) -> Result<StoredCampaign, SessionError> {
+    let row = store.campaign(r.id)?;
+    if row.state == "done" {
+        return Err(SessionError::Done(r.id));
+    }
+    let changes = config_changes(&row, config_text, robot_text);
+    if let (Some((what, keys)), false) = (changes.first(), r.accept_changed_config) {
+        return Err(SessionError::ConfigChanged {
+            id: r.id,
+            what,
+            keys: keys.clone(),
+        });
+    }
+    let poses = store
+        .plan(r.id)?
+        .into_iter()
+        .map(|p| PlanEntry {
+            index: p.index,
+            set: p.set,
+            q_rad: p.q_rad,
+        })
+        .collect();
+    Ok(StoredCampaign {
+        id: r.id,
+        model: row.model,
+        poses,
+        accepted_changes: changes,
+    })
+}
+
+/// Store a freshly planned campaign (plan, split and the verbatim files); returns its id.
+fn store_new_campaign(
+    store: &mut Store,
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+    robot_text: String,
+    plan: &Plan,
+) -> Result<i64, SessionError> {
+    let planned: Vec<PlannedPose> = plan
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(order, e)| PlannedPose {
+            index: e.index,
+            set: e.set,
+            order,
+            q_rad: e.q_rad.clone(),
+        })
+        .collect();
+    Ok(store.create_campaign(
+        &NewCampaign {
+            name: format!("{} {}", nominal.name, cfg.campaign.model),
+            created_at_ms: now_ms(),
+            model: cfg.campaign.model.clone(),
+            seed: cfg.campaign.seed,
+            config_toml: cfg.text.clone(),
+            robot_toml: robot_text,
+        },
+        &planned,
+    )?)
+}
+
+/// Start the simulated cell when any device is simulated (`[sim]`).
+async fn simulated_cell(
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+) -> Result<Option<RunningSimCell>, SessionError> {
+    if !cfg.any_simulated() {
+        return Ok(None);
+    }
+    let sim_err = |message: String| SessionError::Sim {
+        path: cfg.path.display().to_string(),
+        message,
+    };
+    let table = cfg.sim.clone().unwrap_or_default();
+    let mut sc: SimWorldConfig = table
+        .try_into()
+        .map_err(|e: toml::de::Error| sim_err(e.to_string().trim_end().replace('\n', " ")))?;
+    if !matches!(sc.errors.as_str(), "paper" | "random" | "none" | "") {
+        let dir = cfg.path.parent().unwrap_or(Path::new("."));
+        sc.errors = dir.join(&sc.errors).to_string_lossy().into_owned();
+    }
+    if cfg.stage.kind != StageMode::Serial {
+        sc.stage_mode = crate::sim::config::StageMode::Manual;
+    }
+    let cell = start_cell(nominal.bare(), sc, std::future::pending())
+        .await
+        .map_err(|e| sim_err(e.to_string()))?;
+    Ok(Some(cell))
+}
+
+/// The device adapters: to the simulated cell's devices where simulated, else to the
+/// configured addresses.
+fn cell_devices(
+    cfg: &CellConfig,
+    sim: Option<&RunningSimCell>,
+    prompter: Arc<dyn Prompter>,
+) -> Result<Devices, SessionError> {
+    let mut tcfg = match (sim, cfg.tracker.mode) {
+        (Some(s), DeviceMode::Sim) => s.tracker_config(),
+        _ => EmsconTrackerConfig {
+            address: cfg.tracker.address.clone(),
+            reflector_id: cfg.tracker.reflector_id,
+            ..EmsconTrackerConfig::default()
+        },
+    };
+    tcfg.meas_time_ms = cfg.tracker.measure_ms as i32;
+    let rcfg = match (sim, cfg.robot_controller.mode) {
+        (Some(s), DeviceMode::Sim) => s.robot_config(),
+        _ => LinkRobotConfig {
+            address: cfg.robot_controller.address.clone(),
+            ..LinkRobotConfig::default()
+        },
+    };
+    Ok(Devices {
+        tracker: Box::new(EmsconTracker::new(tcfg)),
+        robot: Box::new(LinkRobot::new(rcfg)),
+        stage: stage_device(cfg, sim, prompter)?,
+    })
+}
+
+/// The stage adapter: a Zaber stage, or a micrometer the technician sets (followed by the
+/// simulated world when simulated).
+fn stage_device(
+    cfg: &CellConfig,
+    sim: Option<&RunningSimCell>,
+    prompter: Arc<dyn Prompter>,
+) -> Result<Box<dyn crate::cell::Stage>, SessionError> {
+    Ok(match cfg.stage.kind {
+        StageMode::Serial => {
+            let scfg = match (sim, cfg.stage.mode) {
+                (Some(s), DeviceMode::Sim) => s.stage_config().ok_or_else(|| {
+                    SessionError::Invalid("the simulated cell has no serial stage".into())
+                })?,
+                _ => ZaberStageAdapterConfig {
+                    port: cfg.stage.serial_path.clone(),
+                    microsteps_per_mm: cfg.stage.microsteps_per_mm,
+                    ..ZaberStageAdapterConfig::default()
+                },
+            };
+            Box::new(ZaberStageAdapter::new(ZaberStageAdapterConfig {
+                tolerance_mm: cfg.stage.tolerance_mm,
+                ..scfg
+            }))
+        }
+        StageMode::Manual | StageMode::ManualGauge => {
+            let asker = match (sim, cfg.stage.mode) {
+                // the simulated micrometer follows the technician's answers
+                (Some(s), DeviceMode::Sim) => {
+                    Arc::new(SimTechnician::new(prompter, s.world.clone())) as Arc<dyn Prompter>
+                }
+                _ => prompter,
+            };
+            Box::new(ManualStage::new(
+                asker,
+                ManualStageConfig {
+                    tolerance_mm: cfg.stage.tolerance_mm,
+                    ..ManualStageConfig::default()
+                },
+            ))
+        }
+    })
+}
+
+/// The configuration keys and robot-model keys that differ from the campaign's stored files
+/// (the simulated world's `[sim]` table is not the cell's configuration and is skipped).
+fn config_changes(
+    row: &CampaignRow,
+    config_text: &str,
+    robot_text: &str,
+) -> Vec<(&'static str, Vec<String>)> {
+    [
+        (
+            "configuration",
+            changed_keys(&row.config_toml, config_text, &["sim"]),
+        ),
+        (
+            "robot model",
+            changed_keys(&row.robot_toml, robot_text, &[]),
+        ),
+    ]
+    .into_iter()
+    .filter(|(_, keys)| !keys.is_empty())
+    .collect()
+}
+
+/// Journal a note in the store (before the engine runs).
+fn note(store: &mut Store, id: i64, text: String) -> Result<(), SessionError> {
+    let event = CampaignEvent::Note { text };
+    store.add_event(
+        id,
+        &EventRecord {
+            at_ms: now_ms(),
+            kind: event.kind().to_owned(),
+            message: serde_json::to_string(&event)
+                .map_err(|e| SessionError::Invalid(e.to_string()))?,
+        },
+    )?;
+    Ok(())
 }

@@ -68,6 +68,9 @@ pub struct RobotSection {
     pub settle_timeout_ms: u64,
     /// Attempts per move before the campaign pauses.
     pub max_attempts: u32,
+    /// Largest accepted difference between a joint read after settling and its target (deg);
+    /// beyond it the move is repeated (then the campaign pauses).
+    pub settle_tolerance_deg: f64,
 }
 
 impl Default for RobotSection {
@@ -78,6 +81,7 @@ impl Default for RobotSection {
             speed_pct: 20.0,
             settle_timeout_ms: 60_000,
             max_attempts: 3,
+            settle_tolerance_deg: 0.05,
         }
     }
 }
@@ -367,6 +371,13 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     }
     if !(f.stage.travel_mm.is_finite() && f.stage.travel_mm > 0.0) {
         return Err(invalid("stage.travel_mm", "must be positive".into()));
+    }
+    let tol = f.robot_controller.settle_tolerance_deg;
+    if !(tol.is_finite() && tol > 0.0) {
+        return Err(invalid(
+            "robot_controller.settle_tolerance_deg",
+            "must be positive".into(),
+        ));
     }
     if !(f.stage.tolerance_mm.is_finite() && f.stage.tolerance_mm > 0.0) {
         return Err(invalid("stage.tolerance_mm", "must be positive".into()));

@@ -3,6 +3,7 @@
 //! and the key. Relative paths are resolved against the configuration file's folder.
 
 pub mod cell;
+pub mod diff;
 
 pub use cell::{
     load_cell_config, parse_cell_config, CampaignSection, CellConfig, ConfigError, DeviceMode,

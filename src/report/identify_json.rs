@@ -8,7 +8,7 @@
 //! `direction_weight_mm`, `condition_number`, `sigma0_mm`, `rejected_poses`, `correlation`,
 //! `solver.termination`, metric fields `position_p95_mm`, `attitude_rms_rad`.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::analysis::metrics::{evaluate, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
@@ -31,7 +31,7 @@ pub enum CalibrateError {
 }
 
 /// `{name, reason}` of a dropped parameter.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NotIdentifiable {
     /// Parameter name.
     pub name: String,
@@ -40,7 +40,7 @@ pub struct NotIdentifiable {
 }
 
 /// One parameter row.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ParameterJson {
     /// Name (`theta1`, `base_tx`, `tool_y`, …).
     pub name: String,
@@ -61,7 +61,7 @@ pub struct ParameterJson {
 }
 
 /// Base transform (robot base → measurement frame).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BaseJson {
     /// Translation (mm).
     pub translation_mm: [f64; 3],
@@ -70,14 +70,14 @@ pub struct BaseJson {
 }
 
 /// Tool (ball in the flange frame).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ToolJson {
     /// Translation (mm).
     pub translation_mm: [f64; 3],
 }
 
 /// Solver summary.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SolverJson {
     /// Accepted iterations.
     pub iterations: usize,
@@ -90,7 +90,7 @@ pub struct SolverJson {
 }
 
 /// Before/after metrics of one set.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BeforeAfter {
     /// Nominal (initial) model.
     pub before: Metrics,
@@ -99,7 +99,7 @@ pub struct BeforeAfter {
 }
 
 /// Metrics of both sets.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MetricsJson {
     /// Identification set.
     pub ident: BeforeAfter,
@@ -108,7 +108,7 @@ pub struct MetricsJson {
 }
 
 /// Correlation matrix of the identified parameters.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CorrelationJson {
     /// Parameter names (row/column order).
     pub names: Vec<String>,
@@ -117,7 +117,7 @@ pub struct CorrelationJson {
 }
 
 /// The whole `cellcal identify` JSON document.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct IdentifyReport {
     /// `position`, `np`, `op` or `full`.
     pub model: String,

@@ -258,6 +258,11 @@ pub struct StageFaults {
     pub overshoot: u32,
     /// The stage loses its home at the next command (WR).
     pub lose_home: u32,
+    /// The next N moves away from 0 mm slip: the ball ends `slip_mm` further along the axis
+    /// than the stage reports (the encoder does not see it).
+    pub slip: u32,
+    /// Size of a `slip` (mm).
+    pub slip_mm: f64,
 }
 
 impl Default for StageFaults {
@@ -269,6 +274,8 @@ impl Default for StageFaults {
             fault: 0,
             overshoot: 0,
             lose_home: 0,
+            slip: 0,
+            slip_mm: 0.5,
         }
     }
 }

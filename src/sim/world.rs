@@ -50,6 +50,11 @@ pub struct WorldFaults {
     pub estop_delay: Duration,
     /// The laser reports "not warmed up" until this long after start.
     pub not_warmed_up_for: Duration,
+    /// The next N stage rests away from 0 mm end `stage_slip_mm` further along the axis than
+    /// the stage reports (a mechanical slip its encoder does not see).
+    pub stage_slips: u32,
+    /// Size of a `stage_slips` slip (mm).
+    pub stage_slip_mm: f64,
 }
 
 /// Where the stage position comes from.
@@ -110,6 +115,7 @@ pub struct World {
     motion: Option<Motion>,
     settled_at: Instant,
     power: bool,
+    power_on_requests: u64,
     estop: bool,
     estop_at: Option<Instant>,
     moves: u64,
@@ -212,6 +218,7 @@ impl World {
             motion: None,
             settled_at: now,
             power: cfg.robot_power_on,
+            power_on_requests: 0,
             estop: false,
             estop_at: None,
             moves: 0,
@@ -242,6 +249,8 @@ impl World {
                 estop_after_moves: cfg.faults.robot.estop_after_moves,
                 estop_delay: Duration::from_millis(cfg.faults.robot.estop_delay_ms),
                 not_warmed_up_for: Duration::from_millis(cfg.faults.tracker.not_warmed_up_ms),
+                stage_slips: cfg.faults.stage.slip,
+                stage_slip_mm: cfg.faults.stage.slip_mm,
             },
             nominal,
             truth,
@@ -333,6 +342,11 @@ impl World {
         self.power
     }
 
+    /// How many times power was switched on (by anyone) since start.
+    pub fn power_on_requests(&self) -> u64 {
+        self.power_on_requests
+    }
+
     /// Switch arm power (off stops motion; on fails during an E-stop).
     pub fn set_power(&mut self, on: bool) -> Result<(), BackendError> {
         self.update();
@@ -341,6 +355,9 @@ impl World {
         }
         if !on {
             self.halt(Instant::now());
+        }
+        if on {
+            self.power_on_requests += 1;
         }
         self.power = on;
         Ok(())
@@ -496,6 +513,10 @@ impl World {
         if !self.stage_moving() && self.stage_seen != Some(s) {
             self.stage_seen = Some(s);
             self.stage_offset_mm = self.stage_repeatability_mm * gauss(&mut self.rng);
+            if s.abs() > 0.5 && self.faults.stage_slips > 0 {
+                self.faults.stage_slips -= 1;
+                self.stage_offset_mm += self.faults.stage_slip_mm;
+            }
         }
         s + self.stage_offset_mm
     }

@@ -45,6 +45,14 @@ pub enum StoreError {
         /// Number of migrations this code knows.
         known: i64,
     },
+    /// Another live process drives this campaign.
+    #[error("campaign {campaign} is being run by {holder}; stop that process first")]
+    Locked {
+        /// Campaign id.
+        campaign: i64,
+        /// Who holds it.
+        holder: super::locks::LockHolder,
+    },
     /// A stored value cannot be parsed back (edited or damaged database).
     #[error("corrupt value in the campaign database: {0}")]
     Corrupt(String),

@@ -62,7 +62,7 @@ fn insert_point(
 }
 
 /// Read one measurement row by id: the point and its joints (if stored).
-fn read_point(
+pub(super) fn read_point(
     conn: &rusqlite::Connection,
     row_id: i64,
 ) -> Result<(PointRecord, Option<Vec<f64>>), StoreError> {
@@ -225,6 +225,20 @@ impl Store {
         let row = insert_point(&tx, id, pose, kind.as_str(), joints.as_deref(), point, note)?;
         tx.commit().ctx("commit add point")?;
         Ok(row)
+    }
+
+    /// How many points of `kind` the campaign has stored.
+    pub fn point_count(&self, id: i64, kind: PointKind) -> Result<usize, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let n: i64 = self
+            .conn
+            .query_row(
+                "SELECT count(*) FROM measurements WHERE campaign_id = ?1 AND kind = ?2",
+                params![id, kind.as_str()],
+                |r| r.get(0),
+            )
+            .ctx("count points")?;
+        from_sql_index(n, "point count")
     }
 
     /// Indices of the campaign's completely measured poses, ascending.

@@ -22,12 +22,14 @@
 
 mod campaigns;
 mod error;
+mod frames;
+mod locks;
 mod measurements;
 pub mod records;
 pub mod schema;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use std::path::Path;
 use std::time::Duration;
@@ -36,6 +38,8 @@ use rusqlite::{Connection, OptionalExtension};
 
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
+pub use frames::FrameRef;
+pub use locks::{Acquired, LockHolder};
 pub use measurements::IMPORTED_STATE;
 pub use records::{
     CampaignRow, EventRecord, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement,

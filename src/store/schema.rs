@@ -23,6 +23,13 @@
 //!
 //! Version 2 adds `setup_results(id, campaign_id, created_at_ms, json)`: the cell setup of a
 //! campaign (tool frame, base registration) as JSON, append-only; the latest one is used.
+//!
+//! Version 3 adds `campaign_locks(campaign_id, pid, host, pid_start, acquired_at_ms)`: the
+//! process that drives a campaign's robot (at most one row per campaign; deleted when the
+//! process lets go, taken over when its pid is dead), and `frame_refs(campaign_id, segment,
+//! measurement_id, poses_done)`: the drift-reference measurement that defines a campaign's
+//! tracker frame (segment 0 at the first start; a re-registration appends the next segment),
+//! append-only.
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -124,6 +131,29 @@ CREATE TRIGGER setup_results_no_update BEFORE UPDATE ON setup_results
 BEGIN SELECT RAISE(ABORT, 'setup results are append-only'); END;
 CREATE TRIGGER setup_results_no_delete BEFORE DELETE ON setup_results
 BEGIN SELECT RAISE(ABORT, 'setup results are append-only'); END;
+"#,
+    // 2 -> 3: one runner per campaign (lock rows), and the frame references of campaigns.
+    r#"
+CREATE TABLE campaign_locks (
+    campaign_id    INTEGER PRIMARY KEY REFERENCES campaigns(id),
+    pid            INTEGER NOT NULL,
+    host           TEXT    NOT NULL,
+    pid_start      INTEGER NOT NULL,
+    acquired_at_ms INTEGER NOT NULL
+) STRICT;
+
+CREATE TABLE frame_refs (
+    id             INTEGER PRIMARY KEY,
+    campaign_id    INTEGER NOT NULL REFERENCES campaigns(id),
+    segment        INTEGER NOT NULL CHECK (segment >= 0),
+    measurement_id INTEGER NOT NULL REFERENCES measurements(id),
+    poses_done     INTEGER NOT NULL CHECK (poses_done >= 0),
+    UNIQUE (campaign_id, segment)
+) STRICT;
+CREATE TRIGGER frame_refs_no_update BEFORE UPDATE ON frame_refs
+BEGIN SELECT RAISE(ABORT, 'frame references are append-only'); END;
+CREATE TRIGGER frame_refs_no_delete BEFORE DELETE ON frame_refs
+BEGIN SELECT RAISE(ABORT, 'frame references are append-only'); END;
 "#,
 ];
 

@@ -36,7 +36,8 @@ fn point(x: f64) -> PointRecord {
     }
 }
 
-fn setup(store: &mut Store) -> i64 {
+/// A campaign of three ident poses (6 joints each); returns its id.
+pub(crate) fn setup(store: &mut Store) -> i64 {
     let plan: Vec<PlannedPose> = (0..3)
         .map(|i| PlannedPose {
             index: i,
@@ -200,4 +201,56 @@ fn killed_mid_commit_leaves_no_half_pose() {
     assert_eq!(count(&mut s, "SELECT count(*) FROM measurements"), 2);
     s.commit_pose(id, &pose(1)).unwrap();
     assert_eq!(s.done_poses(id).unwrap(), vec![0, 1]);
+}
+
+#[test]
+fn frame_references_number_segments_and_refuse_non_drift_points() {
+    let mut s = Store::open_in_memory().unwrap();
+    let id = setup(&mut s);
+    assert!(s.frame_refs(id).unwrap().is_empty());
+    let q = [0.1; 6];
+    let d0 = s
+        .add_point(
+            id,
+            PointKind::Drift,
+            None,
+            Some(&q),
+            &point(1.0),
+            "drift reference",
+        )
+        .unwrap();
+    let no_joints = s
+        .add_point(id, PointKind::Drift, None, None, &point(1.5), "drift")
+        .unwrap();
+    let setup_pt = s
+        .add_point(id, PointKind::Setup, None, Some(&q), &point(2.0), "setup")
+        .unwrap();
+    assert_eq!(s.add_frame_ref(id, d0, 0).unwrap(), 0);
+    for bad in [no_joints, setup_pt, 9999] {
+        assert!(matches!(
+            s.add_frame_ref(id, bad, 0),
+            Err(StoreError::Invalid(_))
+        ));
+    }
+    let d1 = s
+        .add_point(
+            id,
+            PointKind::Drift,
+            None,
+            Some(&q),
+            &point(3.0),
+            "re-registered",
+        )
+        .unwrap();
+    assert_eq!(s.add_frame_ref(id, d1, 2).unwrap(), 1);
+    let refs = s.frame_refs(id).unwrap();
+    assert_eq!(refs.len(), 2);
+    assert_eq!((refs[0].point.x_mm, refs[0].poses_done), (1.0, 0));
+    assert_eq!(
+        (refs[1].segment, refs[1].point.x_mm, refs[1].poses_done),
+        (1, 3.0, 2)
+    );
+    assert_eq!(refs[1].joints_rad, q.to_vec());
+    // append-only
+    assert!(s.raw().execute("DELETE FROM frame_refs", []).is_err());
 }

@@ -106,7 +106,7 @@ async fn run_in_process(text: &str) -> Finished {
     }
 }
 
-fn check_complete(store: &Path, id: i64, poses: usize) {
+pub(crate) fn check_complete(store: &Path, id: i64, poses: usize) {
     let s = Store::open(store).expect("store");
     let done = s.done_poses(id).expect("done");
     assert_eq!(done.len(), poses, "every pose measured once");
@@ -300,7 +300,7 @@ fn bad_configuration_is_a_clear_error() {
 }
 
 /// Run `text` in process; `on_event` sees every event with the live cell and may steer it.
-async fn run_steered(
+pub(crate) async fn run_steered(
     text: &str,
     mut on_event: impl FnMut(&CampaignEvent, &cellcal::sim::RunningSimCell, &Control) + Send + 'static,
 ) -> (Outcome, PathBuf, i64) {
@@ -336,7 +336,7 @@ async fn run_steered(
     (outcome, store, ctx.campaign_id)
 }
 
-fn journal_states(store: &Path, id: i64) -> Vec<serde_json::Value> {
+pub(crate) fn journal_states(store: &Path, id: i64) -> Vec<serde_json::Value> {
     Store::open(store)
         .expect("store")
         .events(id)

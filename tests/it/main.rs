@@ -8,6 +8,7 @@ mod frames;
 mod identifiability;
 mod paper;
 mod robust;
+mod safety;
 mod serve;
 mod setup;
 mod significance;

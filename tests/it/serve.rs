@@ -134,13 +134,21 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
     );
     assert_eq!(code, 400, "{v}");
 
-    // start without arm: nothing moves
+    // start without arm: refused and forgotten, so a later arm alone moves nothing
     let path = format!("/api/campaigns/{id}/commands");
-    assert_eq!(post(&s, &path, r#"{"command": "start"}"#).0, 200);
+    let (code, v) = post(&s, &path, r#"{"command": "start"}"#);
+    assert_eq!(code, 409, "{v}");
+    assert!(
+        v["error"].as_str().expect("error").contains("not armed"),
+        "{v}"
+    );
+    let (code, v) = post(&s, &path, r#"{"command": "arm"}"#);
+    assert_eq!(code, 200, "{v}");
     std::thread::sleep(Duration::from_millis(300));
     let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
     assert_eq!(v["poses_done"], 0, "{v}");
-    assert_eq!(v["armed"], false, "{v}");
+    assert_eq!(v["armed"], true, "{v}");
+    assert_eq!(v["state"], "armed", "{v}");
 
     // live events, read like a browser's EventSource
     let url = format!("{}/api/campaigns/{id}/stream", s.base);
@@ -159,7 +167,7 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
         kinds
     });
     std::thread::sleep(Duration::from_millis(200));
-    let (code, v) = post(&s, &path, r#"{"command": "arm"}"#);
+    let (code, v) = post(&s, &path, r#"{"command": "start"}"#);
     assert_eq!(code, 200, "{v}");
     let v = wait_for_state(&s, id, "done");
     assert_eq!(v["poses_done"], 60);
@@ -195,6 +203,17 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
         Some(Some("done")),
         "{states:?}"
     );
+
+    // a done campaign cannot be armed, started or resumed again: nothing moves, no new result
+    for cmd in ["arm", "start", "resume"] {
+        let (code, v) = post(&s, &path, &format!(r#"{{"command": "{cmd}"}}"#));
+        assert_eq!(code, 409, "{cmd}: {v}");
+        assert!(
+            v["error"].as_str().expect("error").contains("is done"),
+            "{v}"
+        );
+    }
+    assert_eq!(get(&s, &format!("/api/campaigns/{id}")).1["state"], "done");
 
     // the cell is free again; SIGTERM aborts the new (idle) campaign and exits cleanly
     let (code, v) = post(&s, "/api/campaigns", "");

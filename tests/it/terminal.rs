@@ -181,3 +181,39 @@ fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
     let s = Store::open(&store).expect("store");
     assert_eq!(s.done_poses(1).expect("done").len(), 20);
 }
+
+#[test]
+fn ctrl_c_at_a_technician_question_aborts_at_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "")
+        .replace("kind = \"serial\"", "kind = \"manual\"")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 10");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
+    cmd.args(["run", "--arm", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(&store);
+    let mut t = PtyChild::spawn(cmd);
+    t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    // Ctrl-C: the terminal sends SIGINT; nothing is typed afterwards
+    let asked = Instant::now();
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(t.child.id() as i32),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .expect("SIGINT");
+    let status = t.wait_exit();
+    assert_eq!(status.code(), Some(130), "Ctrl-C exit code");
+    assert!(
+        asked.elapsed() < Duration::from_secs(10),
+        "aborted at once, not after another answer"
+    );
+    t.expect("aborted by SIGINT");
+    let s = Store::open(&store).expect("store");
+    assert_eq!(s.campaign(1).expect("row").state, "aborted");
+}

@@ -1,0 +1,467 @@
+//! Safety and integrity of campaigns: signals stop `run` and leave the campaign `aborted`, one
+//! runner per campaign, done campaigns never move again, resumes refuse a changed cell
+//! (configuration, or a tracker moved between sessions), bad points are measured again, and a
+//! robot reconnect never powers the arm on behind the operator's back.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use cellcal::campaign::session::{open_session, Resume};
+use cellcal::campaign::{run_campaign, CampaignCommand, CampaignEvent, CampaignState, Outcome};
+use cellcal::cell::ScriptedPrompter;
+use cellcal::config::parse_cell_config;
+use cellcal::store::{PointKind, Store};
+
+use super::campaign::{check_complete, config_text, journal_states, run_steered, write_config};
+
+fn cellcal() -> Command {
+    Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
+}
+
+/// A 120-pose campaign at the simulator's default (not accelerated) speed: ~80 ms a pose.
+fn slow_config(dir: &Path) -> std::path::PathBuf {
+    let text = config_text("", "", "")
+        .replace(
+            "move_speed_deg_s = 200000.0\nstage_speed_mm_s = 100000.0\n",
+            "",
+        )
+        .replace("poses = 300", "poses = 120")
+        .replace("ident = 100", "ident = 40");
+    write_config(dir, &text)
+}
+
+fn spawn_run(cfg: &Path, store: &Path, extra: &[&str]) -> Child {
+    cellcal()
+        .args(["run", "--quiet", "--on-fault", "fail", "--config"])
+        .arg(cfg)
+        .arg("--store")
+        .arg(store)
+        .args(extra)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn cellcal run")
+}
+
+fn state_of(store: &Path, id: i64) -> String {
+    Store::open(store)
+        .and_then(|s| s.campaign(id))
+        .map(|r| r.state)
+        .unwrap_or_default()
+}
+
+/// Wait until campaign `id` has at least `poses` poses measured.
+fn wait_poses(store: &Path, id: i64, poses: usize) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let done = Store::open(store)
+            .and_then(|s| s.done_poses(id))
+            .map(|d| d.len())
+            .unwrap_or(0);
+        if done >= poses {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{poses} poses not measured in time"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn signal(child: &Child, sig: nix::sys::signal::Signal) {
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), sig).expect("signal");
+}
+
+fn finish(child: Child) -> (Option<i32>, String) {
+    let out = child.wait_with_output().expect("wait");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn sigterm_and_sighup_abort_run_and_leave_the_campaign_resumable() {
+    use nix::sys::signal::Signal;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = slow_config(dir.path());
+    let store = dir.path().join("c.db");
+    let mut done_before = 0;
+    for (round, (sig, code)) in [(Signal::SIGTERM, 143), (Signal::SIGHUP, 129)]
+        .into_iter()
+        .enumerate()
+    {
+        let resume = ["--arm", "--campaign", "1"];
+        let child = spawn_run(
+            &cfg,
+            &store,
+            if round == 0 {
+                &resume[..1]
+            } else {
+                &resume[..]
+            },
+        );
+        wait_poses(&store, 1, done_before + 3);
+        assert_eq!(state_of(&store, 1), "running");
+        signal(&child, sig);
+        let (status, err) = finish(child);
+        assert_eq!(status, Some(code), "{sig:?}: {err}");
+        assert!(
+            err.contains(&format!("aborted by {}", sig.as_str())),
+            "{err}"
+        );
+        assert_eq!(
+            state_of(&store, 1),
+            "aborted",
+            "{sig:?} leaves no `running` behind"
+        );
+        let s = Store::open(&store).expect("store");
+        assert_eq!(
+            s.campaign_holder(1).expect("holder"),
+            None,
+            "the lock is released"
+        );
+        let done = s.done_poses(1).expect("done").len();
+        assert!(done > done_before, "{sig:?}: resumed and measured on");
+        done_before = done;
+    }
+}
+
+#[test]
+fn two_runners_on_one_campaign_the_second_is_refused_naming_the_first() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = slow_config(dir.path());
+    let store = dir.path().join("c.db");
+    // plan and store (nothing moves without --arm)
+    let (code, err) = finish(spawn_run(&cfg, &store, &[]));
+    assert_eq!(code, Some(0), "{err}");
+    let first = spawn_run(&cfg, &store, &["--arm", "--campaign", "1"]);
+    wait_poses(&store, 1, 2);
+    let (code, err) = finish(spawn_run(&cfg, &store, &["--arm", "--campaign", "1"]));
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains(&format!("pid {}", first.id())) && err.contains("being run by"),
+        "{err}"
+    );
+    signal(&first, nix::sys::signal::Signal::SIGTERM);
+    let (code, err) = finish(first);
+    assert_eq!(code, Some(143), "{err}");
+    // a lock left by a process that died without letting go is taken over and journalled
+    let dead = cellcal::store::LockHolder {
+        pid: u32::MAX - 7,
+        ..cellcal::campaign::lock::this_process()
+    };
+    Store::open(&store)
+        .expect("store")
+        .lock_campaign(1, &dead, |_| false)
+        .expect("a stale lock");
+    let (code, err) = finish(spawn_run(&cfg, &store, &["--campaign", "1"]));
+    assert_eq!(code, Some(0), "{err}");
+    let notes: Vec<String> = Store::open(&store)
+        .expect("store")
+        .events(1)
+        .expect("events")
+        .into_iter()
+        .map(|e| e.message)
+        .collect();
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.contains("took over the campaign from pid 4294967288")),
+        "{notes:?}"
+    );
+}
+
+#[test]
+fn a_done_campaign_moves_nothing_and_prints_its_stored_result() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let (code, err) = finish(spawn_run(&cfg, &store, &["--arm"]));
+    assert_eq!(code, Some(0), "{err}");
+    let snapshot = |s: &Store| {
+        (
+            s.events(1).expect("events").len(),
+            s.done_poses(1).expect("done"),
+            s.latest_result(1).expect("result"),
+        )
+    };
+    let before = snapshot(&Store::open(&store).expect("store"));
+    let json = dir.path().join("again.json");
+    let out = cellcal()
+        .args(["run", "--quiet", "--arm", "--campaign", "1", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(&store)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    assert!(err.contains("campaign 1 is done: nothing moves"), "{err}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("verify"),
+        "the stored summary"
+    );
+    assert_eq!(
+        snapshot(&Store::open(&store).expect("store")),
+        before,
+        "nothing ran"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&json).expect("json"),
+        before.2.expect("stored result")
+    );
+}
+
+#[test]
+fn resuming_with_a_changed_configuration_is_refused_naming_the_keys() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    assert_eq!(finish(spawn_run(&cfg, &store, &[])).0, Some(0));
+    // the robot file and two keys change; the simulated world (`[sim]`) is not the cell's config
+    std::fs::write(
+        &cfg,
+        text.replace("max_attempts = 5", "max_attempts = 6")
+            .replace("drift_max_mm = 0.1", "drift_max_mm = 0.5")
+            .replace("seed = 4802", "seed = 4803"),
+    )
+    .expect("edit");
+    let (code, err) = finish(spawn_run(&cfg, &store, &["--campaign", "1"]));
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("campaign.drift_max_mm") && err.contains("tracker.max_attempts"),
+        "{err}"
+    );
+    assert!(err.contains("--accept-changed-config"), "{err}");
+    let (code, err) = finish(spawn_run(
+        &cfg,
+        &store,
+        &["--campaign", "1", "--accept-changed-config"],
+    ));
+    assert_eq!(code, Some(0), "{err}");
+    let journal: Vec<String> = Store::open(&store)
+        .expect("store")
+        .events(1)
+        .expect("events")
+        .into_iter()
+        .map(|e| e.message)
+        .collect();
+    assert!(
+        journal
+            .iter()
+            .any(|m| m.contains("changed configuration (accepted)")),
+        "{journal:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let base = |x: f64| {
+        config_text(&format!("base_translation_mm = [{x}, 0.0, 0.0]"), "", "")
+            .replace("poses = 300", "poses = 40")
+            .replace("ident = 100", "ident = 20")
+    };
+    let store = dir.path().join("c.db");
+    // session 1: measure 10 poses, then abort
+    let text = base(0.0);
+    let cfg_path = write_config(dir.path(), &text);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let s1 = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
+        .await
+        .expect("session");
+    let (ctx, mut devices) = (s1.ctx, s1.devices);
+    let mut rx = ctx.control.events.subscribe();
+    let control = ctx.control.clone();
+    tokio::spawn(async move {
+        while let Ok(e) = rx.recv().await {
+            if matches!(e, CampaignEvent::Measured { done: 10, .. }) {
+                control.apply(&CampaignCommand::Abort);
+            }
+        }
+    });
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    let id = ctx.campaign_id;
+    drop((ctx, devices, s1.lock));
+    s1.sim.expect("sim").stop().await;
+
+    // session 2: the tracker stands 1 mm elsewhere
+    let text = base(1.0);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let s2 = open_session(
+        cfg,
+        &store,
+        Some(Resume::strict(id)),
+        Arc::new(ScriptedPrompter::exact()),
+    )
+    .await
+    .expect("resume");
+    let (ctx, mut devices) = (s2.ctx, s2.devices);
+    let mut rx = ctx.control.events.subscribe();
+    let control = ctx.control.clone();
+    let watcher = tokio::spawn(async move {
+        while let Ok(e) = rx.recv().await {
+            if let CampaignEvent::State {
+                state: CampaignState::Paused { reason },
+            } = e
+            {
+                control.apply(&CampaignCommand::Abort);
+                return Some(reason);
+            }
+        }
+        None
+    });
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    let reason = watcher.await.expect("watcher").expect("the resume paused");
+    let moved: f64 = reason
+        .split("moved by ")
+        .nth(1)
+        .and_then(|r| r.split(" mm").next())
+        .and_then(|v| v.parse().ok())
+        .expect("the distance in the reason");
+    assert!((moved - 1.0).abs() < 0.05, "{reason}");
+    assert!(reason.contains("since pose 10"), "{reason}");
+    let s = Store::open(&store).expect("store");
+    assert_eq!(
+        s.done_poses(id).expect("done").len(),
+        10,
+        "nothing measured in the moved frame"
+    );
+    assert_eq!(s.frame_refs(id).expect("refs").len(), 1);
+    s2.sim.expect("sim").stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stage_slip_is_caught_by_the_travel_check_and_the_pose_measured_again() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
+        .replace("slip = 0 ", "slip = 2 ");
+    let (outcome, store, id) = run_steered(&text, |_, _, _| {}).await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    check_complete(&store, id, 40);
+    let s = Store::open(&store).expect("store");
+    let faults: Vec<String> = s
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .filter(|e| e.kind == "fault" && e.message.contains("measure again"))
+        .map(|e| e.message)
+        .collect();
+    assert_eq!(faults.len(), 2, "{faults:?}");
+    assert!(faults[0].contains("|P2 − P1|"), "{faults:?}");
+    let discarded = s.point_count(id, PointKind::Discarded).expect("points");
+    assert_eq!(
+        discarded, 4,
+        "both points of each bad pair kept as discarded"
+    );
+    // every committed pose agrees with the stage travel
+    for (_, m) in s.measured_poses(id).expect("poses") {
+        let p2 = m.p2.expect("P2");
+        let d = ((p2.x_mm - m.p1.x_mm).powi(2)
+            + (p2.y_mm - m.p1.y_mm).powi(2)
+            + (p2.z_mm - m.p1.z_mm).powi(2))
+        .sqrt();
+        assert!((d - 10.0).abs() < 0.05, "pose {}: |P2 − P1| = {d}", m.index);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn joints_settled_off_target_repeat_the_move_then_pause() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let mut offset_set = false;
+    let (outcome, store, id) = run_steered(&text, move |e, cell, control| {
+        match e {
+            // after the 5th pose the controller reports joint 3 0.2° off its target
+            CampaignEvent::Measured { done: 5, .. } if !offset_set => {
+                offset_set = true;
+                cell.robot_faults.lock().expect("faults").joint_offset_deg[2] = 0.2;
+            }
+            CampaignEvent::State {
+                state: CampaignState::Paused { reason },
+            } => {
+                assert!(reason.contains("joint 3 settled 0.2000 deg"), "{reason}");
+                control.apply(&CampaignCommand::Abort);
+            }
+            _ => {}
+        }
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    let s = Store::open(&store).expect("store");
+    assert_eq!(
+        s.done_poses(id).expect("done").len(),
+        5,
+        "no pose committed off target"
+    );
+    let repeats = s
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .filter(|e| e.message.contains("repeat move"))
+        .count();
+    assert_eq!(repeats, 3, "max_attempts moves, each refused");
+    assert!(journal_states(&store, id)
+        .iter()
+        .any(|s| s["state"] == "paused"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_reconnect_pauses_and_never_powers_the_arm_on() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let mut power_ons = None;
+    let (outcome, store, id) = run_steered(&text, move |e, cell, control| match e {
+        CampaignEvent::Measured { done: 3, .. } if power_ons.is_none() => {
+            power_ons = Some(cellcal::sim::lock_world(&cell.world).power_on_requests());
+            // the controller accepts the next move, then the link drops
+            cell.robot_faults
+                .lock()
+                .expect("faults")
+                .disconnect_during_move = 1;
+        }
+        CampaignEvent::State {
+            state: CampaignState::Paused { reason },
+        } => {
+            assert!(reason.contains("robot controller reconnected"), "{reason}");
+            assert_eq!(
+                Some(cellcal::sim::lock_world(&cell.world).power_on_requests()),
+                power_ons,
+                "the reconnect switched the arm on with nobody asked"
+            );
+            control.apply(&CampaignCommand::Abort);
+        }
+        _ => {}
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    assert!(journal_states(&store, id)
+        .iter()
+        .any(|s| s["state"] == "paused"));
+}
