@@ -11,6 +11,7 @@ pub mod events;
 pub mod session;
 
 pub use engine::{
-    run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome, SetupResult,
+    journal_event, run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome,
+    SetupResult,
 };
-pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control};
+pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};

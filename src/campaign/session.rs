@@ -85,13 +85,36 @@ fn now_ms() -> i64 {
         .unwrap_or(0)
 }
 
-/// Set up a campaign session. `campaign` resumes a stored campaign; otherwise a new one is
-/// planned and stored (the split is fixed before the first measurement).
+/// Capacity of a session's live event channel (a receiver further behind lags).
+pub const EVENT_CAPACITY: usize = 1024;
+
+/// Set up a campaign session on the store at `path` (opened, migrated, as the session's only
+/// writer). `campaign` resumes a stored campaign; otherwise a new one is planned and stored
+/// (the split is fixed before the first measurement). Not cancel-safe: a dropped call may
+/// leave a stored campaign that no session runs (and a simulated cell to be dropped).
 pub async fn open_session(
     cfg: CellConfig,
     store_path: &Path,
     campaign: Option<i64>,
     prompter: Arc<dyn Prompter>,
+) -> Result<Session, SessionError> {
+    let path = store_path.to_owned();
+    let store = tokio::task::spawn_blocking(move || Store::open(&path))
+        .await
+        .map_err(|e| SessionError::Invalid(format!("store task failed: {e}")))??;
+    let store = Arc::new(Mutex::new(store));
+    open_session_with(cfg, store, campaign, prompter, EVENT_CAPACITY).await
+}
+
+/// [`open_session`] on an open store (the caller's writer, shared with the engine) with a live
+/// event channel of `capacity`. Planning and every store call run on blocking threads, never
+/// on the async runtime's workers. Not cancel-safe (see [`open_session`]).
+pub async fn open_session_with(
+    cfg: CellConfig,
+    store: Arc<Mutex<Store>>,
+    campaign: Option<i64>,
+    prompter: Arc<dyn Prompter>,
+    capacity: usize,
 ) -> Result<Session, SessionError> {
     let mut nominal: RobotModel = load_robot(&cfg.robot)?;
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
@@ -175,16 +198,86 @@ pub async fn open_session(
         robot: Box::new(LinkRobot::new(rcfg)),
         stage,
     };
-    // store and plan
-    let mut store = Store::open(store_path)?;
     let req = plan_request(&cfg);
-    let fresh = plan_campaign(&nominal, &req)?;
-    let mut model_of_resumed = None;
-    let (campaign_id, plan, resumed) = match campaign {
+    let stored = {
+        let (store, nominal, req, cfg) = (
+            Arc::clone(&store),
+            nominal.clone(),
+            req.clone(),
+            cfg.clone(),
+        );
+        tokio::task::spawn_blocking(move || {
+            let mut s = store
+                .lock()
+                .map_err(|_| SessionError::Invalid("store lock poisoned".into()))?;
+            plan_and_store(&mut s, &nominal, &req, &cfg, campaign, robot_text)
+        })
+        .await
+        .map_err(|e| SessionError::Invalid(format!("planning task failed: {e}")))??
+    };
+    let StoredPlan {
+        campaign_id,
+        plan,
+        resumed,
+        model_of_resumed,
+    } = stored;
+    if plan
+        .poses
+        .iter()
+        .filter(|p| p.set == PoseSet::Ident)
+        .count()
+        == 0
+    {
+        return Err(SessionError::Invalid(format!(
+            "campaign {campaign_id} has no identification poses"
+        )));
+    }
+    let mut cfg = cfg;
+    if let Some(model) = model_of_resumed {
+        cfg.campaign.model = model;
+    }
+    Ok(Session {
+        ctx: CampaignContext {
+            cfg,
+            nominal,
+            plan_request: req,
+            plan,
+            store,
+            campaign_id,
+            control: Control::new(capacity),
+            on_fault: FaultPolicy::default(),
+        },
+        devices,
+        sim,
+        resumed,
+    })
+}
+
+/// A campaign's plan as stored: new or resumed.
+struct StoredPlan {
+    campaign_id: i64,
+    plan: Plan,
+    resumed: bool,
+    /// The observation model a resumed campaign was created with.
+    model_of_resumed: Option<String>,
+}
+
+/// Plan (for a new campaign, or for the drift reference of a resumed one) and store a new
+/// campaign, or read the stored plan of `campaign`. Blocking: planning may take seconds.
+fn plan_and_store(
+    store: &mut Store,
+    nominal: &RobotModel,
+    req: &PlanRequest,
+    cfg: &CellConfig,
+    campaign: Option<i64>,
+    robot_text: String,
+) -> Result<StoredPlan, SessionError> {
+    let fresh = plan_campaign(nominal, req)?;
+    match campaign {
         Some(id) => {
             let row = store.campaign(id)?;
-            let stored = store.plan(id)?;
-            let poses = stored
+            let poses = store
+                .plan(id)?
                 .into_iter()
                 .map(|p| PlanEntry {
                     index: p.index,
@@ -192,16 +285,16 @@ pub async fn open_session(
                     q_rad: p.q_rad,
                 })
                 .collect();
-            // identify with the model the campaign was created with
-            model_of_resumed = Some(row.model);
-            (
-                id,
-                Plan {
+            Ok(StoredPlan {
+                campaign_id: id,
+                plan: Plan {
                     poses,
-                    drift_reference: fresh.drift_reference.clone(),
+                    drift_reference: fresh.drift_reference,
                 },
-                true,
-            )
+                resumed: true,
+                // identify with the model the campaign was created with
+                model_of_resumed: Some(row.model),
+            })
         }
         None => {
             let planned: Vec<PlannedPose> = fresh
@@ -226,37 +319,12 @@ pub async fn open_session(
                 },
                 &planned,
             )?;
-            (id, fresh, false)
+            Ok(StoredPlan {
+                campaign_id: id,
+                plan: fresh,
+                resumed: false,
+                model_of_resumed: None,
+            })
         }
-    };
-    if plan
-        .poses
-        .iter()
-        .filter(|p| p.set == PoseSet::Ident)
-        .count()
-        == 0
-    {
-        return Err(SessionError::Invalid(format!(
-            "campaign {campaign_id} has no identification poses"
-        )));
     }
-    let mut cfg = cfg;
-    if let Some(model) = model_of_resumed {
-        cfg.campaign.model = model;
-    }
-    Ok(Session {
-        ctx: CampaignContext {
-            cfg,
-            nominal,
-            plan_request: req,
-            plan,
-            store: Arc::new(Mutex::new(store)),
-            campaign_id,
-            control: Control::new(1024),
-            on_fault: FaultPolicy::default(),
-        },
-        devices,
-        sim,
-        resumed,
-    })
 }
