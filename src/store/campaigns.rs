@@ -267,23 +267,8 @@ impl Store {
 
     /// The campaign's events in the order they were added.
     pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
-        Store::ensure_campaign(&self.conn, id)?;
-        let mut st = self
-            .conn
-            .prepare("SELECT at_ms, kind, message FROM events WHERE campaign_id = ?1 ORDER BY id")
-            .ctx("read events")?;
-        let rows = st
-            .query_map([id], |r| {
-                Ok(EventRecord {
-                    at_ms: r.get(0)?,
-                    kind: r.get(1)?,
-                    message: r.get(2)?,
-                })
-            })
-            .ctx("read events")?
-            .collect::<Result<Vec<_>, _>>()
-            .ctx("read events")?;
-        Ok(rows)
+        let all = self.events_after(id, 0, usize::MAX)?;
+        Ok(all.into_iter().map(|e| e.record).collect())
     }
 
     /// Store an identification result (`json` must be valid JSON; `model` names the

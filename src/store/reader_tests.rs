@@ -5,26 +5,8 @@ use std::time::{Duration, Instant};
 
 use rusqlite::{params, TransactionBehavior};
 
+use super::tests::setup;
 use super::*;
-use crate::dataset::PoseSet;
-
-fn campaign(store: &mut Store) -> i64 {
-    let plan = [PlannedPose {
-        index: 0,
-        set: PoseSet::Ident,
-        order: 0,
-        q_rad: vec![0.0; 6],
-    }];
-    let c = NewCampaign {
-        name: "r".into(),
-        created_at_ms: 0,
-        model: "np".into(),
-        seed: 1,
-        config_toml: String::new(),
-        robot_toml: String::new(),
-    };
-    store.create_campaign(&c, &plan).unwrap()
-}
 
 fn note(text: &str) -> EventRecord {
     EventRecord {
@@ -39,7 +21,7 @@ fn a_held_write_transaction_does_not_block_the_reader() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let mut writer = Store::open(&db).unwrap();
-    let id = campaign(&mut writer);
+    let id = setup(&mut writer);
     let first = writer.add_event(id, &note("committed")).unwrap();
     // another writer holds the write lock with an uncommitted event
     let mut other = Store::open(&db).unwrap();
@@ -56,7 +38,7 @@ fn a_held_write_transaction_does_not_block_the_reader() {
     let reader = Store::open_reader(&db).unwrap();
     let seen = reader.events_after(id, 0, 100).unwrap();
     assert_eq!(reader.campaign(id).unwrap().state, INITIAL_STATE);
-    assert_eq!(reader.pose_counts(id).unwrap(), (0, 1));
+    assert_eq!(reader.pose_counts(id).unwrap(), (0, 3));
     assert!(!reader.has_result(id).unwrap());
     assert_eq!(reader.last_event_seq(id).unwrap(), first);
     // a reader that waited for the lock would take the busy timeout (5 s)
@@ -77,7 +59,7 @@ fn a_held_write_transaction_does_not_block_the_reader() {
 #[test]
 fn journal_sequence_numbers_increase_and_page() {
     let mut s = Store::open_in_memory().unwrap();
-    let id = campaign(&mut s);
+    let id = setup(&mut s);
     let seqs: Vec<i64> = (0..5)
         .map(|i| s.add_event(id, &note(&i.to_string())).unwrap())
         .collect();
@@ -97,7 +79,7 @@ fn the_reader_cannot_write() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let mut writer = Store::open(&db).unwrap();
-    let id = campaign(&mut writer);
+    let id = setup(&mut writer);
     let reader = Store::open_reader(&db).unwrap();
     let r = reader.0.conn.execute(
         "INSERT INTO events (campaign_id, at_ms, kind, message) VALUES (?1, 2, 'note', 'x')",

@@ -36,7 +36,7 @@ fn point(x: f64) -> PointRecord {
     }
 }
 
-fn setup(store: &mut Store) -> i64 {
+pub(super) fn setup(store: &mut Store) -> i64 {
     let plan: Vec<PlannedPose> = (0..3)
         .map(|i| PlannedPose {
             index: i,

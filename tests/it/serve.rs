@@ -25,26 +25,7 @@ impl Drop for Server {
 }
 
 fn start(cfg: &Path, store: &Path) -> Server {
-    let mut child = Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
-        .args(["serve", "--listen", "127.0.0.1:0", "--config"])
-        .arg(cfg)
-        .arg("--store")
-        .arg(store)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn cellcal serve");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("first line");
-    let base = line
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap_or_else(|| panic!("first line: {line}"))
-        .to_owned();
-    Server { child, base }
+    start_with_env(cfg, store, &[])
 }
 
 fn agent() -> ureq::Agent {
@@ -276,6 +257,22 @@ fn technician_questions_are_answered_over_rest() {
     assert_eq!(code, 200);
 }
 
+/// Create a campaign with `body`; its id.
+fn create(s: &Server, body: &str) -> i64 {
+    let (code, v) = post(s, "/api/campaigns", body);
+    assert_eq!(code, 201, "{v}");
+    v["id"].as_i64().expect("id")
+}
+
+/// Arm and start campaign `id`.
+fn arm_and_start(s: &Server, id: i64) {
+    let path = format!("/api/campaigns/{id}/commands");
+    for c in ["arm", "start"] {
+        let (code, v) = post(s, &path, &format!(r#"{{"command": "{c}"}}"#));
+        assert_eq!(code, 200, "{c}: {v}");
+    }
+}
+
 fn start_with_env(cfg: &Path, store: &Path, env: &[(&str, &str)]) -> Server {
     let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
     cmd.args(["serve", "--listen", "127.0.0.1:0", "--config"])
@@ -405,9 +402,7 @@ fn reads_stay_fast_while_a_30000_pose_campaign_is_planned() {
     let cfg = fast_config(dir.path(), "serial", 300, 100);
     let s = start(&cfg, &dir.path().join("c.db"));
     // an earlier campaign, aborted: its GET and an abort must not wait for the planning either
-    let (code, v) = post(&s, "/api/campaigns", r#"{"poses": 20, "ident": 10}"#);
-    assert_eq!(code, 201, "{v}");
-    let small = v["id"].as_i64().expect("id");
+    let small = create(&s, r#"{"poses": 20, "ident": 10}"#);
     let abort = format!("/api/campaigns/{small}/commands");
     assert_eq!(post(&s, &abort, r#"{"command": "abort"}"#).0, 200);
     wait_for_state(&s, small, "aborted");
@@ -475,15 +470,11 @@ fn a_failed_identification_ends_the_stream_in_failed() {
     let s = start(&cfg, &dir.path().join("c.db"));
     // two identification poses cannot determine the OP model: identification refuses (the
     // verification poses give the setup its choice of home and spread poses)
-    let (code, v) = post(&s, "/api/campaigns", r#"{"poses": 20, "ident": 2}"#);
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
+    let id = create(&s, r#"{"poses": 20, "ident": 2}"#);
     let url = format!("{}/api/campaigns/{id}/stream", s.base);
     let reader = std::thread::spawn(move || read_stream(&url, None, Duration::ZERO, |_| false));
     std::thread::sleep(Duration::from_millis(200));
-    let path = format!("/api/campaigns/{id}/commands");
-    assert_eq!(post(&s, &path, r#"{"command": "arm"}"#).0, 200);
-    assert_eq!(post(&s, &path, r#"{"command": "start"}"#).0, 200);
+    arm_and_start(&s, id);
     let streamed = within(Duration::from_secs(60), "the stream", move || {
         reader.join().expect("stream reader")
     });
@@ -517,16 +508,12 @@ fn a_lagging_stream_replays_the_gap_from_the_journal() {
             ("CELLCAL_FOLLOW_PACE_MS", "20"),
         ],
     );
-    let (code, v) = post(&s, "/api/campaigns", r#"{"poses": 40, "ident": 20}"#);
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
+    let id = create(&s, r#"{"poses": 40, "ident": 20}"#);
     let url = format!("{}/api/campaigns/{id}/stream", s.base);
     let reader =
         std::thread::spawn(move || read_stream(&url, None, Duration::from_millis(1), |_| false));
     std::thread::sleep(Duration::from_millis(200));
-    let path = format!("/api/campaigns/{id}/commands");
-    assert_eq!(post(&s, &path, r#"{"command": "arm"}"#).0, 200);
-    assert_eq!(post(&s, &path, r#"{"command": "start"}"#).0, 200);
+    arm_and_start(&s, id);
     let streamed = within(Duration::from_secs(120), "the stream", move || {
         reader.join().expect("stream reader")
     });
@@ -563,17 +550,13 @@ fn last_event_id_resumes_from_the_journal() {
         &dir.path().join("c.db"),
         &[("CELLCAL_FOLLOW_PACE_MS", "5")],
     );
-    let (code, v) = post(&s, "/api/campaigns", r#"{"poses": 30, "ident": 15}"#);
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
+    let id = create(&s, r#"{"poses": 30, "ident": 15}"#);
     let url = format!("{}/api/campaigns/{id}/stream", s.base);
     let u = url.clone();
     let first =
         std::thread::spawn(move || read_stream(&u, None, Duration::ZERO, |e| e.len() == 10));
     std::thread::sleep(Duration::from_millis(200));
-    let path = format!("/api/campaigns/{id}/commands");
-    assert_eq!(post(&s, &path, r#"{"command": "arm"}"#).0, 200);
-    assert_eq!(post(&s, &path, r#"{"command": "start"}"#).0, 200);
+    arm_and_start(&s, id);
     let first = within(Duration::from_secs(60), "ten events", move || {
         first.join().expect("first reader")
     });
