@@ -514,7 +514,9 @@ impl Daemon {
         .map_err(|e| DaemonError::Task(e.to_string()))?
     }
 
-    /// The body of [`Daemon::load`]: session, engine task, prompt pump, then the slot.
+    /// The body of [`Daemon::load`]: session, engine task, prompt pump, then the slot. Not
+    /// cancel-safe on its own (a dropped call may leave a stored campaign unloaded): it runs
+    /// only inside the task [`Daemon::load`] spawns.
     async fn open_and_install(&self, cfg: CellConfig, id: Option<i64>) -> Result<i64, DaemonError> {
         let (prompter, prompts) = ChannelPrompter::new(4);
         let session = open_session_with(
@@ -665,7 +667,7 @@ impl Daemon {
         Ok(rx)
     }
 
-    /// The follower task of [`Daemon::follow`].
+    /// The follower task of [`Daemon::follow`]. Cancel-safe: it only reads and sends.
     async fn forward(
         self: Arc<Self>,
         id: i64,
@@ -696,7 +698,7 @@ impl Daemon {
     }
 
     /// One receive of the live channel: forward a new entry, replay after a lag, stop at the
-    /// run's end.
+    /// run's end. Cancel-safe: a dropped call loses at most entries the journal replays.
     async fn forward_live(
         &self,
         id: i64,
@@ -738,7 +740,8 @@ impl Daemon {
 
     /// Send the journal entries after `*last` (page by page, read off the runtime) and advance
     /// `*last`; returns how many were sent and whether to go on. With `run_start`, the final
-    /// state of the run started after it stops the replay.
+    /// state of the run started after it stops the replay. Cancel-safe: `*last` only
+    /// advances past entries already sent.
     async fn replay(
         &self,
         id: i64,

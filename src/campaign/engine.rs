@@ -217,6 +217,7 @@ macro_rules! with_operator {
 }
 
 impl Run<'_> {
+    /// [`with_store`] on the campaign's store. Cancel-safe in the same sense.
     async fn store<T: Send + 'static>(
         &self,
         f: impl FnOnce(&mut Store) -> Result<T, StoreError> + Send + 'static,
@@ -224,7 +225,8 @@ impl Run<'_> {
         with_store(&self.ctx.store, f).await
     }
 
-    /// Journal an event in the store, then emit it with its sequence number.
+    /// Journal an event in the store, then emit it with its sequence number. Cancel-safe as
+    /// [`journal_event`].
     async fn journal(&self, e: CampaignEvent) -> Result<(), CampaignError> {
         journal_event(&self.ctx.store, self.ctx.campaign_id, &self.ctx.control, e)
             .await
@@ -693,7 +695,8 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
 /// (identification refused, a store or task failure) becomes `failed` with the error as the
 /// reason and `Ok(Outcome::Failed)`. The one exception is a store that cannot write that
 /// state: then the original error is returned and the stored state may still be the last one
-/// written (e.g. `running`).
+/// written (e.g. `running`). Not cancel-safe: dropping it mid-run skips the final state and
+/// the robot stop; end a run with `Abort` instead.
 pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
@@ -710,7 +713,8 @@ pub async fn run_campaign(
 }
 
 impl Run<'_> {
-    /// The whole run; an `Err` leaves the stored state to [`Run::fail_on_error`].
+    /// The whole run; an `Err` leaves the stored state to [`Run::fail_on_error`]. Not
+    /// cancel-safe (as [`run_campaign`]).
     async fn run_to_end(&mut self) -> Result<Outcome, CampaignError> {
         let ctx = self.ctx;
         self.set_state(if ctx.control.is_armed() {
@@ -754,13 +758,15 @@ impl Run<'_> {
         }
     }
 
-    /// Stop the robot (bounded wait; the outcome does not depend on it).
+    /// Stop the robot (bounded wait; the outcome does not depend on it). Cancel-safe: a
+    /// dropped stop only means the robot was not told again.
     async fn stop_robot(&mut self) {
         let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
     }
 
     /// End a run that failed with `e`: stop the robot and store `failed` with the reason.
     /// Returns `Outcome::Failed`, or `e` itself when even that state cannot be written.
+    /// Not cancel-safe: dropped before the state is written, the run keeps its last state.
     async fn fail_on_error(&mut self, e: CampaignError) -> Result<Outcome, CampaignError> {
         self.stop_robot().await;
         let reason = e.to_string();
