@@ -8,8 +8,8 @@
 //! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
 //! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
 //! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"abort"}` or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
-//! | `GET /api/campaigns/{id}/events` | the stored event journal |
-//! | `GET /api/campaigns/{id}/stream` | live events, Server-Sent Events (`event:` = kind, `data:` = JSON) |
+//! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
+//! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
 
 use std::convert::Infallible;
@@ -17,18 +17,17 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::body::Bytes;
-use axum::extract::{Path, State};
-use axum::http::StatusCode;
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use tokio::sync::broadcast::error::RecvError;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::{Stream, StreamExt};
 
-use crate::campaign::{CampaignEvent, CampaignState};
-use crate::daemon::{CampaignOverrides, ClientCommand, Daemon, DaemonError};
+use crate::daemon::{CampaignOverrides, ClientCommand, Daemon, DaemonError, Followed};
 
 /// An API error: status and message.
 #[derive(Debug)]
@@ -40,7 +39,9 @@ impl From<DaemonError> for ApiError {
             DaemonError::BadRequest(_) => StatusCode::BAD_REQUEST,
             DaemonError::NotFound(_) => StatusCode::NOT_FOUND,
             DaemonError::Conflict(_) => StatusCode::CONFLICT,
-            DaemonError::Session(_) | DaemonError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            DaemonError::Session(_) | DaemonError::Store(_) | DaemonError::Task(_) => {
+                StatusCode::INTERNAL_SERVER_ERROR
+            }
         };
         ApiError(status, e.to_string())
     }
@@ -121,37 +122,52 @@ async fn result(State(d): State<Shared>, Path(id): Path<i64>) -> Result<Response
     }
 }
 
+/// The `?last_event_id=` of a stream request.
+#[derive(Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StreamQuery {
+    last_event_id: Option<String>,
+}
+
+/// The sequence number to resume after: the `Last-Event-ID` header, else the query.
+fn last_event_id(headers: &HeaderMap, query: StreamQuery) -> Result<Option<i64>, ApiError> {
+    let header = headers
+        .get("last-event-id")
+        .map(|v| v.to_str().unwrap_or("?").to_owned());
+    match header.or(query.last_event_id) {
+        None => Ok(None),
+        Some(v) => match v.trim().parse::<i64>() {
+            Ok(n) if n >= 0 => Ok(Some(n)),
+            _ => Err(ApiError(
+                StatusCode::BAD_REQUEST,
+                format!("last event id: `{v}` is not a non-negative integer"),
+            )),
+        },
+    }
+}
+
+/// The SSE form of a followed item: a journal entry, or a comment naming a replayed gap.
+fn sse_event(item: Followed) -> Event {
+    match item {
+        Followed::Entry(e) => Event::default()
+            .id(e.seq.to_string())
+            .event(e.record.kind)
+            .data(e.record.message),
+        Followed::Replayed { count } => {
+            Event::default().comment(format!("replayed {count} events from the journal"))
+        }
+    }
+}
+
 async fn stream(
     State(d): State<Shared>,
     Path(id): Path<i64>,
+    headers: HeaderMap,
+    query: Result<Query<StreamQuery>, QueryRejection>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
-    let mut rx = d.subscribe(id).await?;
-    // forward until the run ends (the terminal state is the last event sent)
-    let (tx, out) = tokio::sync::mpsc::channel::<CampaignEvent>(256);
-    tokio::spawn(async move {
-        loop {
-            match rx.recv().await {
-                Ok(e) => {
-                    let last = matches!(
-                        &e,
-                        CampaignEvent::State {
-                            state: CampaignState::Done
-                                | CampaignState::Aborted
-                                | CampaignState::Failed { .. }
-                        }
-                    );
-                    if tx.send(e).await.is_err() || last {
-                        break;
-                    }
-                }
-                Err(RecvError::Lagged(_)) => {}
-                Err(RecvError::Closed) => break,
-            }
-        }
-    });
-    let events = ReceiverStream::new(out).filter_map(|e| {
-        let data = serde_json::to_string(&e).ok()?;
-        Some(Ok(Event::default().event(e.kind()).data(data)))
-    });
+    let query = query.map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.body_text()))?;
+    let after = last_event_id(&headers, query.0)?;
+    let followed = d.follow(id, after).await?;
+    let events = ReceiverStream::new(followed).map(|item| Ok(sse_event(item)));
     Ok(Sse::new(events).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
 }

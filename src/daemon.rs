@@ -1,20 +1,37 @@
 //! The long-running campaign service behind `cellcal serve`: one cell, at most one campaign
 //! loaded at a time, driven by the engine's commands and watched through its events. Front ends
 //! (the REST API in [`crate::api`], later a web page) are thin clients of this.
+//!
+//! # Responsiveness
+//! The daemon owns one store writer (shared with the loaded campaign's engine) and a small
+//! pool of [`StoreReader`]s; every store call and the planning of a new campaign run on
+//! blocking threads, never on the async runtime's workers. The slot of the loaded campaign is
+//! a plain mutex held only for short, non-blocking sections: a campaign being created is
+//! marked `creating` and planned outside it, so reads and commands never wait for planning.
+//!
+//! # Live events
+//! Every event is journalled before it is published, with its journal sequence number
+//! ([`Journalled`]). [`Daemon::follow`] turns the live channel plus the journal into a
+//! gap-free, duplicate-free sequence: it replays from the journal what the live channel lost
+//! (a lagging reader, a reconnect with a last seen sequence number).
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex as StdMutex};
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
-use tokio::sync::{broadcast, Mutex};
+use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
 
-use crate::campaign::session::{open_session, Resume, SessionError};
-use crate::campaign::{run_campaign, CampaignCommand, CampaignEvent, Control, Outcome};
+use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
+use crate::campaign::{
+    journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
+};
 use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
 use crate::config::CellConfig;
 use crate::identify::ObsModel;
-use crate::store::{CampaignRow, Store, StoreError};
+use crate::store::{CampaignRow, EventRecord, JournalEntry, Store, StoreError, StoreReader};
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
 #[derive(Debug, thiserror::Error)]
@@ -34,6 +51,9 @@ pub enum DaemonError {
     /// The campaign session could not be set up.
     #[error("{0}")]
     Session(#[from] SessionError),
+    /// A daemon task panicked or was cancelled.
+    #[error("daemon task failed: {0}")]
+    Task(String),
 }
 
 /// Campaign settings a client may change from the configuration's `[campaign]` defaults.
@@ -154,12 +174,82 @@ pub struct CampaignView {
     pub has_result: bool,
 }
 
+/// Internal tuning of a daemon (defaults for production; tests shrink them).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonOptions {
+    /// Capacity of a campaign's live event channel; a follower further behind replays the gap
+    /// from the journal.
+    pub event_capacity: usize,
+    /// Pause after each live event a follower forwards: simulates a slow client (tests of the
+    /// lag replay). Zero in production.
+    pub follow_pace: Duration,
+}
+
+impl Default for DaemonOptions {
+    fn default() -> DaemonOptions {
+        DaemonOptions {
+            event_capacity: EVENT_CAPACITY,
+            follow_pace: Duration::ZERO,
+        }
+    }
+}
+
+/// Env var overriding [`DaemonOptions::event_capacity`] (tests).
+pub const EVENT_CAPACITY_ENV: &str = "CELLCAL_EVENT_CAPACITY";
+/// Env var setting [`DaemonOptions::follow_pace`] in ms (tests).
+pub const FOLLOW_PACE_ENV: &str = "CELLCAL_FOLLOW_PACE_MS";
+
+impl DaemonOptions {
+    /// The defaults with [`EVENT_CAPACITY_ENV`] and [`FOLLOW_PACE_ENV`] applied when set.
+    pub fn from_env() -> Result<DaemonOptions, DaemonError> {
+        let mut o = DaemonOptions::default();
+        if let Some(n) = env_number(EVENT_CAPACITY_ENV)? {
+            if n == 0 {
+                return Err(DaemonError::BadRequest(format!(
+                    "{EVENT_CAPACITY_ENV}: must be at least 1"
+                )));
+            }
+            o.event_capacity = usize::try_from(n).unwrap_or(usize::MAX);
+        }
+        if let Some(ms) = env_number(FOLLOW_PACE_ENV)? {
+            o.follow_pace = Duration::from_millis(ms);
+        }
+        Ok(o)
+    }
+}
+
+/// A non-negative integer from the environment variable `name`, if set.
+fn env_number(name: &str) -> Result<Option<u64>, DaemonError> {
+    match std::env::var(name) {
+        Err(_) => Ok(None),
+        Ok(v) => v.trim().parse().map(Some).map_err(|_| {
+            DaemonError::BadRequest(format!("{name}: `{v}` is not a non-negative integer"))
+        }),
+    }
+}
+
+/// One item a follower ([`Daemon::follow`]) delivers.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Followed {
+    /// A journal entry (replayed or live), in sequence order, each once.
+    Entry(JournalEntry),
+    /// The live channel lost `count` entries; they were replayed from the journal just before.
+    Replayed {
+        /// Entries read back from the journal.
+        count: usize,
+    },
+}
+
 struct Loaded {
     id: i64,
     control: Control,
     pending: Arc<StdMutex<Option<PendingPrompt>>>,
     outcome: Arc<StdMutex<Option<String>>>,
     task: JoinHandle<()>,
+    /// The journal's last sequence number before this run: older terminal states are history.
+    run_start: i64,
+    /// Cancelled when the engine has returned (its final state is journalled by then).
+    ended: CancellationToken,
 }
 
 impl Loaded {
@@ -168,11 +258,60 @@ impl Loaded {
     }
 }
 
+/// The cell's one campaign slot.
+#[derive(Default)]
+struct Slot {
+    loaded: Option<Loaded>,
+    /// A campaign is being planned/loaded (outside the lock).
+    creating: bool,
+    /// Shutting down: no new campaign is loaded.
+    closing: bool,
+}
+
+/// Reading connections, opened on demand and kept for reuse.
+struct Readers {
+    path: PathBuf,
+    idle: StdMutex<Vec<StoreReader>>,
+}
+
+/// Readers kept open for reuse (more may be open at once; the surplus is closed).
+const IDLE_READERS: usize = 4;
+
+/// Journal entries read per replay query.
+const REPLAY_PAGE: usize = 512;
+
+impl Readers {
+    /// Run `f` on an idle reader (or a new one). Blocking.
+    fn with<T>(&self, f: impl FnOnce(&Store) -> Result<T, StoreError>) -> Result<T, StoreError> {
+        let idle = lock(&self.idle).pop();
+        let reader = match idle {
+            Some(r) => r,
+            None => Store::open_reader(&self.path)?,
+        };
+        let out = f(&reader);
+        let mut idle = lock(&self.idle);
+        if idle.len() < IDLE_READERS {
+            idle.push(reader);
+        }
+        out
+    }
+}
+
+/// The live side of a follower: the channel, the run's first sequence number and its end.
+struct Live {
+    rx: broadcast::Receiver<Journalled>,
+    run_start: i64,
+    ended: CancellationToken,
+}
+
 /// The campaign service.
 pub struct Daemon {
     cfg: CellConfig,
-    store_path: PathBuf,
-    loaded: Mutex<Option<Loaded>>,
+    opts: DaemonOptions,
+    /// The only writer; the loaded campaign's engine shares it.
+    writer: Arc<StdMutex<Store>>,
+    readers: Arc<Readers>,
+    slot: StdMutex<Slot>,
 }
 
 fn lock<T>(m: &StdMutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -190,39 +329,105 @@ fn refusal(e: SessionError) -> DaemonError {
     }
 }
 
+/// Clears the `creating` mark when a load ends, however it ends (error, panic).
+struct CreatingMark<'a>(&'a StdMutex<Slot>);
+
+impl Drop for CreatingMark<'_> {
+    fn drop(&mut self) {
+        lock(self.0).creating = false;
+    }
+}
+
+/// A journal entry for a live event (the same JSON as the stored row).
+fn entry_of(j: Journalled) -> JournalEntry {
+    JournalEntry {
+        seq: j.seq,
+        record: EventRecord {
+            at_ms: j.at_ms,
+            kind: j.event.kind().to_owned(),
+            message: serde_json::to_string(&j.event).unwrap_or_default(),
+        },
+    }
+}
+
+/// Whether a stored journal entry is the state change that ends a run.
+fn entry_ends_run(e: &JournalEntry) -> bool {
+    e.record.kind == "state"
+        && serde_json::from_str::<serde_json::Value>(&e.record.message).is_ok_and(|v| {
+            matches!(
+                v.pointer("/state/state").and_then(|s| s.as_str()),
+                Some("done" | "aborted" | "failed")
+            )
+        })
+}
+
+/// How a follower's forwarding step ended.
+enum Forward {
+    /// Keep following.
+    More,
+    /// The run ended or the client went away.
+    Stop,
+}
+
 impl Daemon {
-    /// A daemon for the cell of `cfg`, storing campaigns in `store_path` (created if missing).
+    /// A daemon for the cell of `cfg`, storing campaigns in `store_path` (created and
+    /// migrated if needed), with [`DaemonOptions::from_env`]. Blocking (opens the store).
     pub fn new(cfg: CellConfig, store_path: &Path) -> Result<Daemon, DaemonError> {
-        Store::open(store_path)?;
+        Daemon::with_options(cfg, store_path, DaemonOptions::from_env()?)
+    }
+
+    /// [`Daemon::new`] with explicit options. Blocking (opens the store).
+    pub fn with_options(
+        cfg: CellConfig,
+        store_path: &Path,
+        opts: DaemonOptions,
+    ) -> Result<Daemon, DaemonError> {
+        let writer = Store::open(store_path)?;
+        let first = Store::open_reader(store_path)?;
         Ok(Daemon {
             cfg,
-            store_path: store_path.to_owned(),
-            loaded: Mutex::new(None),
+            opts,
+            writer: Arc::new(StdMutex::new(writer)),
+            readers: Arc::new(Readers {
+                path: store_path.to_owned(),
+                idle: StdMutex::new(vec![first]),
+            }),
+            slot: StdMutex::new(Slot::default()),
         })
     }
 
-    fn store(&self) -> Result<Store, DaemonError> {
-        Ok(Store::open(&self.store_path)?)
+    /// Run `f` on a reader on a blocking thread. Cancel-safe: it only reads.
+    async fn read<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&Store) -> Result<T, StoreError> + Send + 'static,
+    ) -> Result<T, DaemonError> {
+        let readers = Arc::clone(&self.readers);
+        tokio::task::spawn_blocking(move || readers.with(f))
+            .await
+            .map_err(|e| DaemonError::Task(e.to_string()))?
+            .map_err(|e| match e {
+                StoreError::NoCampaign(id) => DaemonError::NotFound(id),
+                e => DaemonError::Store(e),
+            })
     }
 
-    /// Every stored campaign.
+    /// Every stored campaign. Cancel-safe (reads only).
     pub async fn list(&self) -> Result<Vec<CampaignView>, DaemonError> {
-        let rows = self.store()?.list_campaigns()?;
-        let mut out = Vec::with_capacity(rows.len());
-        for r in rows {
-            out.push(self.view_of(r).await?);
-        }
-        Ok(out)
+        let stored = self
+            .read(|s| {
+                s.list_campaigns()?
+                    .into_iter()
+                    .map(|r| stored_view(s, r))
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .await?;
+        Ok(stored.into_iter().map(|v| self.view_of(v)).collect())
     }
 
-    async fn view_of(&self, row: CampaignRow) -> Result<CampaignView, DaemonError> {
-        let s = self.store()?;
-        let id = row.id;
-        let done = s.done_poses(id)?.len();
-        let total = s.plan(id)?.len();
-        let has_result = s.latest_result(id)?.is_some();
-        let loaded = self.loaded.lock().await;
-        let l = loaded.as_ref().filter(|l| l.id == id);
+    /// The stored part of a view plus what the loaded slot knows.
+    fn view_of(&self, v: StoredView) -> CampaignView {
+        let slot = lock(&self.slot);
+        let l = slot.loaded.as_ref().filter(|l| l.id == v.row.id);
         let prompt = l.and_then(|l| {
             lock(&l.pending).as_ref().map(|p| PromptView {
                 seq: p.seq,
@@ -231,34 +436,37 @@ impl Daemon {
                 expected_mm: p.prompt.expected_mm,
             })
         });
-        Ok(CampaignView {
-            id,
-            name: row.name,
-            created_at_ms: row.created_at_ms,
-            state: row.state,
-            model: row.model,
-            poses_done: done,
-            poses_total: total,
+        CampaignView {
+            id: v.row.id,
+            name: v.row.name,
+            created_at_ms: v.row.created_at_ms,
+            state: v.row.state,
+            model: v.row.model,
+            poses_done: v.done,
+            poses_total: v.total,
             loaded: l.is_some_and(Loaded::running),
             armed: l.is_some_and(|l| l.running() && l.control.is_armed()),
             last_outcome: l.and_then(|l| lock(&l.outcome).clone()),
             prompt,
-            has_result,
-        })
+            has_result: v.has_result,
+        }
     }
 
-    /// One campaign.
+    /// One campaign. Cancel-safe (reads only).
     pub async fn get(&self, id: i64) -> Result<CampaignView, DaemonError> {
-        let row = match self.store()?.campaign(id) {
-            Err(StoreError::NoCampaign(_)) => return Err(DaemonError::NotFound(id)),
-            r => r?,
-        };
-        self.view_of(row).await
+        let v = self.read(move |s| stored_view(s, s.campaign(id)?)).await?;
+        Ok(self.view_of(v))
     }
 
     /// Plan and store a new campaign from the configuration (plus `overrides`) and load it;
-    /// nothing moves until it is armed and started.
-    pub async fn create(&self, overrides: &CampaignOverrides) -> Result<CampaignView, DaemonError> {
+    /// nothing moves until it is armed and started. Planning runs on a blocking thread while
+    /// the slot is only marked `creating`: reads and commands do not wait for it. Cancel-safe:
+    /// the creation runs in its own task, so a dropped request still creates and loads the
+    /// campaign (or fails) as a whole.
+    pub async fn create(
+        self: &Arc<Self>,
+        overrides: &CampaignOverrides,
+    ) -> Result<CampaignView, DaemonError> {
         let mut cfg = self.cfg.clone();
         overrides.apply(&mut cfg)?;
         let id = self.load(cfg, None).await?;
@@ -266,13 +474,16 @@ impl Daemon {
     }
 
     /// Load campaign `id` unless it is loaded; a campaign still running blocks every other.
-    async fn ensure_loaded(&self, id: i64) -> Result<(), DaemonError> {
+    /// Cancel-safe as [`Daemon::create`].
+    async fn ensure_loaded(self: &Arc<Self>, id: i64) -> Result<(), DaemonError> {
         {
-            let loaded = self.loaded.lock().await;
-            if let Some(l) = loaded.as_ref().filter(|l| l.running()) {
-                if l.id == id {
-                    return Ok(());
-                }
+            let slot = lock(&self.slot);
+            if slot
+                .loaded
+                .as_ref()
+                .is_some_and(|l| l.running() && l.id == id)
+            {
+                return Ok(());
             }
         }
         self.get(id).await?;
@@ -280,41 +491,68 @@ impl Daemon {
         Ok(())
     }
 
-    async fn load(&self, cfg: CellConfig, id: Option<i64>) -> Result<i64, DaemonError> {
-        let mut loaded = self.loaded.lock().await;
-        if let Some(l) = loaded.as_ref().filter(|l| l.running()) {
+    /// Mark the slot `creating`, or say why the cell is busy.
+    fn mark_creating(&self) -> Result<(), DaemonError> {
+        let mut slot = lock(&self.slot);
+        if slot.closing {
+            return Err(DaemonError::Conflict("the daemon is stopping".into()));
+        }
+        if slot.creating {
+            return Err(DaemonError::Conflict(
+                "a campaign is being loaded on the cell; try again when it is".into(),
+            ));
+        }
+        if let Some(l) = slot.loaded.as_ref().filter(|l| l.running()) {
             return Err(DaemonError::Conflict(format!(
                 "campaign {} is loaded on the cell; abort it first",
                 l.id
             )));
         }
-        let (prompter, mut prompts) = ChannelPrompter::new(4);
-        let session = open_session(
+        slot.creating = true;
+        Ok(())
+    }
+
+    /// Open a session for `id` (or a new campaign) in its own task and load it. Cancel-safe:
+    /// a dropped call leaves the task to finish loading.
+    async fn load(self: &Arc<Self>, cfg: CellConfig, id: Option<i64>) -> Result<i64, DaemonError> {
+        self.mark_creating()?;
+        let me = Arc::clone(self);
+        tokio::spawn(async move {
+            let _mark = CreatingMark(&me.slot);
+            me.open_and_install(cfg, id).await
+        })
+        .await
+        .map_err(|e| DaemonError::Task(e.to_string()))?
+    }
+
+    /// The body of [`Daemon::load`]: session, engine task, prompt pump, then the slot. Not
+    /// cancel-safe on its own (a dropped call may leave a stored campaign unloaded): it runs
+    /// only inside the task [`Daemon::load`] spawns.
+    async fn open_and_install(&self, cfg: CellConfig, id: Option<i64>) -> Result<i64, DaemonError> {
+        let (prompter, prompts) = ChannelPrompter::new(4);
+        let session = open_session_with(
             cfg,
-            &self.store_path,
+            Arc::clone(&self.writer),
             id.map(Resume::strict),
             Arc::new(prompter),
+            self.opts.event_capacity,
         )
         .await
         .map_err(refusal)?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
+        let run_start = self.read(move |s| s.last_event_seq(campaign_id)).await?;
         let pending: Arc<StdMutex<Option<PendingPrompt>>> = Arc::default();
         let outcome: Arc<StdMutex<Option<String>>> = Arc::default();
-        // questions for the technician: kept for `answer`, announced as events
-        let (slot, events) = (Arc::clone(&pending), control.clone());
-        let pump = tokio::spawn(async move {
-            while let Some(p) = prompts.recv().await {
-                events.emit(CampaignEvent::Prompt {
-                    seq: p.seq,
-                    id: p.prompt.id.clone(),
-                    text: p.prompt.text.clone(),
-                    expected_mm: p.prompt.expected_mm,
-                });
-                *lock(&slot) = Some(p);
-            }
-        });
-        let ended = Arc::clone(&outcome);
+        let ended = CancellationToken::new();
+        let pump = tokio::spawn(pump_prompts(
+            prompts,
+            Arc::clone(&pending),
+            Arc::clone(&self.writer),
+            campaign_id,
+            control.clone(),
+        ));
+        let (text_slot, end) = (Arc::clone(&outcome), ended.clone());
         let task = tokio::spawn(async move {
             let ctx = session.ctx;
             let mut devices = session.devices;
@@ -324,129 +562,315 @@ impl Daemon {
                 Ok(Outcome::Failed(r)) => format!("failed: {r}"),
                 Err(e) => format!("failed: {e}"),
             };
-            *lock(&ended) = Some(text);
             drop(devices);
             drop(ctx);
+            // let go of the campaign (a store write) before announcing the end
+            let held = session.lock;
+            let _ = tokio::task::spawn_blocking(move || drop(held)).await;
+            *lock(&text_slot) = Some(text);
+            end.cancel();
             pump.abort();
             if let Some(sim) = session.sim {
                 sim.stop().await;
             }
         });
-        *loaded = Some(Loaded {
+        lock(&self.slot).loaded = Some(Loaded {
             id: campaign_id,
             control,
             pending,
             outcome,
             task,
+            run_start,
+            ended,
         });
         Ok(campaign_id)
     }
 
     /// Apply a client command to campaign `id` (loading a stored campaign to resume it).
-    pub async fn command(&self, id: i64, cmd: ClientCommand) -> Result<CampaignView, DaemonError> {
+    /// Cancel-safe: a command is applied at once (a load runs in its own task).
+    pub async fn command(
+        self: &Arc<Self>,
+        id: i64,
+        cmd: ClientCommand,
+    ) -> Result<CampaignView, DaemonError> {
         if !matches!(cmd, ClientCommand::Abort | ClientCommand::Disarm) {
             self.ensure_loaded(id).await?;
         }
-        {
-            let loaded = self.loaded.lock().await;
-            let Some(l) = loaded.as_ref().filter(|l| l.id == id && l.running()) else {
-                // abort or disarm of a campaign that is not running: nothing moves anyway
-                drop(loaded);
-                return self.get(id).await;
-            };
-            match cmd {
-                ClientCommand::Answer {
-                    seq,
-                    value_mm,
-                    abort,
-                } => {
-                    let mut slot = lock(&l.pending);
-                    match slot.take() {
-                        Some(p) if p.seq == seq => {
-                            let answer = match (abort, value_mm) {
-                                (true, _) => Answer::Abort,
-                                (false, Some(v)) if v.is_finite() => Answer::Number(v),
-                                (false, Some(v)) => {
-                                    *slot = Some(p);
-                                    return Err(DaemonError::BadRequest(format!(
-                                        "value_mm: {v} is not a finite number"
-                                    )));
-                                }
-                                (false, None) => Answer::Confirmed,
-                            };
-                            p.answer(answer);
-                        }
-                        other => {
-                            let waiting = other.as_ref().map(|p| p.seq);
-                            *slot = other;
-                            return Err(DaemonError::Conflict(match waiting {
-                                Some(w) => format!("question {seq} is not open; {w} is"),
-                                None => format!("question {seq} is not open; none is"),
-                            }));
-                        }
-                    }
-                }
-                ClientCommand::Arm => l.control.apply(&CampaignCommand::Arm),
-                ClientCommand::Disarm => l.control.apply(&CampaignCommand::Disarm),
-                ClientCommand::Start if !l.control.is_armed() => {
-                    return Err(DaemonError::Conflict(format!(
-                        "campaign {id} is not armed: arm it first (a start before arm is refused, not remembered)"
-                    )));
-                }
-                ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
-                ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
-                ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
-                ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
-            }
-        }
+        self.apply_to_loaded(id, cmd)?;
         self.get(id).await
     }
 
-    /// Live events of campaign `id` (loaded campaigns only).
-    pub async fn subscribe(
-        &self,
+    /// Apply `cmd` to campaign `id` if it is the running one; abort or disarm of a campaign
+    /// that is not running is a no-op (nothing moves anyway).
+    fn apply_to_loaded(&self, id: i64, cmd: ClientCommand) -> Result<(), DaemonError> {
+        let slot = lock(&self.slot);
+        let Some(l) = slot.loaded.as_ref().filter(|l| l.id == id && l.running()) else {
+            return Ok(());
+        };
+        match cmd {
+            ClientCommand::Answer {
+                seq,
+                value_mm,
+                abort,
+            } => {
+                let mut slot = lock(&l.pending);
+                match slot.take() {
+                    Some(p) if p.seq == seq => {
+                        let answer = match (abort, value_mm) {
+                            (true, _) => Answer::Abort,
+                            (false, Some(v)) if v.is_finite() => Answer::Number(v),
+                            (false, Some(v)) => {
+                                *slot = Some(p);
+                                return Err(DaemonError::BadRequest(format!(
+                                    "value_mm: {v} is not a finite number"
+                                )));
+                            }
+                            (false, None) => Answer::Confirmed,
+                        };
+                        p.answer(answer);
+                    }
+                    other => {
+                        let waiting = other.as_ref().map(|p| p.seq);
+                        *slot = other;
+                        return Err(DaemonError::Conflict(match waiting {
+                            Some(w) => format!("question {seq} is not open; {w} is"),
+                            None => format!("question {seq} is not open; none is"),
+                        }));
+                    }
+                }
+            }
+            ClientCommand::Arm => l.control.apply(&CampaignCommand::Arm),
+            ClientCommand::Disarm => l.control.apply(&CampaignCommand::Disarm),
+            ClientCommand::Start if !l.control.is_armed() => {
+                return Err(DaemonError::Conflict(format!(
+                    "campaign {id} is not armed: arm it first (a start before arm is refused, not remembered)"
+                )));
+            }
+            ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
+            ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
+            ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
+            ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
+        }
+        Ok(())
+    }
+
+    /// Follow campaign `id`'s events: journal entries with a sequence number above `after`,
+    /// then live ones as they happen, each exactly once and in order, replaying from the journal
+    /// whatever the live channel lost. `after = None` means "from now" for a running campaign
+    /// and "the whole journal" otherwise. The channel closes after the run's final state (or,
+    /// for a campaign not running, after the replay). Cancel-safe: dropping the receiver ends
+    /// the follower task.
+    pub async fn follow(
+        self: &Arc<Self>,
         id: i64,
-    ) -> Result<broadcast::Receiver<CampaignEvent>, DaemonError> {
-        self.get(id).await?;
-        let loaded = self.loaded.lock().await;
-        match loaded.as_ref().filter(|l| l.id == id && l.running()) {
-            Some(l) => Ok(l.control.events.subscribe()),
-            None => Err(DaemonError::Conflict(format!(
-                "campaign {id} is not loaded; its journal is at /api/campaigns/{id}/events"
-            ))),
+        after: Option<i64>,
+    ) -> Result<mpsc::Receiver<Followed>, DaemonError> {
+        let newest = self.read(move |s| s.last_event_seq(id)).await?;
+        let live = {
+            let slot = lock(&self.slot);
+            slot.loaded
+                .as_ref()
+                .filter(|l| l.id == id && l.running())
+                .map(|l| Live {
+                    rx: l.control.events.subscribe(),
+                    run_start: l.run_start,
+                    ended: l.ended.clone(),
+                })
+        };
+        let last = match (after, &live) {
+            (Some(a), _) => a.max(0),
+            (None, Some(_)) => newest,
+            (None, None) => 0,
+        };
+        let (tx, rx) = mpsc::channel(64);
+        tokio::spawn(Arc::clone(self).forward(id, last, live, tx));
+        Ok(rx)
+    }
+
+    /// The follower task of [`Daemon::follow`]. Cancel-safe: it only reads and sends.
+    async fn forward(
+        self: Arc<Self>,
+        id: i64,
+        mut last: i64,
+        live: Option<Live>,
+        tx: mpsc::Sender<Followed>,
+    ) {
+        let run_start = live.as_ref().map(|l| l.run_start);
+        let replayed = self.replay(id, &mut last, run_start, &tx).await;
+        let (Some(mut live), Ok((_, Forward::More))) = (live, replayed) else {
+            return;
+        };
+        loop {
+            let step = tokio::select! {
+                biased;
+                r = live.rx.recv() => self.forward_live(id, r, &mut last, &live, &tx).await,
+                _ = live.ended.cancelled() => {
+                    // the final state is journalled: deliver what is left, then end
+                    let _ = self.replay(id, &mut last, None, &tx).await;
+                    Forward::Stop
+                }
+                _ = tx.closed() => Forward::Stop,
+            };
+            if matches!(step, Forward::Stop) {
+                return;
+            }
         }
     }
 
-    /// The campaign's event journal (oldest first), each entry `{at_ms, event}`.
+    /// One receive of the live channel: forward a new entry, replay after a lag, stop at the
+    /// run's end. Cancel-safe: a dropped call loses at most entries the journal replays.
+    async fn forward_live(
+        &self,
+        id: i64,
+        r: Result<Journalled, broadcast::error::RecvError>,
+        last: &mut i64,
+        live: &Live,
+        tx: &mpsc::Sender<Followed>,
+    ) -> Forward {
+        match r {
+            Ok(j) if j.seq <= *last => Forward::More,
+            Ok(j) => {
+                *last = j.seq;
+                let ends = j.event.ends_run();
+                if tx.send(Followed::Entry(entry_of(j))).await.is_err() || ends {
+                    return Forward::Stop;
+                }
+                if !self.opts.follow_pace.is_zero() {
+                    tokio::time::sleep(self.opts.follow_pace).await;
+                }
+                Forward::More
+            }
+            Err(broadcast::error::RecvError::Lagged(_)) => {
+                match self.replay(id, last, Some(live.run_start), tx).await {
+                    Ok((count, step)) => {
+                        if tx.send(Followed::Replayed { count }).await.is_err() {
+                            return Forward::Stop;
+                        }
+                        step
+                    }
+                    Err(_) => Forward::Stop,
+                }
+            }
+            Err(broadcast::error::RecvError::Closed) => {
+                let _ = self.replay(id, last, None, tx).await;
+                Forward::Stop
+            }
+        }
+    }
+
+    /// Send the journal entries after `*last` (page by page, read off the runtime) and advance
+    /// `*last`; returns how many were sent and whether to go on. With `run_start`, the final
+    /// state of the run started after it stops the replay. Cancel-safe: `*last` only
+    /// advances past entries already sent.
+    async fn replay(
+        &self,
+        id: i64,
+        last: &mut i64,
+        run_start: Option<i64>,
+        tx: &mpsc::Sender<Followed>,
+    ) -> Result<(usize, Forward), DaemonError> {
+        let mut count = 0;
+        loop {
+            let after = *last;
+            let page = self
+                .read(move |s| s.events_after(id, after, REPLAY_PAGE))
+                .await?;
+            let full = page.len() == REPLAY_PAGE;
+            for e in page {
+                *last = e.seq;
+                count += 1;
+                let ends = run_start.is_some_and(|r| e.seq > r) && entry_ends_run(&e);
+                if tx.send(Followed::Entry(e)).await.is_err() || ends {
+                    return Ok((count, Forward::Stop));
+                }
+            }
+            if !full {
+                return Ok((count, Forward::More));
+            }
+        }
+    }
+
+    /// The campaign's event journal (oldest first), each entry `{seq, at_ms, kind, event}`.
+    /// Cancel-safe (reads only).
     pub async fn journal(&self, id: i64) -> Result<Vec<serde_json::Value>, DaemonError> {
-        self.get(id).await?;
-        Ok(self
-            .store()?
-            .events(id)?
+        let entries = self
+            .read(move |s| s.events_after(id, 0, usize::MAX))
+            .await?;
+        Ok(entries
             .into_iter()
             .map(|e| {
-                let event = serde_json::from_str(&e.message)
-                    .unwrap_or(serde_json::Value::String(e.message));
-                serde_json::json!({ "at_ms": e.at_ms, "kind": e.kind, "event": event })
+                let event = serde_json::from_str(&e.record.message)
+                    .unwrap_or(serde_json::Value::String(e.record.message));
+                serde_json::json!({
+                    "seq": e.seq,
+                    "at_ms": e.record.at_ms,
+                    "kind": e.record.kind,
+                    "event": event,
+                })
             })
             .collect())
     }
 
-    /// The campaign's latest result (the `cellcal identify` JSON), if any.
+    /// The campaign's latest result (the `cellcal identify` JSON), if any. Cancel-safe.
     pub async fn result(&self, id: i64) -> Result<Option<serde_json::Value>, DaemonError> {
-        self.get(id).await?;
-        Ok(self
-            .store()?
-            .latest_result(id)?
-            .and_then(|t| serde_json::from_str(&t).ok()))
+        let text = self.read(move |s| s.latest_result(id)).await?;
+        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
     }
 
-    /// Abort the loaded campaign (if running) and wait for its engine to stop the robot.
+    /// Refuse new campaigns, wait for one being loaded, abort the loaded campaign (if running)
+    /// and wait for its engine to stop the robot. Not cancel-safe: a dropped call may leave the
+    /// campaign aborting on its own.
     pub async fn shutdown(&self) {
-        let l = self.loaded.lock().await.take();
+        lock(&self.slot).closing = true;
+        while lock(&self.slot).creating {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let l = lock(&self.slot).loaded.take();
         if let Some(l) = l {
             l.control.apply(&CampaignCommand::Abort);
             let _ = l.task.await;
         }
+    }
+}
+
+/// What a view needs from the store.
+struct StoredView {
+    row: CampaignRow,
+    done: usize,
+    total: usize,
+    has_result: bool,
+}
+
+/// Read the stored part of a campaign's view (counts only, no plan or result bodies).
+fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
+    let (done, total) = s.pose_counts(row.id)?;
+    let has_result = s.has_result(row.id)?;
+    Ok(StoredView {
+        row,
+        done,
+        total,
+        has_result,
+    })
+}
+
+/// Keep each technician question for `answer`, then journal and announce it as a `prompt`
+/// event (in that order, so a client that sees the event can answer it at once).
+async fn pump_prompts(
+    mut prompts: mpsc::Receiver<PendingPrompt>,
+    slot: Arc<StdMutex<Option<PendingPrompt>>>,
+    store: Arc<StdMutex<Store>>,
+    id: i64,
+    control: Control,
+) {
+    while let Some(p) = prompts.recv().await {
+        let event = CampaignEvent::Prompt {
+            seq: p.seq,
+            id: p.prompt.id.clone(),
+            text: p.prompt.text.clone(),
+            expected_mm: p.prompt.expected_mm,
+        };
+        *lock(&slot) = Some(p);
+        // a store that cannot journal also stops the engine, which reports it
+        let _ = journal_event(&store, id, &control, event).await;
     }
 }

@@ -7,7 +7,7 @@ use async_trait::async_trait;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::broadcast;
 
-use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control};
+use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};
 use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter};
 
 /// Asks the technician on the terminal; `a` (or end of input) aborts.
@@ -63,9 +63,9 @@ impl Prompter for TerminalPrompter {
 
 /// The operator at the terminal: when the campaign pauses for a fault, show why and wait for
 /// Enter (resume) or `a` (abort).
-pub async fn ask_on_pause(mut rx: broadcast::Receiver<CampaignEvent>, control: Control) {
+pub async fn ask_on_pause(mut rx: broadcast::Receiver<Journalled>, control: Control) {
     loop {
-        let reason = match rx.recv().await {
+        let reason = match rx.recv().await.map(|j| j.event) {
             Ok(CampaignEvent::State {
                 state: CampaignState::Paused { reason },
             }) => reason,
@@ -106,11 +106,7 @@ pub enum Display {
 }
 
 /// Print campaign events until the channel closes.
-pub async fn print_events(
-    mut rx: broadcast::Receiver<CampaignEvent>,
-    total: usize,
-    display: Display,
-) {
+pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize, display: Display) {
     let bar = if display == Display::Bar {
         ProgressBar::new(total as u64)
     } else {
@@ -129,7 +125,7 @@ pub async fn print_events(
         }
     };
     loop {
-        match rx.recv().await {
+        match rx.recv().await.map(|j| j.event) {
             Ok(CampaignEvent::Measured {
                 pose, done, total, ..
             }) => {

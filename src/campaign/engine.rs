@@ -9,8 +9,10 @@
 //! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
 //! in `failed`, resumable. A safety refusal (not armed, target outside the limits or the
 //! workspace) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
-//! campaign resumable at the first unmeasured pose. Every state change, fault, drift check and
-//! note is journalled in the store's `events` table.
+//! campaign resumable at the first unmeasured pose. Every event (state change, measured pose,
+//! fault, drift check, setup, note, result) is journalled in the store's `events` table before
+//! it is emitted, and emitted with its journal sequence number ([`journal_event`]). Whatever
+//! ends a run, the stored state is a final one ([`run_campaign`]).
 
 mod setup;
 
@@ -22,7 +24,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use nalgebra::Vector3;
 
-use super::events::{CampaignEvent, CampaignState, Control};
+use super::events::{CampaignEvent, CampaignState, Control, Journalled};
 use crate::cell::{CellError, DeviceKind, FaultKind, Robot, Stage, Tracker, TrackerPoint};
 use crate::config::CellConfig;
 use crate::identify::solver::Options;
@@ -211,6 +213,52 @@ async fn guarded<T>(
     }
 }
 
+/// Run `f` on the store on a blocking thread (the store's mutex is held only there).
+/// Cancel-safe in effect: a dropped call still runs `f` to completion; only its result is lost.
+async fn with_store<T: Send + 'static>(
+    store: &Arc<Mutex<Store>>,
+    f: impl FnOnce(&mut Store) -> Result<T, StoreError> + Send + 'static,
+) -> Result<T, CampaignError> {
+    let store = Arc::clone(store);
+    tokio::task::spawn_blocking(move || {
+        let mut s = store
+            .lock()
+            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
+        f(&mut s).map_err(CampaignError::Store)
+    })
+    .await
+    .map_err(|e| CampaignError::Task(e.to_string()))?
+}
+
+/// Journal `event` for campaign `id` and publish it on `control` with the sequence number the
+/// store assigned; both happen under the store lock, so live events leave in journal order and
+/// every live event is in the journal before anyone sees it. Returns the sequence number.
+/// Cancel-safe: the work runs on a blocking thread, so a dropped call still journals and
+/// publishes the event exactly once.
+pub async fn journal_event(
+    store: &Arc<Mutex<Store>>,
+    id: i64,
+    control: &Control,
+    event: CampaignEvent,
+) -> Result<i64, CampaignError> {
+    let rec = EventRecord {
+        at_ms: ms(SystemTime::now()),
+        kind: event.kind().to_owned(),
+        message: serde_json::to_string(&event).map_err(|x| CampaignError::Task(x.to_string()))?,
+    };
+    let control = control.clone();
+    with_store(store, move |s| {
+        let seq = s.add_event(id, &rec)?;
+        control.publish(Journalled {
+            seq,
+            at_ms: rec.at_ms,
+            event,
+        });
+        Ok(seq)
+    })
+    .await
+}
+
 struct Run<'a> {
     ctx: &'a CampaignContext,
     dev: &'a mut Devices,
@@ -236,36 +284,20 @@ macro_rules! with_operator {
 }
 
 impl Run<'_> {
-    fn ctl(&self) -> &Control {
-        &self.ctx.control
-    }
-
+    /// [`with_store`] on the campaign's store. Cancel-safe in the same sense.
     async fn store<T: Send + 'static>(
         &self,
         f: impl FnOnce(&mut Store) -> Result<T, StoreError> + Send + 'static,
     ) -> Result<T, CampaignError> {
-        let store = Arc::clone(&self.ctx.store);
-        tokio::task::spawn_blocking(move || {
-            let mut s = store
-                .lock()
-                .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
-            f(&mut s).map_err(CampaignError::Store)
-        })
-        .await
-        .map_err(|e| CampaignError::Task(e.to_string()))?
+        with_store(&self.ctx.store, f).await
     }
 
-    /// Journal an event in the store, then emit it.
+    /// Journal an event in the store, then emit it with its sequence number. Cancel-safe as
+    /// [`journal_event`].
     async fn journal(&self, e: CampaignEvent) -> Result<(), CampaignError> {
-        let rec = EventRecord {
-            at_ms: ms(SystemTime::now()),
-            kind: e.kind().to_owned(),
-            message: serde_json::to_string(&e).map_err(|x| CampaignError::Task(x.to_string()))?,
-        };
-        let id = self.ctx.campaign_id;
-        self.store(move |s| s.add_event(id, &rec)).await?;
-        self.ctl().emit(e);
-        Ok(())
+        journal_event(&self.ctx.store, self.ctx.campaign_id, &self.ctx.control, e)
+            .await
+            .map(|_| ())
     }
 
     /// Journal and emit a device fault and the action taken.
@@ -623,11 +655,22 @@ impl Run<'_> {
 
     /// Wait for Start while armed. A Start that arrives while disarmed is forgotten (it must
     /// not turn a later Arm into motion).
-    async fn wait_start(&self) -> Result<(), Stop> {
+    /// The stored state follows Arm and Disarm meanwhile (`armed` / `idle`).
+    async fn wait_start(&self, mut armed: bool) -> Result<(), Stop> {
         let mut start = self.ctx.control.start.subscribe();
         loop {
+            let now_armed = self.ctx.control.is_armed();
+            if now_armed != armed {
+                armed = now_armed;
+                self.set_state(if armed {
+                    CampaignState::Armed
+                } else {
+                    CampaignState::Idle
+                })
+                .await?;
+            }
             if *start.borrow_and_update() {
-                if self.ctx.control.is_armed() {
+                if armed {
                     return Ok(());
                 }
                 self.ctx.control.start.send_replace(false);
@@ -667,7 +710,7 @@ impl Run<'_> {
         if self.ctx.on_fault == FaultPolicy::Fail {
             return Err(Stop::Fault(reason));
         }
-        let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
+        self.stop_robot().await;
         loop {
             self.ctx.control.pause.send_replace(true);
             self.paused(reason).await?;
@@ -784,12 +827,13 @@ impl Run<'_> {
             self.store(move |s| s.commit_pose(id, &m)).await?;
             count += 1;
             since_drift += 1;
-            self.ctl().emit(CampaignEvent::Measured {
+            self.journal(CampaignEvent::Measured {
                 pose: entry.index,
                 done: count,
                 total,
                 p1_mm,
-            });
+            })
+            .await?;
             if every > 0 && since_drift >= every && count < total {
                 since_drift = 0;
                 with_operator!(self, self.check_drift(&baseline).await);
@@ -819,26 +863,10 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
 /// Identify from the stored measurements and store the result.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
-    let store = Arc::clone(&ctx.store);
-    let rows = tokio::task::spawn_blocking(move || {
-        let s = store
-            .lock()
-            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
-        s.observations(id).map_err(CampaignError::Store)
-    })
-    .await
-    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    let rows = with_store(&ctx.store, move |s| s.observations(id)).await?;
     let mut opts = identify_options(&ctx.cfg);
     let mut nominal = ctx.nominal.clone();
-    let store = Arc::clone(&ctx.store);
-    let setup = tokio::task::spawn_blocking(move || {
-        let s = store
-            .lock()
-            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
-        SetupResult::load(&s, id).map_err(CampaignError::Store)
-    })
-    .await
-    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    let setup = with_store(&ctx.store, move |s| SetupResult::load(s, id)).await?;
     if let Some(setup) = setup {
         setup.apply(&mut nominal, &mut opts.obs.stage_axis, opts.identify_base);
     }
@@ -850,20 +878,19 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
     let json =
         serde_json::to_string_pretty(&report).map_err(|e| CampaignError::Task(e.to_string()))?;
     let model = report.model.clone();
-    let store = Arc::clone(&ctx.store);
-    tokio::task::spawn_blocking(move || {
-        let mut s = store
-            .lock()
-            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
-        s.save_result(id, &model, &json)
-            .map_err(CampaignError::Store)
-    })
-    .await
-    .map_err(|e| CampaignError::Task(e.to_string()))??;
+    with_store(&ctx.store, move |s| s.save_result(id, &model, &json)).await?;
     Ok(report)
 }
 
 /// Run (or resume) a campaign until it is done, aborted or stopped by a fault.
+///
+/// Whatever ends the run, the stored state is a final one (`done`, `aborted` or `failed` with
+/// the reason, journalled and emitted) when this returns: an error after the start
+/// (identification refused, a store or task failure) becomes `failed` with the error as the
+/// reason and `Ok(Outcome::Failed)`. The one exception is a store that cannot write that
+/// state: then the original error is returned and the stored state may still be the last one
+/// written (e.g. `running`). Not cancel-safe: dropping it mid-run skips the final state and
+/// the robot stop; end a run with `Abort` instead.
 pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
@@ -874,42 +901,77 @@ pub async fn run_campaign(
         stage_mm: None,
         drift_q: ctx.plan.drift_reference.clone(),
     };
-    run.set_state(if ctx.control.is_armed() {
-        CampaignState::Armed
-    } else {
-        CampaignState::Idle
-    })
-    .await?;
-    let result = match run.wait_start().await {
-        Ok(()) => {
-            run.set_state(CampaignState::Running).await?;
-            run.measure_all().await
+    match run.run_to_end().await {
+        Ok(outcome) => Ok(outcome),
+        Err(e) => run.fail_on_error(e).await,
+    }
+}
+
+impl Run<'_> {
+    /// The whole run; an `Err` leaves the stored state to [`Run::fail_on_error`]. Not
+    /// cancel-safe (as [`run_campaign`]).
+    async fn run_to_end(&mut self) -> Result<Outcome, CampaignError> {
+        let ctx = self.ctx;
+        let armed = ctx.control.is_armed();
+        self.set_state(if armed {
+            CampaignState::Armed
+        } else {
+            CampaignState::Idle
+        })
+        .await?;
+        let result = match self.wait_start(armed).await {
+            Ok(()) => {
+                self.set_state(CampaignState::Running).await?;
+                self.measure_all().await
+            }
+            Err(e) => Err(e),
+        };
+        match result {
+            Ok(()) => {
+                self.set_state(CampaignState::Identifying).await?;
+                let report = identify_stored(ctx).await?;
+                self.journal(CampaignEvent::Result {
+                    json: serde_json::to_value(&report).unwrap_or(serde_json::Value::Null),
+                })
+                .await?;
+                self.set_state(CampaignState::Done).await?;
+                Ok(Outcome::Done(Box::new(report)))
+            }
+            Err(Stop::Aborted) => {
+                self.stop_robot().await;
+                self.set_state(CampaignState::Aborted).await?;
+                Ok(Outcome::Aborted)
+            }
+            Err(Stop::Failed(reason) | Stop::Fault(reason)) => {
+                self.stop_robot().await;
+                self.set_state(CampaignState::Failed {
+                    reason: reason.clone(),
+                })
+                .await?;
+                Ok(Outcome::Failed(reason))
+            }
+            Err(Stop::Store(e)) => Err(e),
         }
-        Err(e) => Err(e),
-    };
-    match result {
-        Ok(()) => {
-            run.set_state(CampaignState::Identifying).await?;
-            let report = identify_stored(ctx).await?;
-            ctx.control.emit(CampaignEvent::Result {
-                json: serde_json::to_value(&report).unwrap_or(serde_json::Value::Null),
-            });
-            run.set_state(CampaignState::Done).await?;
-            Ok(Outcome::Done(Box::new(report)))
+    }
+
+    /// Stop the robot (bounded wait; the outcome does not depend on it). Cancel-safe: a
+    /// dropped stop only means the robot was not told again.
+    async fn stop_robot(&mut self) {
+        let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
+    }
+
+    /// End a run that failed with `e`: stop the robot and store `failed` with the reason.
+    /// Returns `Outcome::Failed`, or `e` itself when even that state cannot be written.
+    /// Not cancel-safe: dropped before the state is written, the run keeps its last state.
+    async fn fail_on_error(&mut self, e: CampaignError) -> Result<Outcome, CampaignError> {
+        self.stop_robot().await;
+        let reason = e.to_string();
+        let failed = CampaignState::Failed {
+            reason: reason.clone(),
+        };
+        match self.set_state(failed).await {
+            Ok(()) => Ok(Outcome::Failed(reason)),
+            Err(_) => Err(e),
         }
-        Err(Stop::Aborted) => {
-            let _ = tokio::time::timeout(Duration::from_secs(2), run.dev.robot.stop()).await;
-            run.set_state(CampaignState::Aborted).await?;
-            Ok(Outcome::Aborted)
-        }
-        Err(Stop::Failed(reason) | Stop::Fault(reason)) => {
-            let _ = tokio::time::timeout(Duration::from_secs(2), run.dev.robot.stop()).await;
-            run.set_state(CampaignState::Failed {
-                reason: reason.clone(),
-            })
-            .await?;
-            Ok(Outcome::Failed(reason))
-        }
-        Err(Stop::Store(e)) => Err(e),
     }
 }

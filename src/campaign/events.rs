@@ -144,6 +144,16 @@ pub enum CampaignEvent {
 }
 
 impl CampaignEvent {
+    /// Whether this is the state change that ends a run (`done`, `aborted`, `failed`).
+    pub fn ends_run(&self) -> bool {
+        matches!(
+            self,
+            CampaignEvent::State {
+                state: CampaignState::Done | CampaignState::Aborted | CampaignState::Failed { .. }
+            }
+        )
+    }
+
     /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `note`, `result`).
     pub fn kind(&self) -> &'static str {
         match self {
@@ -169,6 +179,18 @@ impl CampaignEvent {
     }
 }
 
+/// A live event as its campaign's journal stored it: every event on [`Control::events`] is
+/// journalled first, so a client that missed some can read them back by sequence number.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Journalled {
+    /// The journal's sequence number (the store's row id): increasing in emission order.
+    pub seq: i64,
+    /// When it was journalled (ms since the Unix epoch).
+    pub at_ms: i64,
+    /// The event.
+    pub event: CampaignEvent,
+}
+
 /// Shared control state between the command listener and the engine.
 #[derive(Debug, Clone)]
 pub struct Control {
@@ -180,8 +202,9 @@ pub struct Control {
     pub pause: watch::Sender<bool>,
     /// Start requested.
     pub start: watch::Sender<bool>,
-    /// Event stream.
-    pub events: broadcast::Sender<CampaignEvent>,
+    /// Event stream: journalled events in journal order (a lagging receiver can replay the
+    /// gap from the store).
+    pub events: broadcast::Sender<Journalled>,
 }
 
 impl Control {
@@ -220,8 +243,9 @@ impl Control {
         self.armed.load(Ordering::SeqCst)
     }
 
-    /// Emit an event (no receivers is fine).
-    pub fn emit(&self, e: CampaignEvent) {
+    /// Publish an event the journal has stored (no receivers is fine); only the journalling
+    /// code calls this, under the store lock, so receivers see journal order.
+    pub(crate) fn publish(&self, e: Journalled) {
         let _ = self.events.send(e);
     }
 }

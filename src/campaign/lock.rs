@@ -1,35 +1,36 @@
 //! This process as the one runner of a campaign: the guard over the store's lock row
 //! ([`Store::lock_campaign`]), and whether a recorded holder is still alive (Linux `/proc`).
 
-use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use crate::store::{Acquired, LockHolder, Store, StoreError};
 
-/// Holds campaign `id` for this process until dropped (or [`CampaignLock::release`]d).
+/// Holds a campaign for this process until dropped (one short SQLite write on the store the
+/// session shares with the engine).
 #[derive(Debug)]
 pub struct CampaignLock {
-    store_path: PathBuf,
+    store: Arc<Mutex<Store>>,
     campaign_id: i64,
     me: LockHolder,
-    released: bool,
 }
 
 impl CampaignLock {
-    /// Take campaign `id` in `store` (opened from `store_path`). Returns the guard and, when a
-    /// dead process's lock was taken over, that holder (the caller journals it).
+    /// Take campaign `id`. Returns the guard and, when a dead process's lock was taken over,
+    /// that holder (the caller journals it). Blocking.
     pub fn acquire(
-        store: &mut Store,
-        store_path: &Path,
+        store: &Arc<Mutex<Store>>,
         id: i64,
     ) -> Result<(CampaignLock, Option<LockHolder>), StoreError> {
         let me = this_process();
-        let how = store.lock_campaign(id, &me, is_dead)?;
+        let how = store
+            .lock()
+            .map_err(|_| StoreError::Invalid("store lock poisoned".into()))?
+            .lock_campaign(id, &me, is_dead)?;
         let guard = CampaignLock {
-            store_path: store_path.to_owned(),
+            store: Arc::clone(store),
             campaign_id: id,
             me,
-            released: false,
         };
         Ok((
             guard,
@@ -39,22 +40,12 @@ impl CampaignLock {
             },
         ))
     }
-
-    /// Let go of the campaign now (blocking: one short SQLite write).
-    pub fn release(mut self) -> Result<(), StoreError> {
-        self.released = true;
-        Store::open(&self.store_path)?.unlock_campaign(self.campaign_id, &self.me)?;
-        Ok(())
-    }
 }
 
 impl Drop for CampaignLock {
     fn drop(&mut self) {
-        if !self.released {
-            if let Ok(mut s) = Store::open(&self.store_path) {
-                let _ = s.unlock_campaign(self.campaign_id, &self.me);
-            }
-        }
+        let mut s = self.store.lock().unwrap_or_else(|p| p.into_inner());
+        let _ = s.unlock_campaign(self.campaign_id, &self.me);
     }
 }
 
@@ -130,32 +121,32 @@ mod tests {
 
     #[test]
     fn a_second_holder_is_refused_and_a_dead_one_taken_over() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("c.db");
-        let mut s = Store::open(&path).expect("store");
+        let mut s = Store::open_in_memory().expect("store");
         let id = crate::store::tests::setup(&mut s);
-        let (guard, took) = CampaignLock::acquire(&mut s, &path, id).expect("first");
+        let store = Arc::new(Mutex::new(s));
+        let (guard, took) = CampaignLock::acquire(&store, id).expect("first");
         assert!(took.is_none());
         let other = LockHolder {
             pid: 1,
             ..this_process()
         };
-        match s.lock_campaign(id, &other, is_dead) {
+        match store.lock().unwrap().lock_campaign(id, &other, is_dead) {
             Err(StoreError::Locked { holder, .. }) => assert_eq!(holder.pid, std::process::id()),
             r => panic!("expected Locked, got {r:?}"),
         }
         drop(guard);
-        assert_eq!(
-            s.campaign_holder(id).expect("holder"),
-            None,
-            "released on drop"
-        );
+        let holder = store.lock().unwrap().campaign_holder(id).expect("holder");
+        assert_eq!(holder, None, "released on drop");
         let dead = LockHolder {
             pid: u32::MAX - 1,
             ..this_process()
         };
-        s.lock_campaign(id, &dead, |_| false).expect("dead holder");
-        let (_g, took) = CampaignLock::acquire(&mut s, &path, id).expect("take over");
+        store
+            .lock()
+            .unwrap()
+            .lock_campaign(id, &dead, |_| false)
+            .expect("dead holder");
+        let (_g, took) = CampaignLock::acquire(&store, id).expect("take over");
         assert_eq!(took.map(|h| h.pid), Some(u32::MAX - 1));
     }
 }

@@ -12,6 +12,7 @@ pub mod lock;
 pub mod session;
 
 pub use engine::{
-    run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome, SetupResult,
+    journal_event, run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome,
+    SetupResult,
 };
-pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control};
+pub use events::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};

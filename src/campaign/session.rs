@@ -127,56 +127,63 @@ fn now_ms() -> i64 {
         .unwrap_or(0)
 }
 
-/// Set up a campaign session. `campaign` resumes a stored campaign (refused when it is done,
-/// or when its configuration or robot model changed unless accepted); otherwise a new one is
-/// planned and stored (the split is fixed before the first measurement). Either way this
-/// process then holds the campaign ([`CampaignLock`]) until the session is dropped; only then
-/// are the simulated devices (if any) started and the adapters built.
+/// Capacity of a session's live event channel (a receiver further behind lags).
+pub const EVENT_CAPACITY: usize = 1024;
+
+/// Set up a campaign session on the store at `path` (opened, migrated, as the session's only
+/// writer). `campaign` resumes a stored campaign (refused when it is done, or when its
+/// configuration or robot model changed unless accepted); otherwise a new one is planned and
+/// stored (the split is fixed before the first measurement). Either way this process then
+/// holds the campaign ([`CampaignLock`]) until the session is dropped; only then are the
+/// simulated devices (if any) started and the adapters built. Not cancel-safe: a dropped call may
+/// leave a stored campaign that no session runs (and a simulated cell to be dropped).
 pub async fn open_session(
     cfg: CellConfig,
     store_path: &Path,
     campaign: Option<Resume>,
     prompter: Arc<dyn Prompter>,
 ) -> Result<Session, SessionError> {
+    let path = store_path.to_owned();
+    let store = tokio::task::spawn_blocking(move || Store::open(&path))
+        .await
+        .map_err(|e| SessionError::Invalid(format!("store task failed: {e}")))??;
+    let store = Arc::new(Mutex::new(store));
+    open_session_with(cfg, store, campaign, prompter, EVENT_CAPACITY).await
+}
+
+/// [`open_session`] on an open store (the caller's writer, shared with the engine) with a live
+/// event channel of `capacity`. Planning and every store call run on blocking threads, never
+/// on the async runtime's workers. Not cancel-safe (see [`open_session`]).
+pub async fn open_session_with(
+    cfg: CellConfig,
+    store: Arc<Mutex<Store>>,
+    campaign: Option<Resume>,
+    prompter: Arc<dyn Prompter>,
+    capacity: usize,
+) -> Result<Session, SessionError> {
     let mut nominal: RobotModel = load_robot(&cfg.robot)?;
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
-    let mut store = Store::open(store_path)?;
     let req = plan_request(&cfg);
-    let resumed = campaign
-        .map(|r| stored_campaign(&store, r, &cfg.text, &robot_text))
-        .transpose()?;
-    let fresh = plan_campaign(&nominal, &req)?;
-    let (campaign_id, plan, model_of_resumed, accepted_changes) = match resumed {
-        Some(s) => {
-            let plan = Plan {
-                poses: s.poses,
-                drift_reference: fresh.drift_reference,
-            };
-            (s.id, plan, Some(s.model), s.accepted_changes)
-        }
-        None => {
-            let id = store_new_campaign(&mut store, &cfg, &nominal, robot_text, &fresh)?;
-            (id, fresh, None, Vec::new())
-        }
-    };
-    if !plan.poses.iter().any(|p| p.set == PoseSet::Ident) {
-        return Err(SessionError::Invalid(format!(
-            "campaign {campaign_id} has no identification poses"
-        )));
-    }
-    let (lock, took_over) = CampaignLock::acquire(&mut store, store_path, campaign_id)?;
-    if let Some(h) = took_over {
-        let text = format!("took over the campaign from {h}, which no longer runs");
-        note(&mut store, campaign_id, text)?;
-    }
-    for (what, keys) in accepted_changes {
-        let text = format!(
-            "resumed with a changed {what} (accepted): {}",
-            keys.join(", ")
+    let prepared = {
+        let (store, nominal, req, cfg) = (
+            Arc::clone(&store),
+            nominal.clone(),
+            req.clone(),
+            cfg.clone(),
         );
-        note(&mut store, campaign_id, text)?;
-    }
+        tokio::task::spawn_blocking(move || {
+            plan_and_store(&store, &nominal, &req, &cfg, campaign, robot_text)
+        })
+        .await
+        .map_err(|e| SessionError::Invalid(format!("planning task failed: {e}")))??
+    };
+    let Prepared {
+        campaign_id,
+        plan,
+        model_of_resumed,
+        lock,
+    } = prepared;
     let sim = simulated_cell(&cfg, &nominal).await?;
     let devices = cell_devices(&cfg, sim.as_ref(), prompter)?;
     let resumed = model_of_resumed.is_some();
@@ -191,9 +198,9 @@ pub async fn open_session(
             nominal,
             plan_request: req,
             plan,
-            store: Arc::new(Mutex::new(store)),
+            store,
             campaign_id,
-            control: Control::new(1024),
+            control: Control::new(capacity),
             on_fault: FaultPolicy::default(),
         },
         devices,
@@ -201,6 +208,79 @@ pub async fn open_session(
         resumed,
         lock,
     })
+}
+
+/// A campaign ready to run: new or resumed, held by this process.
+struct Prepared {
+    campaign_id: i64,
+    plan: Plan,
+    /// The observation model a resumed campaign was created with.
+    model_of_resumed: Option<String>,
+    lock: CampaignLock,
+}
+
+/// Check a campaign to resume (or plan and store a new one), then take it for this process
+/// and journal what the operator should know (a lock taken over, accepted changes).
+/// Blocking: planning may take seconds.
+fn plan_and_store(
+    store: &Arc<Mutex<Store>>,
+    nominal: &RobotModel,
+    req: &PlanRequest,
+    cfg: &CellConfig,
+    campaign: Option<Resume>,
+    robot_text: String,
+) -> Result<Prepared, SessionError> {
+    let resumed = {
+        let s = lock_store(store)?;
+        campaign
+            .map(|r| stored_campaign(&s, r, &cfg.text, &robot_text))
+            .transpose()?
+    };
+    let fresh = plan_campaign(nominal, req)?;
+    let (campaign_id, plan, model_of_resumed, accepted_changes) = match resumed {
+        Some(s) => {
+            let plan = Plan {
+                poses: s.poses,
+                drift_reference: fresh.drift_reference,
+            };
+            (s.id, plan, Some(s.model), s.accepted_changes)
+        }
+        None => {
+            let mut s = lock_store(store)?;
+            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &fresh)?;
+            (id, fresh, None, Vec::new())
+        }
+    };
+    if !plan.poses.iter().any(|p| p.set == PoseSet::Ident) {
+        return Err(SessionError::Invalid(format!(
+            "campaign {campaign_id} has no identification poses"
+        )));
+    }
+    let (lock, took_over) = CampaignLock::acquire(store, campaign_id)?;
+    let mut s = lock_store(store)?;
+    if let Some(h) = took_over {
+        let text = format!("took over the campaign from {h}, which no longer runs");
+        note(&mut s, campaign_id, text)?;
+    }
+    for (what, keys) in accepted_changes {
+        let text = format!(
+            "resumed with a changed {what} (accepted): {}",
+            keys.join(", ")
+        );
+        note(&mut s, campaign_id, text)?;
+    }
+    Ok(Prepared {
+        campaign_id,
+        plan,
+        model_of_resumed,
+        lock,
+    })
+}
+
+fn lock_store(store: &Mutex<Store>) -> Result<std::sync::MutexGuard<'_, Store>, SessionError> {
+    store
+        .lock()
+        .map_err(|_| SessionError::Invalid("store lock poisoned".into()))
 }
 
 /// A stored campaign that may be resumed.

@@ -7,7 +7,7 @@ use rusqlite::{params, OptionalExtension, Row, Transaction, TransactionBehavior}
 use super::error::{Ctx, StoreError};
 use super::records::{
     decode_joints, encode_joints, from_sql_index, parse_set, to_sql_index, CampaignRow,
-    EventRecord, NewCampaign, PlannedPose,
+    EventRecord, JournalEntry, NewCampaign, PlannedPose,
 };
 use super::Store;
 
@@ -171,8 +171,9 @@ impl Store {
         Ok(())
     }
 
-    /// Append an event to the campaign's journal.
-    pub fn add_event(&mut self, id: i64, event: &EventRecord) -> Result<(), StoreError> {
+    /// Append an event to the campaign's journal; returns its sequence number (the row id,
+    /// increasing in insertion order).
+    pub fn add_event(&mut self, id: i64, event: &EventRecord) -> Result<i64, StoreError> {
         let tx = self
             .conn
             .transaction_with_behavior(TransactionBehavior::Immediate)
@@ -183,28 +184,91 @@ impl Store {
             params![id, event.at_ms, event.kind, event.message],
         )
         .ctx("add an event")?;
-        tx.commit().ctx("commit add event")
+        let seq = tx.last_insert_rowid();
+        tx.commit().ctx("commit add event")?;
+        Ok(seq)
     }
 
-    /// The campaign's events in the order they were added.
-    pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
+    /// At most `limit` journal entries of the campaign with a sequence number above `after`,
+    /// oldest first (`after = 0`: from the start).
+    pub fn events_after(
+        &self,
+        id: i64,
+        after: i64,
+        limit: usize,
+    ) -> Result<Vec<JournalEntry>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
         let mut st = self
             .conn
-            .prepare("SELECT at_ms, kind, message FROM events WHERE campaign_id = ?1 ORDER BY id")
+            .prepare(
+                "SELECT id, at_ms, kind, message FROM events \
+                 WHERE campaign_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3",
+            )
             .ctx("read events")?;
         let rows = st
-            .query_map([id], |r| {
-                Ok(EventRecord {
-                    at_ms: r.get(0)?,
-                    kind: r.get(1)?,
-                    message: r.get(2)?,
+            .query_map(params![id, after, limit], |r| {
+                Ok(JournalEntry {
+                    seq: r.get(0)?,
+                    record: EventRecord {
+                        at_ms: r.get(1)?,
+                        kind: r.get(2)?,
+                        message: r.get(3)?,
+                    },
                 })
             })
             .ctx("read events")?
             .collect::<Result<Vec<_>, _>>()
             .ctx("read events")?;
         Ok(rows)
+    }
+
+    /// The sequence number of the campaign's newest journal entry (0 when it has none).
+    pub fn last_event_seq(&self, id: i64) -> Result<i64, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        self.conn
+            .query_row(
+                "SELECT coalesce(max(id), 0) FROM events WHERE campaign_id = ?1",
+                [id],
+                |r| r.get(0),
+            )
+            .ctx("read the last event")
+    }
+
+    /// Poses measured (done marks) and poses planned, counted without reading them.
+    pub fn pose_counts(&self, id: i64) -> Result<(usize, usize), StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let (done, total): (i64, i64) = self
+            .conn
+            .query_row(
+                "SELECT (SELECT count(*) FROM pose_done WHERE campaign_id = ?1), \
+                        (SELECT count(*) FROM plan_poses WHERE campaign_id = ?1)",
+                [id],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .ctx("count poses")?;
+        Ok((
+            from_sql_index(done, "pose count")?,
+            from_sql_index(total, "pose count")?,
+        ))
+    }
+
+    /// Whether the campaign has a stored identification result (without reading it).
+    pub fn has_result(&self, id: i64) -> Result<bool, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        self.conn
+            .query_row(
+                "SELECT EXISTS (SELECT 1 FROM results WHERE campaign_id = ?1)",
+                [id],
+                |r| r.get(0),
+            )
+            .ctx("look up a result")
+    }
+
+    /// The campaign's events in the order they were added.
+    pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
+        let all = self.events_after(id, 0, usize::MAX)?;
+        Ok(all.into_iter().map(|e| e.record).collect())
     }
 
     /// Store an identification result (`json` must be valid JSON; `model` names the

@@ -53,6 +53,17 @@ pub enum StoreError {
         /// Who holds it.
         holder: super::locks::LockHolder,
     },
+    /// A reader opened a database its writer has not migrated to this cellcal's schema yet.
+    #[error(
+        "the campaign database has schema version {found}, older than the {known} this cellcal \
+         reads; open it once for writing (e.g. `cellcal serve`) to migrate it"
+    )]
+    SchemaTooOld {
+        /// `PRAGMA user_version` of the file.
+        found: i64,
+        /// Number of migrations this code knows.
+        known: i64,
+    },
     /// A stored value cannot be parsed back (edited or damaged database).
     #[error("corrupt value in the campaign database: {0}")]
     Corrupt(String),

@@ -19,6 +19,12 @@
 //!   a file from a newer cellcal is refused ([`StoreError::SchemaTooNew`]).
 //!
 //! A `Store` is one connection: `Send`, not `Sync`. Use it from one writer thread.
+//!
+//! # Readers
+//! [`StoreReader`] is a second kind of connection for readers (the daemon's GETs and event
+//! replays): it never migrates and never writes (`query_only`; only `&self` methods of
+//! [`Store`] are reachable through it), refuses a file whose schema is not exactly
+//! [`schema_version`], and in WAL mode neither blocks the writer nor waits for it.
 
 mod campaigns;
 mod error;
@@ -29,12 +35,14 @@ pub mod records;
 pub mod schema;
 
 #[cfg(test)]
+mod reader_tests;
+#[cfg(test)]
 pub(crate) mod tests;
 
 use std::path::Path;
 use std::time::Duration;
 
-use rusqlite::{Connection, OptionalExtension};
+use rusqlite::{Connection, OpenFlags, OptionalExtension};
 
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
@@ -42,7 +50,8 @@ pub use frames::FrameRef;
 pub use locks::{Acquired, LockHolder};
 pub use measurements::IMPORTED_STATE;
 pub use records::{
-    CampaignRow, EventRecord, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement,
+    CampaignRow, EventRecord, JournalEntry, NewCampaign, PlannedPose, PointKind, PointRecord,
+    PoseMeasurement,
 };
 
 use error::Ctx;
@@ -78,6 +87,7 @@ impl Store {
     fn init(mut conn: Connection) -> Result<Store, StoreError> {
         conn.busy_timeout(BUSY_TIMEOUT)
             .ctx("set the busy timeout")?;
+        // Only the writer sets the journal mode: changing it needs the write lock.
         // Returns the resulting mode ("wal", or "memory" for in-memory databases).
         let _mode: String = conn
             .pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get(0))
@@ -107,9 +117,48 @@ impl Store {
         }
     }
 
+    /// A reading connection to the existing database at `path` (see [`StoreReader`]).
+    pub fn open_reader(path: &Path) -> Result<StoreReader, StoreError> {
+        let conn = Connection::open_with_flags(
+            path,
+            // no CREATE: a reader never makes a database
+            OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .ctx("open the database file for reading")?;
+        conn.busy_timeout(BUSY_TIMEOUT)
+            .ctx("set the busy timeout")?;
+        conn.pragma_update(None, "query_only", "ON")
+            .ctx("set query_only")?;
+        let found = schema::user_version(&conn)?;
+        let known = schema::known_version();
+        if found > known {
+            return Err(StoreError::SchemaTooNew { found, known });
+        }
+        if found < known {
+            return Err(StoreError::SchemaTooOld { found, known });
+        }
+        Ok(StoreReader(Store { conn }))
+    }
+
     /// Raw connection for tests that must bypass the API (STRICT, triggers, crashes).
     #[cfg(test)]
     pub(crate) fn raw(&mut self) -> &mut Connection {
         &mut self.conn
+    }
+}
+
+/// A read-only connection: no migration, no write transaction, only `&self` [`Store`] methods.
+///
+/// Opened by [`Store::open_reader`] on a database the writer has already migrated. It is
+/// read-write at the file level only so that WAL readers can use the shared-memory index;
+/// `PRAGMA query_only` makes SQLite refuse every write on it.
+#[derive(Debug)]
+pub struct StoreReader(Store);
+
+impl std::ops::Deref for StoreReader {
+    type Target = Store;
+
+    fn deref(&self) -> &Store {
+        &self.0
     }
 }

@@ -164,6 +164,15 @@ pub struct EventRecord {
     pub message: String,
 }
 
+/// A stored journal entry: the event and the sequence number the store gave it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct JournalEntry {
+    /// The `events` row id: increasing in insertion order across the whole database.
+    pub seq: i64,
+    /// The event.
+    pub record: EventRecord,
+}
+
 /// Kind of a tracker point added outside a pose commit by
 /// [`Store::add_point`](super::Store::add_point). (P1 and P2 rows are only written by
 /// [`Store::commit_pose`](super::Store::commit_pose).)

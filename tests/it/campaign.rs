@@ -319,7 +319,7 @@ pub(crate) async fn run_steered(
     let cell = Arc::clone(&sim);
     let steer = tokio::spawn(async move {
         while let Ok(e) = rx.recv().await {
-            on_event(&e, &cell, &control);
+            on_event(&e.event, &cell, &control);
         }
     });
     ctx.control.apply(&CampaignCommand::Arm);

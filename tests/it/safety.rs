@@ -286,7 +286,7 @@ async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
     let control = ctx.control.clone();
     tokio::spawn(async move {
         while let Ok(e) = rx.recv().await {
-            if matches!(e, CampaignEvent::Measured { done: 10, .. }) {
+            if matches!(e.event, CampaignEvent::Measured { done: 10, .. }) {
                 control.apply(&CampaignCommand::Abort);
             }
         }
@@ -317,7 +317,7 @@ async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
         while let Ok(e) = rx.recv().await {
             if let CampaignEvent::State {
                 state: CampaignState::Paused { reason },
-            } = e
+            } = e.event
             {
                 control.apply(&CampaignCommand::Abort);
                 return Some(reason);
