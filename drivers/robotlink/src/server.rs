@@ -128,6 +128,8 @@ pub struct FaultConfig {
     pub non_numeric: u32,
     /// After accepting the next N `MOVEJ`, reply OK and then drop the connection.
     pub disconnect_during_move: u32,
+    /// Highest protocol version `HELLO` accepts (set 1 to act as a v1 server).
+    pub max_proto_version: u32,
 }
 
 impl Default for FaultConfig {
@@ -151,6 +153,7 @@ impl Default for FaultConfig {
             wrong_seq: 0,
             non_numeric: 0,
             disconnect_during_move: 0,
+            max_proto_version: PROTO_VERSION,
         }
     }
 }
@@ -172,6 +175,7 @@ impl std::fmt::Debug for FaultConfig {
             .field("wrong_seq", &self.wrong_seq)
             .field("non_numeric", &self.non_numeric)
             .field("disconnect_during_move", &self.disconnect_during_move)
+            .field("max_proto_version", &self.max_proto_version)
             .finish_non_exhaustive()
     }
 }
@@ -721,12 +725,15 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
 
     /// `HELLO`: accept any version in `PROTO_VERSION_MIN..=PROTO_VERSION` and switch to it.
     fn hello(&mut self, proto_ver: u32) -> Answer {
-        if !(PROTO_VERSION_MIN..=PROTO_VERSION).contains(&proto_ver) {
+        let max = lock_faults(&self.arm.faults)
+            .max_proto_version
+            .clamp(PROTO_VERSION_MIN, PROTO_VERSION);
+        if !(PROTO_VERSION_MIN..=max).contains(&proto_ver) {
             return Answer::Err(
                 ErrorCode::Args,
                 format!(
                     "unsupported protocol version {proto_ver}, server speaks \
-                     {PROTO_VERSION_MIN}..{PROTO_VERSION}"
+                     {PROTO_VERSION_MIN}..{max}"
                 ),
             );
         }
