@@ -3,6 +3,11 @@
 //! The server owns the protocol (framing, sequencing, the one-client rule, `WAIT` polling,
 //! events); the backend owns the physics. A second client receives
 //! `* EVT REFUSED another client is connected` and is closed at once.
+//!
+//! A session reads its socket all the time; the executing request runs in its own task. After
+//! `HELLO 2` a `STOP` is handled at once (the backend stops, a running `WAIT` answers
+//! `E_STOPPED`, then the `STOP` answers `OK`) and any other request meanwhile gets `E_BUSY`.
+//! Before that, or after `HELLO 1`, lines are handled strictly in order (v1).
 
 use std::collections::VecDeque;
 use std::future::Future;

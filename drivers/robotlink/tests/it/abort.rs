@@ -201,19 +201,32 @@ impl Raw {
         l.trim_end().to_string()
     }
 
+    /// The next line, asserted to start with `prefix`.
+    async fn expect(&mut self, prefix: &str) {
+        let l = self.recv().await;
+        assert!(l.starts_with(prefix), "expected {prefix:?}, got {l:?}");
+    }
+
     async fn exchange(&mut self, line: &str) -> String {
         self.send(line).await;
         self.recv().await
+    }
+
+    /// A raw session after `HELLO <version>` and `POWER ON`, the 4.5 s move accepted as seq 3.
+    async fn moving(h: &Harness, version: u32) -> Raw {
+        let mut s = Raw::connect(h).await;
+        let hello = s.exchange(&format!("1 HELLO {version}")).await;
+        assert!(hello.starts_with("1 OK"), "{hello}");
+        assert_eq!(s.exchange("2 POWER ON").await, "2 OK");
+        assert_eq!(s.exchange("3 MOVEJ 90 0 0 0 0 0").await, "3 OK");
+        s
     }
 }
 
 #[tokio::test]
 async fn v2_server_answers_stop_at_once_and_busy_for_other_requests() {
     let h = slow_arm().await;
-    let mut s = Raw::connect(&h).await;
-    assert!(s.exchange("1 HELLO 2").await.starts_with("1 OK"));
-    assert_eq!(s.exchange("2 POWER ON").await, "2 OK");
-    assert_eq!(s.exchange("3 MOVEJ 90 0 0 0 0 0").await, "3 OK");
+    let mut s = Raw::moving(&h, 2).await;
     s.send("4 WAIT 10000").await;
     tokio::time::sleep(Duration::from_millis(100)).await;
     // Another request while WAIT executes: E_BUSY at once, the WAIT goes on.
@@ -224,11 +237,11 @@ async fn v2_server_answers_stop_at_once_and_busy_for_other_requests() {
     assert!(s.exchange("6 WAIT x").await.starts_with("6 ERR E_ARGS"));
     s.send("7 STOP").await;
     // The interrupted WAIT answers first, then the STOP.
-    let w = s.recv().await;
-    assert!(w.starts_with("4 ERR E_STOPPED"), "{w}");
-    assert_eq!(s.recv().await, "7 OK");
+    s.expect("4 ERR E_STOPPED").await;
+    s.expect("7 OK").await;
     assert!(!h.backend.is_moving());
-    assert!(s.exchange("8 JOINTS").await.starts_with("8 OK"));
+    s.send("8 JOINTS").await;
+    s.expect("8 OK ").await;
     h.stop().await;
 }
 
@@ -236,18 +249,15 @@ async fn v2_server_answers_stop_at_once_and_busy_for_other_requests() {
 async fn v1_session_keeps_requests_in_order() {
     // Before HELLO, or after HELLO 1, a STOP sent during WAIT waits for the WAIT (v1 rules).
     let h = slow_arm().await;
-    let mut s = Raw::connect(&h).await;
-    assert!(s.exchange("1 HELLO 1").await.starts_with("1 OK"));
-    assert_eq!(s.exchange("2 POWER ON").await, "2 OK");
-    assert_eq!(s.exchange("3 MOVEJ 90 0 0 0 0 0").await, "3 OK");
+    let mut s = Raw::moving(&h, 1).await;
     s.send("4 WAIT 200").await;
     s.send("5 STOP").await;
-    let w = s.recv().await;
-    assert!(w.starts_with("4 ERR E_TIMEOUT"), "{w}");
-    assert_eq!(s.recv().await, "5 OK");
+    s.expect("4 ERR E_TIMEOUT").await;
+    s.expect("5 OK").await;
     assert!(!h.backend.is_moving());
     // HELLO 3 is refused with E_ARGS (a v2 client then falls back).
-    assert!(s.exchange("6 HELLO 3").await.starts_with("6 ERR E_ARGS"));
+    s.send("6 HELLO 3").await;
+    s.expect("6 ERR E_ARGS").await;
     h.stop().await;
 }
 
