@@ -227,6 +227,10 @@ impl Link {
         }
         let (tx, rx) = oneshot::channel();
         let verb = req.verb();
+        // A request still in the slot was abandoned (its future dropped): drop its late reply.
+        if let Some(old) = sh.slot(slot).take() {
+            sh.mark_stale(old.seq);
+        }
         *sh.slot(slot) = Some(Pending {
             seq,
             verb,

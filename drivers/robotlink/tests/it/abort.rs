@@ -283,6 +283,10 @@ async fn dropped_request_futures_never_desynchronise() {
     // JOINTS waits for the abandoned WAIT's reply, then goes out and matches.
     assert!(c.joints().await.is_ok());
     c.ping().await.unwrap();
+    // A dropped out-of-band STOP followed at once by another STOP.
+    assert!(poll_once_then_drop(c.stop()).await.is_none());
+    c.stop().await.unwrap();
+    c.ping().await.unwrap();
     // Many drops at every point of a request's life.
     for i in 0..60u64 {
         let d = Duration::from_micros(i * 37 % 400);
