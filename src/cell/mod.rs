@@ -155,7 +155,7 @@ pub trait Robot: Send + Sync {
     async fn joints(&mut self) -> Result<Vec<f64>, CellError>;
     /// Stop any motion now.
     async fn stop(&mut self) -> Result<(), CellError>;
-    /// Drop and re-establish the connection.
+    /// Drop and re-establish the connection; never switches power on (only `prepare` does).
     async fn reconnect(&mut self) -> Result<(), CellError>;
 }
 

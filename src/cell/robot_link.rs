@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use async_trait::async_trait;
-use robotlink::{ClientConfig, RobotClient, RobotError};
+use robotlink::{ClientConfig, RobotClient, RobotError, StopHandle};
 use serde::{Deserialize, Serialize};
 use tracing::info;
 
@@ -53,6 +53,7 @@ pub fn classify_robotlink(e: &RobotError) -> FaultKind {
         RobotError::EStop(_) | RobotError::PowerOff(_) => FaultKind::EmergencyStop,
         RobotError::Rejected { .. } => FaultKind::Rejected,
         RobotError::NotSettled(_) | RobotError::Timeout(_) => FaultKind::Timeout,
+        RobotError::Stopped(_) => FaultKind::Aborted,
         RobotError::Protocol(_) => FaultKind::Protocol,
         RobotError::Disconnected | RobotError::Io(_) => FaultKind::Disconnected,
     }
@@ -94,6 +95,12 @@ impl LinkRobot {
         self.client.as_ref()
     }
 
+    /// A handle that stops the arm from another task while this adapter is borrowed
+    /// (valid for the current connection only); `None` when not connected.
+    pub fn stop_handle(&self) -> Option<StopHandle> {
+        self.client.as_ref().map(RobotClient::stop_handle)
+    }
+
     fn connected(&self) -> Result<&RobotClient, CellError> {
         match &self.client {
             Some(c) if !c.is_closed() => Ok(c),
@@ -105,28 +112,34 @@ impl LinkRobot {
         }
     }
 
+    /// Connect and say HELLO unless a live connection exists. Cancel-safe: a dropped call
+    /// leaves either no client or a complete one.
     async fn ensure_connected(&mut self) -> Result<(), CellError> {
         if matches!(&self.client, Some(c) if !c.is_closed()) {
             return Ok(());
         }
+        self.client = Some(self.open().await?);
+        Ok(())
+    }
+
+    /// A new connection that has said HELLO (v2, or v1 with an older server).
+    async fn open(&self) -> Result<RobotClient, CellError> {
         let client = RobotClient::connect(self.cfg.address.as_str(), self.cfg.client_config())
             .await
             .map_err(cell_err)?;
         let id = client.hello().await.map_err(cell_err)?;
-        info!(address = %self.cfg.address, ctrl = %id.ctrl, arm = %id.arm, sw = %id.sw, "robot connected");
-        self.client = Some(client);
-        Ok(())
-    }
-
-    async fn power_and_speed(&mut self, speed_pct: f64) -> Result<(), CellError> {
-        let c = self.connected()?;
-        c.power(true).await.map_err(cell_err)?;
-        c.speed(speed_pct).await.map_err(cell_err)
+        info!(
+            address = %self.cfg.address, ctrl = %id.ctrl, arm = %id.arm, sw = %id.sw,
+            protocol = client.protocol_version().unwrap_or(0), "robot connected"
+        );
+        Ok(client)
     }
 }
 
 #[async_trait]
 impl Robot for LinkRobot {
+    /// Connect, HELLO, `POWER ON`, `SPEED`: the only place that switches power on (called by
+    /// the engine on an operator's start/resume). Cancel-safe (driver requests are).
     async fn prepare(&mut self, speed_pct: f64) -> Result<(), CellError> {
         if !(speed_pct > 0.0 && speed_pct <= 100.0) {
             return Err(CellError::new(
@@ -136,11 +149,14 @@ impl Robot for LinkRobot {
             ));
         }
         self.ensure_connected().await?;
-        self.power_and_speed(speed_pct).await?;
+        let c = self.connected()?;
+        c.power(true).await.map_err(cell_err)?;
+        c.speed(speed_pct).await.map_err(cell_err)?;
         self.speed_pct = Some(speed_pct);
         Ok(())
     }
 
+    /// `MOVEJ` (rad → deg). Cancel-safe; a dropped call may still have started the move.
     async fn move_joints(&mut self, q_rad: &[f64]) -> Result<(), CellError> {
         let deg: [f64; 6] = match q_rad {
             [a, b, c, d, e, f] => [*a, *b, *c, *d, *e, *f].map(f64::to_degrees),
@@ -165,6 +181,7 @@ impl Robot for LinkRobot {
             .map_err(cell_err)
     }
 
+    /// `WAIT`. Cancel-safe: dropping it leaves the arm moving; follow with [`Robot::stop`].
     async fn wait_settled(&mut self, timeout: Duration) -> Result<Vec<f64>, CellError> {
         let j = self
             .connected()?
@@ -174,23 +191,32 @@ impl Robot for LinkRobot {
         Ok(to_rad(j))
     }
 
+    /// `JOINTS` (deg → rad). Cancel-safe.
     async fn joints(&mut self) -> Result<Vec<f64>, CellError> {
         let j = self.connected()?.joints().await.map_err(cell_err)?;
         Ok(to_rad(j))
     }
 
+    /// `STOP`, overtaking an outstanding (or abandoned) `WAIT` on protocol v2; on v1 with a
+    /// request outstanding it closes the connection (the server stops on disconnect).
+    /// Cancel-safe.
     async fn stop(&mut self) -> Result<(), CellError> {
         self.connected()?.stop().await.map_err(cell_err)
     }
 
+    /// New connection, HELLO and the per-connection SPEED again; power is left as it is
+    /// (PROTOCOL.md §6: never switched on implicitly; [`Robot::prepare`] does that).
+    /// Cancel-safe: the new connection is kept only once its SPEED is set, so a dropped call
+    /// leaves no connection (never one running at the default 100 %).
     async fn reconnect(&mut self) -> Result<(), CellError> {
         if let Some(c) = self.client.take() {
             c.close().await;
         }
-        self.ensure_connected().await?;
+        let client = self.open().await?;
         if let Some(speed) = self.speed_pct {
-            self.power_and_speed(speed).await?;
+            client.speed(speed).await.map_err(cell_err)?;
         }
+        self.client = Some(client);
         Ok(())
     }
 }

@@ -289,6 +289,73 @@ async fn robot_faults_surface_as_their_kind_and_recover() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn robot_reconnect_after_a_power_loss_leaves_power_off() {
+    bounded(async {
+        let c = cell(SimWorldConfig::default()).await;
+        let mut r = robot(&c).await;
+        move_and_settle(&mut r, &Q).await;
+        lock_world(&c.world).set_power(false).expect("power off");
+        r.reconnect().await.expect("reconnect");
+        let client = r.client().expect("connected");
+        assert!(
+            !client.state().await.expect("STATE").power,
+            "reconnect powered on"
+        );
+        let e = client.move_joints([10.0; 6], None).await;
+        assert!(
+            matches!(e, Err(robotlink::RobotError::PowerOff(_))),
+            "{e:?}"
+        );
+        assert_eq!(kind(r.move_joints(&Q).await), FaultKind::EmergencyStop);
+        // Only prepare (the operator's start/resume) switches power on.
+        r.prepare(50.0).await.expect("prepare");
+        assert!(lock_world(&c.world).power());
+        c.stop().await;
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn robot_abort_after_a_dropped_wait_stops_the_arm_within_200_ms() {
+    // The campaign engine's abort: the move/WAIT future is dropped, then Robot::stop.
+    bounded(async {
+        let c = cell(SimWorldConfig {
+            move_speed_deg_s: Some(40.0),
+            ..SimWorldConfig::default()
+        })
+        .await;
+        let mut r = LinkRobot::new(c.robot_config());
+        r.prepare(100.0).await.expect("robot prepares");
+        let start = lock_world(&c.world).readback_joints_rad();
+        let mut q = start.clone();
+        q[0] += 2.5; // 143° ≈ 3.6 s at 40 °/s
+        r.move_joints(&q).await.expect("move accepted");
+        let w = tokio::time::timeout(
+            Duration::from_millis(300),
+            r.wait_settled(Duration::from_secs(10)),
+        )
+        .await;
+        assert!(w.is_err(), "WAIT ended early: {w:?}");
+        let sent = std::time::Instant::now();
+        r.stop().await.expect("stop");
+        let latency = sent.elapsed();
+        eprintln!("STOP latency through LinkRobot on the simulated cell: {latency:?}");
+        assert!(latency < Duration::from_millis(200), "{latency:?}");
+        assert!(!lock_world(&c.world).is_moving());
+        let q1 = lock_world(&c.world).true_joints_rad();
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let q2 = lock_world(&c.world).true_joints_rad();
+        assert_eq!(q1, q2, "the arm is frozen");
+        assert!(q1[0] > start[0] && q1[0] < q[0] - 1.0, "stopped at {q1:?}");
+        // The connection is in step: the next requests succeed.
+        let j = r.joints().await.expect("joints");
+        assert!((j[0] - q1[0]).abs() < 1e-6);
+        c.stop().await;
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stage_settle_time_is_added_to_every_stage_move() {
     bounded(async {
         let c = cell(SimWorldConfig {

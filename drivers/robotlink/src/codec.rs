@@ -6,8 +6,10 @@
 use std::fmt;
 use std::str::FromStr;
 
-/// Protocol version spoken by this crate (sent in `HELLO`).
-pub const PROTO_VERSION: u32 = 1;
+/// Newest protocol version spoken by this crate (the client offers it first in `HELLO`).
+pub const PROTO_VERSION: u32 = 2;
+/// Oldest protocol version this crate still speaks (client fallback, server acceptance).
+pub const PROTO_VERSION_MIN: u32 = 1;
 /// Longest accepted line in bytes, terminator excluded.
 pub const MAX_LINE: usize = 1024;
 /// Largest accepted sequence number; sequence numbers run `1..=MAX_SEQ`, `0` is reserved.
@@ -96,6 +98,8 @@ pub enum ErrorCode {
     Timeout,
     /// `E_MODE`: controller is not in the remote/automatic mode required.
     Mode,
+    /// `E_STOPPED` (v2): the request was ended by an out-of-band `STOP`.
+    Stopped,
     /// Any other `E_*` code sent by a newer server.
     Other(String),
 }
@@ -113,6 +117,7 @@ impl ErrorCode {
             ErrorCode::Limit => "E_LIMIT",
             ErrorCode::Timeout => "E_TIMEOUT",
             ErrorCode::Mode => "E_MODE",
+            ErrorCode::Stopped => "E_STOPPED",
             ErrorCode::Other(s) => s,
         }
     }
@@ -129,6 +134,7 @@ impl ErrorCode {
             "E_LIMIT" => ErrorCode::Limit,
             "E_TIMEOUT" => ErrorCode::Timeout,
             "E_MODE" => ErrorCode::Mode,
+            "E_STOPPED" => ErrorCode::Stopped,
             other if is_code_token(other) => ErrorCode::Other(other.to_string()),
             other => {
                 return Err(CodecError::BadValue {

@@ -13,7 +13,7 @@ mod lineio;
 pub mod server;
 pub mod sim;
 
-pub use client::{ClientConfig, RobotClient, RobotError};
+pub use client::{ClientConfig, RobotClient, RobotError, StopHandle};
 pub use codec::{ErrorCode, Event, EventName, Identity, Pose, RobotState};
 pub use server::{serve, serve_connection, BackendError, FaultConfig, FaultHandle, RobotBackend};
 pub use sim::{SimpleBackend, SimpleConfig};

@@ -3,22 +3,30 @@
 //! The server owns the protocol (framing, sequencing, the one-client rule, `WAIT` polling,
 //! events); the backend owns the physics. A second client receives
 //! `* EVT REFUSED another client is connected` and is closed at once.
+//!
+//! A session reads its socket all the time; the executing request runs in its own task. After
+//! `HELLO 2` a `STOP` is handled at once (the backend stops, a running `WAIT` answers
+//! `E_STOPPED`, then the `STOP` answers `OK`) and any other request meanwhile gets `E_BUSY`.
+//! Before that, or after `HELLO 1`, lines are handled strictly in order (v1).
 
+use std::collections::VecDeque;
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex as StdMutex};
 use std::time::{Duration, Instant};
 
-use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
 use tokio::net::TcpListener;
-use tokio::sync::{watch, Mutex};
+use tokio::sync::{oneshot, watch, Mutex};
+use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
 
 use crate::codec::{
     self, format_event, format_reply, parse_request, request_seq, ErrorCode, Event, EventName,
     Identity, Pose, Reply, ReplyBody, Request, RobotState, MAX_LINE, PROTO_VERSION,
+    PROTO_VERSION_MIN,
 };
-use crate::lineio::{read_line_limited, LineRead};
+use crate::lineio::{LineRead, LineReader};
 
 /// Rejection from a backend, turned into `ERR <code> <text>`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -125,6 +133,8 @@ pub struct FaultConfig {
     pub non_numeric: u32,
     /// After accepting the next N `MOVEJ`, reply OK and then drop the connection.
     pub disconnect_during_move: u32,
+    /// Highest protocol version `HELLO` accepts (set 1 to act as a v1 server).
+    pub max_proto_version: u32,
 }
 
 impl Default for FaultConfig {
@@ -148,6 +158,7 @@ impl Default for FaultConfig {
             wrong_seq: 0,
             non_numeric: 0,
             disconnect_during_move: 0,
+            max_proto_version: PROTO_VERSION,
         }
     }
 }
@@ -169,6 +180,7 @@ impl std::fmt::Debug for FaultConfig {
             .field("wrong_seq", &self.wrong_seq)
             .field("non_numeric", &self.non_numeric)
             .field("disconnect_during_move", &self.disconnect_during_move)
+            .field("max_proto_version", &self.max_proto_version)
             .finish_non_exhaustive()
     }
 }
@@ -200,8 +212,13 @@ const MONITOR_PERIOD: Duration = Duration::from_millis(10);
 const WRITE_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a new client waits for the previous session to end before being refused.
 const REFUSE_GRACE: Duration = Duration::from_millis(200);
+/// Lines a v1 peer may queue behind the executing request before the server closes.
+const V1_BACKLOG_MAX: usize = 16;
 
 /// Accept clients on `listener` until `shutdown` completes; one client at a time.
+///
+/// Cancel-safe in the sense that dropping it drops the listener and aborts the session tasks,
+/// whose connections close (and whose sessions stop motion) when the tasks are dropped.
 pub async fn serve(
     listener: TcpListener,
     backend: Arc<dyn RobotBackend>,
@@ -216,7 +233,7 @@ pub async fn serve(
         tokio::select! {
             _ = &mut shutdown => break,
             acc = listener.accept() => {
-                let (mut stream, peer) = match acc {
+                let (stream, peer) = match acc {
                     Ok(x) => x,
                     Err(e) => {
                         warn!(error = %e, "accept failed");
@@ -225,38 +242,14 @@ pub async fn serve(
                     }
                 };
                 let _ = stream.set_nodelay(true);
-                let backend = backend.clone();
-                let faults = faults.clone();
-                let busy = busy.clone();
-                let stop_rx = stop_rx.clone();
-                tasks.spawn(async move {
-                    // Grace period: the previous session may still be winding down.
-                    let mut got = false;
-                    for _ in 0..(REFUSE_GRACE.as_millis() / 10) {
-                        if !busy.swap(true, Ordering::SeqCst) {
-                            got = true;
-                            break;
-                        }
-                        tokio::time::sleep(Duration::from_millis(10)).await;
-                    }
-                    if !got {
-                        info!(%peer, "refusing second client");
-                        let line = format_event(&Event {
-                            name: EventName::Refused,
-                            data: "another client is connected".into(),
-                        });
-                        let _ = tokio::time::timeout(WRITE_TIMEOUT, async {
-                            stream.write_all(line.as_bytes()).await?;
-                            stream.shutdown().await
-                        })
-                        .await;
-                        return;
-                    }
-                    info!(%peer, "client connected");
-                    serve_connection(stream, backend, faults, stop_rx).await;
-                    busy.store(false, Ordering::SeqCst);
-                    info!(%peer, "client disconnected");
-                });
+                tasks.spawn(session_or_refusal(
+                    stream,
+                    peer,
+                    backend.clone(),
+                    faults.clone(),
+                    busy.clone(),
+                    stop_rx.clone(),
+                ));
             }
             Some(_) = tasks.join_next(), if !tasks.is_empty() => {}
         }
@@ -270,12 +263,95 @@ pub async fn serve(
     Ok(())
 }
 
-type SharedWriter<W> = Arc<Mutex<W>>;
-
-struct Conn<W> {
-    writer: SharedWriter<W>,
+/// Serve `stream` if the one-client slot frees up within the grace period, else refuse it.
+async fn session_or_refusal(
+    mut stream: tokio::net::TcpStream,
+    peer: std::net::SocketAddr,
     backend: Arc<dyn RobotBackend>,
     faults: FaultHandle,
+    busy: Arc<AtomicBool>,
+    stop_rx: watch::Receiver<bool>,
+) {
+    if !claim_client_slot(&busy).await {
+        info!(%peer, "refusing second client");
+        let line = format_event(&Event {
+            name: EventName::Refused,
+            data: "another client is connected".into(),
+        });
+        let _ = tokio::time::timeout(WRITE_TIMEOUT, async {
+            stream.write_all(line.as_bytes()).await?;
+            stream.shutdown().await
+        })
+        .await;
+        return;
+    }
+    info!(%peer, "client connected");
+    serve_connection(stream, backend, faults, stop_rx).await;
+    busy.store(false, Ordering::SeqCst);
+    info!(%peer, "client disconnected");
+}
+
+/// Take the one-client slot, polling for up to [`REFUSE_GRACE`] while the previous session ends.
+async fn claim_client_slot(busy: &AtomicBool) -> bool {
+    for _ in 0..(REFUSE_GRACE.as_millis() / 10) {
+        if !busy.swap(true, Ordering::SeqCst) {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    false
+}
+
+type SharedWriter<W> = Arc<Mutex<W>>;
+
+/// The arm as the protocol sees it: backend plus injected faults.
+#[derive(Clone)]
+struct Arm {
+    backend: Arc<dyn RobotBackend>,
+    faults: FaultHandle,
+}
+
+impl Arm {
+    /// E-stop from the hardware or the injected latch.
+    fn estop(&self) -> bool {
+        self.backend.estop() || lock_faults(&self.faults).estop_latched
+    }
+
+    /// Joints as reported on the wire: true joints plus injected offset and hook (degrees).
+    fn readback(&self) -> [f64; 6] {
+        let mut j = self.backend.joints_deg();
+        let f = lock_faults(&self.faults);
+        for (v, o) in j.iter_mut().zip(f.joint_offset_deg) {
+            *v += o;
+        }
+        match &f.joint_hook {
+            Some(h) => h(j),
+            None => j,
+        }
+    }
+}
+
+/// Writes whole reply lines (with reply faults applied) under the connection's writer lock.
+struct Replier<W> {
+    writer: SharedWriter<W>,
+    faults: FaultHandle,
+}
+
+impl<W> Clone for Replier<W> {
+    fn clone(&self) -> Self {
+        Self {
+            writer: self.writer.clone(),
+            faults: self.faults.clone(),
+        }
+    }
+}
+
+/// Per-session protocol state (everything a request may change).
+struct Conn<W> {
+    out: Replier<W>,
+    arm: Arm,
+    /// Negotiated protocol version; 1 until a `HELLO 2` succeeds.
+    version: u32,
     speed_pct: f64,
     /// Set by the never_settle fault for the current move.
     never_settle: bool,
@@ -287,6 +363,9 @@ struct Conn<W> {
 
 /// Serve one client on any stream until it disconnects, sends a malformed line, or `stop` flips.
 /// Motion is always stopped when this returns.
+///
+/// Cancel-safe for the arm: if the future is dropped the connection closes; call
+/// [`RobotBackend::stop`] yourself if you drop it while a motion may run.
 pub async fn serve_connection<S>(
     stream: S,
     backend: Arc<dyn RobotBackend>,
@@ -296,7 +375,7 @@ pub async fn serve_connection<S>(
     S: AsyncRead + AsyncWrite + Send + 'static,
 {
     let (rd, wr) = tokio::io::split(stream);
-    let mut rd = BufReader::new(rd);
+    let mut lines = LineReader::new(BufReader::new(rd), MAX_LINE);
     let writer = Arc::new(Mutex::new(wr));
     let power_cmd_off = Arc::new(AtomicBool::new(!backend.power()));
     let monitor = tokio::spawn(monitor_task(
@@ -305,68 +384,34 @@ pub async fn serve_connection<S>(
         faults.clone(),
         power_cmd_off.clone(),
     ));
-    let mut conn = Conn {
-        writer,
-        backend: backend.clone(),
-        faults,
-        speed_pct: 100.0,
-        never_settle: false,
-        extra_settle: Duration::ZERO,
-        power_cmd_off,
+    let mut session = Session {
+        conn: Conn {
+            out: Replier {
+                writer: writer.clone(),
+                faults: faults.clone(),
+            },
+            arm: Arm {
+                backend: backend.clone(),
+                faults,
+            },
+            version: PROTO_VERSION_MIN,
+            speed_pct: 100.0,
+            never_settle: false,
+            extra_settle: Duration::ZERO,
+            power_cmd_off,
+        },
+        inflight: None,
+        backlog: VecDeque::new(),
     };
-    loop {
-        let read = tokio::select! {
-            r = read_line_limited(&mut rd, MAX_LINE) => r,
-            _ = stopped(&mut stop) => break,
-        };
-        let line = match read {
-            Ok(LineRead::Line(l)) => l,
-            Ok(LineRead::Eof) => break,
-            Ok(LineRead::Bad(why)) => {
-                let _ = conn.send_err(0, ErrorCode::Syntax, &why).await;
-                break;
-            }
-            Err(e) => {
-                debug!(error = %e, "read failed");
-                break;
-            }
-        };
-        let req = match parse_request(&line) {
-            Ok(r) => r,
-            Err(e) if e.is_args_error() => {
-                let seq = request_seq(&line).unwrap_or(0);
-                if conn
-                    .send_err(seq, ErrorCode::Args, &e.to_string())
-                    .await
-                    .is_err()
-                {
-                    break;
-                }
-                continue;
-            }
-            Err(e) => {
-                let seq = request_seq(&line).unwrap_or(0);
-                let _ = conn.send_err(seq, ErrorCode::Syntax, &e.to_string()).await;
-                break;
-            }
-        };
-        // Handle the request while watching for EOF so that a vanished client stops motion.
-        let outcome = tokio::select! {
-            o = conn.handle(req.seq, req.request) => o,
-            _ = eof_watch(&mut rd) => Outcome::Close,
-            _ = stopped(&mut stop) => Outcome::Close,
-        };
-        if matches!(outcome, Outcome::Close) {
-            break;
-        }
-    }
+    session.run(&mut lines, &mut stop).await;
+    drop(session);
     backend.stop();
     monitor.abort();
-    let mut w = conn.writer.lock().await;
+    let mut w = writer.lock().await;
     let _ = tokio::time::timeout(Duration::from_millis(200), w.shutdown()).await;
 }
 
-/// Resolves once `stop` holds `true`; never resolves if its sender is gone.
+/// Resolves once `stop` holds `true`; never resolves if its sender is gone. Cancel-safe.
 async fn stopped(stop: &mut watch::Receiver<bool>) {
     loop {
         if *stop.borrow_and_update() {
@@ -375,14 +420,6 @@ async fn stopped(stop: &mut watch::Receiver<bool>) {
         if stop.changed().await.is_err() {
             std::future::pending::<()>().await;
         }
-    }
-}
-
-/// Resolves when the peer closes (EOF or error); stays pending if the peer sends data early.
-async fn eof_watch<R: tokio::io::AsyncBufRead + Unpin>(rd: &mut R) {
-    match rd.fill_buf().await {
-        Ok([]) | Err(_) => {}
-        Ok(_) => std::future::pending::<()>().await,
     }
 }
 
@@ -428,6 +465,7 @@ async fn monitor_task<W: AsyncWrite + Send + Unpin>(
     }
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Outcome {
     Continue,
     Close,
@@ -444,142 +482,354 @@ impl From<BackendError> for Answer {
     }
 }
 
+/// What executing a request yields: an answer now, or a `WAIT` still to run.
+enum Step {
+    Done(Answer),
+    Wait(WaitJob),
+}
+
+/// A running request: the future executes what is left of it and writes its reply.
+struct InFlight {
+    /// Ends a running `WAIT` with `E_STOPPED` (v2 out-of-band `STOP`).
+    cancel: Option<oneshot::Sender<()>>,
+    /// Set just before the reply is written: from then on the peer may send its next request,
+    /// which must wait for this one to finish rather than get `E_BUSY`.
+    replying: Arc<AtomicBool>,
+    /// Its own task, so that it progresses (and releases the writer lock) while the session
+    /// loop awaits something else.
+    task: JoinHandle<Outcome>,
+}
+
+impl InFlight {
+    /// Wait for the request to finish. Cancel-safe.
+    async fn finished(&mut self) -> Outcome {
+        (&mut self.task).await.unwrap_or(Outcome::Close)
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Resolves when the in-flight request has replied; pending when none runs. Cancel-safe.
+async fn in_flight_done(inflight: &mut Option<InFlight>) -> Outcome {
+    match inflight {
+        Some(f) => f.finished().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// One client session: reads the socket all the time, one request executing at a time.
+struct Session<W> {
+    conn: Conn<W>,
+    inflight: Option<InFlight>,
+    /// v1: lines that arrived while a request executed, handled in order afterwards.
+    backlog: VecDeque<String>,
+}
+
+enum Input {
+    Read(std::io::Result<LineRead>),
+    Done(Outcome),
+    Shutdown,
+}
+
+impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
+    /// Run until the peer leaves, sends a malformed line, a write fails or `stop` flips.
+    async fn run<R>(&mut self, lines: &mut LineReader<R>, stop: &mut watch::Receiver<bool>)
+    where
+        R: tokio::io::AsyncBufRead + Unpin,
+    {
+        loop {
+            if self.inflight.is_none() {
+                if let Some(line) = self.backlog.pop_front() {
+                    if self.on_line(line).await == Outcome::Close {
+                        return;
+                    }
+                    continue;
+                }
+            }
+            // The socket is read while a request executes: a v2 STOP or a vanished peer is
+            // seen at once (all three futures are cancel-safe).
+            let input = tokio::select! {
+                r = lines.next_line() => Input::Read(r),
+                o = in_flight_done(&mut self.inflight) => Input::Done(o),
+                _ = stopped(stop) => Input::Shutdown,
+            };
+            let outcome = match input {
+                Input::Read(Ok(LineRead::Line(l))) => self.on_line(l).await,
+                Input::Read(Ok(LineRead::Bad(why))) => {
+                    let _ = self.conn.out.error(0, ErrorCode::Syntax, &why).await;
+                    Outcome::Close
+                }
+                Input::Read(Ok(LineRead::Eof)) | Input::Shutdown => Outcome::Close,
+                Input::Read(Err(e)) => {
+                    debug!(error = %e, "read failed");
+                    Outcome::Close
+                }
+                Input::Done(o) => {
+                    self.inflight = None;
+                    o
+                }
+            };
+            if outcome == Outcome::Close {
+                return;
+            }
+        }
+    }
+
+    /// Handle one received line according to the negotiated version.
+    async fn on_line(&mut self, line: String) -> Outcome {
+        if self.inflight.is_some() && self.conn.version < 2 {
+            // v1: strictly in order; the line waits for the executing request.
+            if self.backlog.len() >= V1_BACKLOG_MAX {
+                warn!("v1 peer queued too many requests; closing");
+                return Outcome::Close;
+            }
+            self.backlog.push_back(line);
+            return Outcome::Continue;
+        }
+        let req = match parse_request(&line) {
+            Ok(r) => r,
+            Err(e) => return self.reject_line(&line, e).await,
+        };
+        if self.finish_replying().await == Outcome::Close {
+            return Outcome::Close;
+        }
+        if self.inflight.is_none() {
+            self.inflight = Some(self.conn.start(req.seq, req.request));
+            return Outcome::Continue;
+        }
+        if matches!(req.request, Request::Stop) {
+            return self.stop_out_of_band(req.seq).await;
+        }
+        let text = format!(
+            "{} not accepted: another request is executing",
+            req.request.verb()
+        );
+        self.conn
+            .out
+            .reply(req.seq, Answer::Err(ErrorCode::Busy, text), false)
+            .await
+    }
+
+    /// If the executing request has started writing its reply, let it finish (the peer may
+    /// legitimately send its next request as soon as it has read that reply).
+    async fn finish_replying(&mut self) -> Outcome {
+        match self.inflight.take_if(|f| f.replying.load(Ordering::SeqCst)) {
+            Some(mut f) => f.finished().await,
+            None => Outcome::Continue,
+        }
+    }
+
+    /// `E_ARGS` (connection stays) or `E_SYNTAX` (connection closes) for an unparseable line.
+    async fn reject_line(&mut self, line: &str, e: codec::CodecError) -> Outcome {
+        let seq = request_seq(line).unwrap_or(0);
+        if e.is_args_error() {
+            self.conn
+                .out
+                .reply(seq, Answer::Err(ErrorCode::Args, e.to_string()), false)
+                .await
+        } else {
+            let _ = self
+                .conn
+                .out
+                .error(seq, ErrorCode::Syntax, &e.to_string())
+                .await;
+            Outcome::Close
+        }
+    }
+
+    /// v2 `STOP` while a request executes: halt the arm now, let the executing request answer
+    /// (a `WAIT` with `E_STOPPED`), then answer the `STOP`.
+    async fn stop_out_of_band(&mut self, seq: u32) -> Outcome {
+        self.conn.halt();
+        if let Some(mut f) = self.inflight.take() {
+            if let Some(c) = f.cancel.take() {
+                let _ = c.send(());
+            }
+            if f.finished().await == Outcome::Close {
+                return Outcome::Close;
+            }
+        }
+        self.conn.out.reply(seq, Answer::Ok(vec![]), false).await
+    }
+}
+
 impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
-    fn estop(&self) -> bool {
-        self.backend.estop() || lock_faults(&self.faults).estop_latched
+    /// Stop motion and clear the per-move settle faults.
+    fn halt(&mut self) {
+        self.arm.backend.stop();
+        self.never_settle = false;
+        self.extra_settle = Duration::ZERO;
     }
 
-    fn readback(&self) -> [f64; 6] {
-        let mut j = self.backend.joints_deg();
-        let f = lock_faults(&self.faults);
-        for (v, o) in j.iter_mut().zip(f.joint_offset_deg) {
-            *v += o;
-        }
-        match &f.joint_hook {
-            Some(h) => h(j),
-            None => j,
-        }
-    }
-
-    async fn handle(&mut self, seq: u32, req: Request) -> Outcome {
+    /// Execute `req` and return the future that finishes it and writes its reply.
+    fn start(&mut self, seq: u32, req: Request) -> InFlight {
         let numeric = matches!(req, Request::Joints | Request::Pose | Request::Wait { .. });
         let is_move = matches!(req, Request::MoveJ { .. });
-        let answer = self.execute(req).await;
-        let accepted_move = is_move && matches!(answer, Answer::Ok(_));
-        let sent = match answer {
-            Answer::Ok(data) => self.send(seq, ReplyBody::Ok(data), numeric).await,
-            Answer::Err(code, text) => self.send(seq, ReplyBody::Err { code, text }, false).await,
+        let step = self.execute(req);
+        let (cancel_tx, cancel_rx) = oneshot::channel();
+        let replying = Arc::new(AtomicBool::new(false));
+        let out = self.out.clone();
+        let faults = self.arm.faults.clone();
+        let flag = replying.clone();
+        let fut = async move {
+            let answer = match step {
+                Step::Done(a) => a,
+                Step::Wait(job) => job.run(cancel_rx).await,
+            };
+            let accepted_move = is_move && matches!(answer, Answer::Ok(_));
+            if out.reply_marking(seq, answer, numeric, &flag).await == Outcome::Close {
+                return Outcome::Close;
+            }
+            if accepted_move && take(&mut lock_faults(&faults).disconnect_during_move) {
+                info!("fault: dropping connection during move");
+                return Outcome::Close;
+            }
+            Outcome::Continue
         };
-        if sent.is_err() {
-            return Outcome::Close;
+        InFlight {
+            cancel: Some(cancel_tx),
+            replying,
+            task: tokio::spawn(fut),
         }
-        if accepted_move && take(&mut lock_faults(&self.faults).disconnect_during_move) {
-            info!("fault: dropping connection during move");
-            return Outcome::Close;
-        }
-        Outcome::Continue
     }
 
-    async fn execute(&mut self, req: Request) -> Answer {
-        match req {
-            Request::Hello { proto_ver } => {
-                if proto_ver != PROTO_VERSION {
-                    return Answer::Err(
-                        ErrorCode::Args,
-                        format!("unsupported protocol version {proto_ver}, server speaks {PROTO_VERSION}"),
-                    );
-                }
-                Answer::Ok(codec::format_identity(&self.backend.identity()))
-            }
+    fn execute(&mut self, req: Request) -> Step {
+        Step::Done(match req {
+            Request::Hello { proto_ver } => self.hello(proto_ver),
             Request::Ping => Answer::Ok(vec![]),
-            Request::State => {
-                let settled = self.backend.is_settled() && !self.never_settle;
-                Answer::Ok(codec::format_state(&RobotState {
-                    power: self.backend.power(),
-                    mode: self.backend.mode(),
-                    estop: self.estop(),
-                    moving: self.backend.is_moving(),
-                    settled,
-                }))
-            }
-            Request::Power(on) => {
-                if on && self.estop() {
-                    return Answer::Err(ErrorCode::EStop, "emergency stop active".into());
-                }
-                if !on {
-                    self.power_cmd_off.store(true, Ordering::SeqCst);
-                    self.backend.stop();
-                }
-                match self.backend.set_power(on) {
-                    Ok(()) => {
-                        if on {
-                            self.power_cmd_off.store(false, Ordering::SeqCst);
-                        }
-                        Answer::Ok(vec![])
-                    }
-                    Err(e) => e.into(),
-                }
-            }
-            Request::Speed { pct } => {
-                if !(pct > 0.0 && pct <= 100.0) {
-                    return Answer::Err(ErrorCode::Args, format!("speed {pct} not in (0, 100]"));
-                }
-                self.speed_pct = pct;
-                Answer::Ok(vec![])
-            }
+            Request::State => self.state(),
+            Request::Power(on) => self.power(on),
+            Request::Speed { pct } => self.speed(pct),
             Request::MoveJ {
                 joints_deg,
                 vel_pct,
             } => self.movej(joints_deg, vel_pct),
-            Request::Wait { timeout_ms } => self.wait(timeout_ms.min(MAX_WAIT_MS)).await,
-            Request::Joints => Answer::Ok(codec::format_joints(&self.readback())),
-            Request::Pose => match self.backend.pose() {
+            Request::Wait { timeout_ms } => {
+                return Step::Wait(WaitJob {
+                    arm: self.arm.clone(),
+                    never_settle: self.never_settle,
+                    extra_settle: self.extra_settle,
+                    timeout_ms: timeout_ms.min(MAX_WAIT_MS),
+                })
+            }
+            Request::Joints => Answer::Ok(codec::format_joints(&self.arm.readback())),
+            Request::Pose => match self.arm.backend.pose() {
                 Ok(p) => Answer::Ok(codec::format_pose(&p)),
                 Err(e) => e.into(),
             },
             Request::Stop => {
-                self.backend.stop();
-                self.never_settle = false;
-                self.extra_settle = Duration::ZERO;
+                self.halt();
                 Answer::Ok(vec![])
             }
+        })
+    }
+
+    /// `HELLO`: accept any version in `PROTO_VERSION_MIN..=PROTO_VERSION` and switch to it.
+    fn hello(&mut self, proto_ver: u32) -> Answer {
+        let max = lock_faults(&self.arm.faults)
+            .max_proto_version
+            .clamp(PROTO_VERSION_MIN, PROTO_VERSION);
+        if !(PROTO_VERSION_MIN..=max).contains(&proto_ver) {
+            return Answer::Err(
+                ErrorCode::Args,
+                format!(
+                    "unsupported protocol version {proto_ver}, server speaks \
+                     {PROTO_VERSION_MIN}..{max}"
+                ),
+            );
+        }
+        self.version = proto_ver;
+        Answer::Ok(codec::format_identity(&self.arm.backend.identity()))
+    }
+
+    fn state(&self) -> Answer {
+        let b = &self.arm.backend;
+        Answer::Ok(codec::format_state(&RobotState {
+            power: b.power(),
+            mode: b.mode(),
+            estop: self.arm.estop(),
+            moving: b.is_moving(),
+            settled: b.is_settled() && !self.never_settle,
+        }))
+    }
+
+    fn power(&mut self, on: bool) -> Answer {
+        if on && self.arm.estop() {
+            return Answer::Err(ErrorCode::EStop, "emergency stop active".into());
+        }
+        if !on {
+            self.power_cmd_off.store(true, Ordering::SeqCst);
+            self.arm.backend.stop();
+        }
+        match self.arm.backend.set_power(on) {
+            Ok(()) => {
+                if on {
+                    self.power_cmd_off.store(false, Ordering::SeqCst);
+                }
+                Answer::Ok(vec![])
+            }
+            Err(e) => e.into(),
         }
     }
 
+    fn speed(&mut self, pct: f64) -> Answer {
+        if !(pct > 0.0 && pct <= 100.0) {
+            return Answer::Err(ErrorCode::Args, format!("speed {pct} not in (0, 100]"));
+        }
+        self.speed_pct = pct;
+        Answer::Ok(vec![])
+    }
+
+    /// `MOVEJ` checks in the order PROTOCOL.md §3 gives, then starts the move.
     fn movej(&mut self, joints_deg: [f64; 6], vel_pct: Option<f64>) -> Answer {
         let vel = vel_pct.unwrap_or(100.0);
+        if let Err(a) = self.movej_refusal(&joints_deg, vel) {
+            return a;
+        }
+        let backend = &self.arm.backend;
+        if let Err(e) = backend.start_move(joints_deg, vel * self.speed_pct / 100.0) {
+            return e.into();
+        }
+        self.arm_move_faults();
+        Answer::Ok(vec![])
+    }
+
+    /// The first reason to refuse a `MOVEJ`, if any.
+    fn movej_refusal(&self, joints_deg: &[f64; 6], vel: f64) -> Result<(), Answer> {
+        let b = &self.arm.backend;
+        let refuse = |code, text: &str| Err(Answer::Err(code, text.to_string()));
         if !(vel > 0.0 && vel <= 100.0) {
-            return Answer::Err(ErrorCode::Args, format!("velocity {vel} not in (0, 100]"));
+            return refuse(ErrorCode::Args, &format!("velocity {vel} not in (0, 100]"));
         }
-        if self.estop() {
-            return Answer::Err(ErrorCode::EStop, "emergency stop active".into());
+        if self.arm.estop() {
+            return refuse(ErrorCode::EStop, "emergency stop active");
         }
-        if !self.backend.remote_ok() {
-            return Answer::Err(ErrorCode::Mode, "controller not in remote mode".into());
+        if !b.remote_ok() {
+            return refuse(ErrorCode::Mode, "controller not in remote mode");
         }
-        if !self.backend.power() {
-            return Answer::Err(ErrorCode::Power, "arm power is off".into());
+        if !b.power() {
+            return refuse(ErrorCode::Power, "arm power is off");
         }
-        if self.backend.is_moving() {
-            return Answer::Err(ErrorCode::Busy, "a motion is in progress".into());
+        if b.is_moving() {
+            return refuse(ErrorCode::Busy, "a motion is in progress");
         }
         {
-            let mut f = lock_faults(&self.faults);
+            let mut f = lock_faults(&self.arm.faults);
             if take(&mut f.reject_movej) {
                 let code = f.reject_code.clone();
-                return Answer::Err(code, "injected fault".into());
+                return refuse(code, "injected fault");
             }
         }
-        if let Err(e) = self.backend.check_target(&joints_deg) {
-            return e.into();
-        }
-        if let Err(e) = self
-            .backend
-            .start_move(joints_deg, vel * self.speed_pct / 100.0)
-        {
-            return e.into();
-        }
-        let mut f = lock_faults(&self.faults);
+        b.check_target(joints_deg).map_err(Answer::from)
+    }
+
+    /// Apply the per-move faults (never/slow settle, delayed E-stop) to the move just started.
+    fn arm_move_faults(&mut self) {
+        let mut f = lock_faults(&self.arm.faults);
         self.never_settle = take(&mut f.never_settle);
         self.extra_settle = if take(&mut f.slow_settle) {
             f.slow_settle_extra
@@ -588,90 +838,130 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
         };
         if take(&mut f.estop_during_move) {
             let delay = f.estop_delay;
-            let faults = self.faults.clone();
-            let backend = self.backend.clone();
+            let arm = self.arm.clone();
             tokio::spawn(async move {
                 tokio::time::sleep(delay).await;
-                backend.stop();
-                lock_faults(&faults).estop_latched = true;
+                arm.backend.stop();
+                lock_faults(&arm.faults).estop_latched = true;
                 info!("fault: E-stop injected");
             });
         }
-        Answer::Ok(vec![])
     }
+}
 
-    async fn wait(&mut self, timeout_ms: u64) -> Answer {
-        let deadline = Instant::now() + Duration::from_millis(timeout_ms);
+/// A `WAIT` being executed: polls the arm until settled, E-stop, power loss, timeout or STOP.
+struct WaitJob {
+    arm: Arm,
+    never_settle: bool,
+    extra_settle: Duration,
+    timeout_ms: u64,
+}
+
+impl WaitJob {
+    /// Poll every [`POLL`]; `cancel` firing (or its sender going away) ends it with `E_STOPPED`.
+    async fn run(self, mut cancel: oneshot::Receiver<()>) -> Answer {
+        let deadline = Instant::now() + Duration::from_millis(self.timeout_ms);
         let mut settled_since: Option<Instant> = None;
         loop {
-            if self.estop() {
-                return Answer::Err(ErrorCode::EStop, "emergency stop during motion".into());
+            if let Some(a) = self.fault_answer() {
+                return a;
             }
-            if !self.backend.power() {
-                return Answer::Err(ErrorCode::Power, "arm power lost during motion".into());
-            }
-            let settled =
-                !self.never_settle && self.backend.is_settled() && !self.backend.is_moving();
-            if settled {
-                let since = *settled_since.get_or_insert_with(Instant::now);
-                if since.elapsed() >= self.extra_settle {
-                    return Answer::Ok(codec::format_joints(&self.readback()));
-                }
-            } else {
-                settled_since = None;
+            if self.settled(&mut settled_since) {
+                return Answer::Ok(codec::format_joints(&self.arm.readback()));
             }
             if Instant::now() >= deadline {
-                return Answer::Err(
-                    ErrorCode::Timeout,
-                    format!("not settled after {timeout_ms} ms"),
-                );
+                let text = format!("not settled after {} ms", self.timeout_ms);
+                return Answer::Err(ErrorCode::Timeout, text);
             }
-            tokio::time::sleep(POLL).await;
+            tokio::select! {
+                _ = tokio::time::sleep(POLL) => {}
+                _ = &mut cancel => {
+                    return Answer::Err(ErrorCode::Stopped, "motion stopped by STOP".into());
+                }
+            }
         }
     }
 
-    async fn send_err(&mut self, seq: u32, code: ErrorCode, text: &str) -> std::io::Result<()> {
-        self.send(
-            seq,
-            ReplyBody::Err {
-                code,
-                text: text.to_string(),
-            },
-            false,
-        )
-        .await
+    /// `E_ESTOP` / `E_POWER` when the arm lost its E-stop chain or power during the wait.
+    fn fault_answer(&self) -> Option<Answer> {
+        if self.arm.estop() {
+            return Some(Answer::Err(
+                ErrorCode::EStop,
+                "emergency stop during motion".into(),
+            ));
+        }
+        if !self.arm.backend.power() {
+            return Some(Answer::Err(
+                ErrorCode::Power,
+                "arm power lost during motion".into(),
+            ));
+        }
+        None
     }
 
-    async fn send(&mut self, seq: u32, body: ReplyBody, numeric: bool) -> std::io::Result<()> {
-        let (delay, split, extra, wrong, nonnum) = {
-            let mut f = lock_faults(&self.faults);
-            let delay = take(&mut f.delay_reply).then_some(f.reply_delay);
-            let split = take(&mut f.split_reply);
-            let extra = take(&mut f.extra_line).then(|| f.extra_line_text.clone());
-            let wrong = take(&mut f.wrong_seq);
-            let has_data = matches!(&body, ReplyBody::Ok(d) if d.len() >= 2);
-            let nonnum = numeric && has_data && take(&mut f.non_numeric);
-            (delay, split, extra, wrong, nonnum)
+    /// True once the arm has been settled for the extra settle time (slow_settle fault).
+    fn settled(&self, since: &mut Option<Instant>) -> bool {
+        let b = &self.arm.backend;
+        if self.never_settle || !b.is_settled() || b.is_moving() {
+            *since = None;
+            return false;
+        }
+        since.get_or_insert_with(Instant::now).elapsed() >= self.extra_settle
+    }
+}
+
+impl<W: AsyncWrite + Send + Unpin> Replier<W> {
+    /// Write the reply to `seq`; [`Outcome::Close`] when the write failed.
+    async fn reply(&self, seq: u32, answer: Answer, numeric: bool) -> Outcome {
+        self.reply_marking(seq, answer, numeric, &AtomicBool::new(false))
+            .await
+    }
+
+    /// [`Self::reply`], setting `replying` right before the first byte is written.
+    async fn reply_marking(
+        &self,
+        seq: u32,
+        answer: Answer,
+        numeric: bool,
+        replying: &AtomicBool,
+    ) -> Outcome {
+        let body = match answer {
+            Answer::Ok(data) => ReplyBody::Ok(data),
+            Answer::Err(code, text) => ReplyBody::Err { code, text },
         };
-        if let Some(d) = delay {
+        match self.send(seq, body, numeric, replying).await {
+            Ok(()) => Outcome::Continue,
+            Err(_) => Outcome::Close,
+        }
+    }
+
+    /// Write an error reply (used right before closing).
+    async fn error(&self, seq: u32, code: ErrorCode, text: &str) -> std::io::Result<()> {
+        let body = ReplyBody::Err {
+            code,
+            text: text.to_string(),
+        };
+        self.send(seq, body, false, &AtomicBool::new(false)).await
+    }
+
+    /// Write one reply line, applying the armed reply faults; the line is written whole under
+    /// the writer lock so replies and events never interleave.
+    async fn send(
+        &self,
+        seq: u32,
+        body: ReplyBody,
+        numeric: bool,
+        replying: &AtomicBool,
+    ) -> std::io::Result<()> {
+        let faults = ReplyFaults::take(&self.faults, &body, numeric);
+        if let Some(d) = faults.delay {
             tokio::time::sleep(d).await;
         }
-        let mut body = body;
-        if nonnum {
-            if let ReplyBody::Ok(d) = &mut body {
-                d[1] = "abc".into();
-            }
-        }
-        let seq = if wrong { (seq + 1000) % 1_000_000 } else { seq };
-        let mut out = String::new();
-        if let Some(x) = extra {
-            out.push_str(&x);
-            out.push('\n');
-        }
-        out.push_str(&format_reply(&Reply { seq, body }));
+        let out = faults.render(seq, body);
         let mut w = self.writer.lock().await;
+        replying.store(true, Ordering::SeqCst);
         let write = async {
-            if split {
+            if faults.split {
                 for chunk in out.as_bytes().chunks(3) {
                     w.write_all(chunk).await?;
                     w.flush().await?;
@@ -685,5 +975,49 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
         tokio::time::timeout(WRITE_TIMEOUT, write)
             .await
             .unwrap_or_else(|_| Err(std::io::ErrorKind::TimedOut.into()))
+    }
+}
+
+/// Reply faults taken (one-shot) for one reply.
+struct ReplyFaults {
+    delay: Option<Duration>,
+    split: bool,
+    extra: Option<String>,
+    wrong_seq: bool,
+    non_numeric: bool,
+}
+
+impl ReplyFaults {
+    fn take(faults: &FaultHandle, body: &ReplyBody, numeric: bool) -> Self {
+        let mut f = lock_faults(faults);
+        let has_data = matches!(body, ReplyBody::Ok(d) if d.len() >= 2);
+        Self {
+            delay: take(&mut f.delay_reply).then_some(f.reply_delay),
+            split: take(&mut f.split_reply),
+            extra: take(&mut f.extra_line).then(|| f.extra_line_text.clone()),
+            wrong_seq: take(&mut f.wrong_seq),
+            non_numeric: numeric && has_data && take(&mut f.non_numeric),
+        }
+    }
+
+    /// The bytes to send: optional extra line, then the (possibly corrupted) reply.
+    fn render(&self, seq: u32, mut body: ReplyBody) -> String {
+        if self.non_numeric {
+            if let ReplyBody::Ok(d) = &mut body {
+                d[1] = "abc".into();
+            }
+        }
+        let seq = if self.wrong_seq {
+            (seq + 1000) % 1_000_000
+        } else {
+            seq
+        };
+        let mut out = String::new();
+        if let Some(x) = &self.extra {
+            out.push_str(x);
+            out.push('\n');
+        }
+        out.push_str(&format_reply(&Reply { seq, body }));
+        out
     }
 }

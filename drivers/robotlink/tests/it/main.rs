@@ -1,5 +1,6 @@
 //! Integration tests for robotlink (single test binary).
 
+mod abort;
 mod common;
 mod corpus;
 mod faults;

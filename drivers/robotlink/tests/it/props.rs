@@ -42,6 +42,7 @@ fn code() -> impl Strategy<Value = ErrorCode> {
         Just(ErrorCode::Limit),
         Just(ErrorCode::Timeout),
         Just(ErrorCode::Mode),
+        Just(ErrorCode::Stopped),
         "E_[A-Z0-9_]{1,10}".prop_filter_map("known", |s| {
             match ErrorCode::parse(&s) {
                 Ok(ErrorCode::Other(o)) => Some(ErrorCode::Other(o)),
