@@ -11,8 +11,8 @@ use crate::ascii::{
     format_reply, parse_command, parse_steps, CodecError, Reply, ReplyFlag, Status, Warning,
     WarningClass,
 };
-use crate::product::SIM_PRODUCT;
 use crate::lineio::{read_line_until, LineRead};
+use crate::product::SIM_PRODUCT;
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())

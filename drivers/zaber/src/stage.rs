@@ -178,7 +178,9 @@ pub fn safety_error(flags: &[Warning]) -> Option<StageError> {
     if flags.contains(&Warning::WL) {
         return Some(StageError::UnexpectedLimit);
     }
-    flags.contains(&Warning::WM).then_some(StageError::Displaced)
+    flags
+        .contains(&Warning::WM)
+        .then_some(StageError::Displaced)
 }
 
 /// Stage configuration.
@@ -298,8 +300,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         let firmware = self.query(0, "version").await?;
         let peripheral_id = self.query_u32(axis, "peripheral.id").await?;
         let resolution = self.query_u32(axis, "resolution").await?;
-        let (k, product) =
-            resolve_scale(device_id, peripheral_id, resolution, self.cfg.microsteps_per_mm)?;
+        let (k, product) = resolve_scale(
+            device_id,
+            peripheral_id,
+            resolution,
+            self.cfg.microsteps_per_mm,
+        )?;
         let ident = StageIdentity {
             device_id,
             peripheral_id,

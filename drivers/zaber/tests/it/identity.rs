@@ -43,7 +43,10 @@ async fn device_scope_replies_on_axis_0_and_axis_scope_on_the_axis() {
     let mut raw = Raw::new(sim(false));
     // zaber-motion's first words on a port: an empty command to every device.
     let r = raw.ask("/0 0 00").await;
-    assert_eq!((r.device, r.axis, r.id, r.flag), (1, 0, Some(0), ReplyFlag::Ok));
+    assert_eq!(
+        (r.device, r.axis, r.id, r.flag),
+        (1, 0, Some(0), ReplyFlag::Ok)
+    );
     let r = raw.ask("/1 0 01 get device.id").await;
     assert_eq!((r.axis, r.id), (0, Some(1)));
     assert_eq!(r.data, SIM_PRODUCT.device_id.to_string());
@@ -54,7 +57,10 @@ async fn device_scope_replies_on_axis_0_and_axis_scope_on_the_axis() {
     assert_eq!((r.axis, r.data.as_str()), (0, "64"));
     // A device setting read on an axis is refused.
     let r = raw.ask("/1 1 get device.id").await;
-    assert_eq!((r.axis, r.flag, r.data.as_str()), (1, ReplyFlag::Rejected, "BADAXIS"));
+    assert_eq!(
+        (r.axis, r.flag, r.data.as_str()),
+        (1, ReplyFlag::Rejected, "BADAXIS")
+    );
     let r = raw.ask("/1 home").await;
     assert_eq!((r.axis, r.flag), (0, ReplyFlag::Ok));
 }
@@ -74,18 +80,31 @@ async fn the_gets_a_client_sends_on_detect_and_identify_are_answered() {
         ("/1 0 get comm.packet.size.max", "80".into()),
         ("/1 0 get system.axiscount", "1".into()),
         ("/1 1 get resolution", "64".into()),
-        ("/1 1 get peripheral.id", SIM_PRODUCT.peripheral_id.to_string()),
-        ("/1 1 get peripheralid", SIM_PRODUCT.peripheral_id.to_string()),
+        (
+            "/1 1 get peripheral.id",
+            SIM_PRODUCT.peripheral_id.to_string(),
+        ),
+        (
+            "/1 1 get peripheralid",
+            SIM_PRODUCT.peripheral_id.to_string(),
+        ),
         ("/1 1 get limit.min", "0".into()),
         ("/1 1 get limit.max", "2100000".into()),
         ("/1 1 get maxspeed", "32768000".into()),
     ];
     for (cmd, data) in want {
         let r = raw.ask(cmd).await;
-        assert_eq!((r.flag, r.data.as_str()), (ReplyFlag::Ok, data.as_str()), "{cmd}");
+        assert_eq!(
+            (r.flag, r.data.as_str()),
+            (ReplyFlag::Ok, data.as_str()),
+            "{cmd}"
+        );
     }
     let r = raw.ask("/1 1 get no.such.setting").await;
-    assert_eq!((r.flag, r.data.as_str()), (ReplyFlag::Rejected, "BADCOMMAND"));
+    assert_eq!(
+        (r.flag, r.data.as_str()),
+        (ReplyFlag::Rejected, "BADCOMMAND")
+    );
 }
 
 #[tokio::test]
@@ -102,7 +121,10 @@ async fn microsteps_per_mm_come_from_the_device() {
     let id = st.identify().await.unwrap();
     assert_eq!(id.device_id, SIM_PRODUCT.device_id);
     assert_eq!(id.peripheral_id, SIM_PRODUCT.peripheral_id);
-    assert_eq!((id.serial, id.firmware.as_str(), id.resolution), (123_456, "7.38", 128));
+    assert_eq!(
+        (id.serial, id.firmware.as_str(), id.resolution),
+        (123_456, "7.38", 128)
+    );
     assert_eq!(id.product, Some(SIM_PRODUCT.name));
     let k = 128.0 / SIM_PRODUCT.full_step_mm;
     assert!((id.microsteps_per_mm - k).abs() < 1e-9);
@@ -152,7 +174,10 @@ async fn a_configured_scale_that_disagrees_with_the_device_is_refused() {
             microsteps_per_mm: Some(bad),
             ..stage_cfg()
         };
-        let e = ZaberStage::from_stream(a, cfg).identify().await.unwrap_err();
+        let e = ZaberStage::from_stream(a, cfg)
+            .identify()
+            .await
+            .unwrap_err();
         assert!(matches!(e, StageError::InvalidConfig(_)), "{bad}: {e:?}");
     }
 }
@@ -171,7 +196,13 @@ async fn an_unknown_product_without_a_configured_scale_is_refused() {
     let mut st = ZaberStage::from_stream(a, stage_cfg());
     let e = st.move_abs_mm(1.0).await.unwrap_err();
     assert!(
-        matches!(e, StageError::UnknownProduct { device_id: 1234, .. }),
+        matches!(
+            e,
+            StageError::UnknownProduct {
+                device_id: 1234,
+                ..
+            }
+        ),
         "{e:?}"
     );
 }

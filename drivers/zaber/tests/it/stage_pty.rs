@@ -105,7 +105,10 @@ async fn fault_interrupt_overshoot() {
         } => {
             assert_eq!(target_mm, 20.0);
             let expected = 20.0 + 100.0 / STEPS_PER_MM;
-            assert!((readback_mm - expected).abs() <= 1.0 / STEPS_PER_MM, "{readback_mm}");
+            assert!(
+                (readback_mm - expected).abs() <= 1.0 / STEPS_PER_MM,
+                "{readback_mm}"
+            );
         }
         e => panic!("{e:?}"),
     }
