@@ -21,8 +21,10 @@ pub struct ZaberStageAdapterConfig {
     pub device: u8,
     /// Axis number.
     pub axis: u8,
-    /// Microsteps per millimetre (device-specific).
-    pub microsteps_per_mm: f64,
+    /// Expected microsteps per millimetre: `None` (default) takes the device's, derived from
+    /// its `device.id`/`peripheral.id`/`resolution` (`zaber::product`); `Some` is a cross-check
+    /// refused on a mismatch, or the scale of a product the table does not know.
+    pub microsteps_per_mm: Option<f64>,
     /// Lowest allowed target (mm).
     pub min_mm: f64,
     /// Highest allowed target (mm).
@@ -90,9 +92,14 @@ pub fn classify_zaber(e: &StageError) -> FaultKind {
         StageError::NotHomed | StageError::Rejected(_) | StageError::OutOfRange(_) => {
             FaultKind::Rejected
         }
-        StageError::Fault(_) | StageError::Interrupted | StageError::Mismatch { .. } => {
-            FaultKind::Device
-        }
+        StageError::Fault(_)
+        | StageError::Interrupted
+        | StageError::Mismatch { .. }
+        | StageError::UnexpectedLimit
+        | StageError::Displaced
+        | StageError::UnknownProduct { .. }
+        | StageError::ScaleMismatch { .. }
+        | StageError::InvalidConfig(_) => FaultKind::Device,
         StageError::Timeout(_) => FaultKind::Timeout,
         StageError::Checksum | StageError::Protocol(_) => FaultKind::Protocol,
         StageError::Disconnected | StageError::Io(_) => FaultKind::Disconnected,
@@ -153,13 +160,32 @@ impl Stage for ZaberStageAdapter {
         false
     }
 
+    /// Open the port, clear stale warnings, identify the device (scale, cross-check) and home.
+    /// Cancel-safe for the protocol (the driver drains a late reply); a drop may leave homing
+    /// under way.
     async fn prepare(&mut self) -> Result<(), CellError> {
         let home = self.cfg.home_on_prepare;
         let stage = self.open()?;
-        // Clear latched fault flags first: the driver reports a latched F* on the reply to
-        // `warnings clear` itself, which would fail the homing sequence once.
-        let r = stage.command("warnings clear").await;
-        r.map_err(|e| self.after(e))?;
+        // Clear latched flags first (stale ones from before this session; homing re-references
+        // the axis), then read the device's identity and scale.
+        let r = stage.clear_warnings().await;
+        let cleared = r.map_err(|e| self.after(e))?;
+        if !cleared.is_empty() {
+            warn!(?cleared, "stage warnings cleared at prepare");
+        }
+        let stage = self.open()?;
+        let r = stage.identify().await;
+        let id = r.map_err(|e| self.after(e))?;
+        info!(
+            device_id = id.device_id,
+            peripheral_id = id.peripheral_id,
+            serial = id.serial,
+            firmware = %id.firmware,
+            resolution = id.resolution,
+            microsteps_per_mm = id.microsteps_per_mm,
+            product = id.product.unwrap_or("(configured scale)"),
+            "stage identified"
+        );
         let stage = self.open()?;
         if home {
             let r = stage.home().await;
@@ -168,6 +194,8 @@ impl Stage for ZaberStageAdapter {
         Ok(())
     }
 
+    /// Move and read back; WL/WM/F* are `FaultKind::Device` (the campaign pauses).
+    /// Cancel-safe for the protocol; a drop may leave the move under way.
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
         let stage = self.open()?;
         let r = stage.move_abs_mm(position_mm).await;

@@ -110,8 +110,10 @@ pub struct StageSection {
     pub serial_path: String,
     /// Serial device of the gauge (real manual_gauge mode).
     pub gauge_path: String,
-    /// Microsteps per mm of the motorised stage.
-    pub microsteps_per_mm: f64,
+    /// Optional cross-check of the motorised stage's microsteps per mm: the driver derives the
+    /// scale from the device (device.id, peripheral.id, resolution) and refuses to start when
+    /// this differs by more than 0.01 %; for a product it does not know, this is the scale.
+    pub microsteps_per_mm: Option<f64>,
     /// Stage position at P1 (mm).
     pub p1_mm: f64,
     /// Travel from P1 to P2 (mm).
@@ -129,7 +131,7 @@ impl Default for StageSection {
             kind: StageMode::Serial,
             serial_path: "/dev/ttyUSB0".into(),
             gauge_path: "/dev/ttyUSB1".into(),
-            microsteps_per_mm: 20_997.0,
+            microsteps_per_mm: None,
             p1_mm: 0.0,
             travel_mm: 10.0,
             axis: "+y".into(),

@@ -62,7 +62,8 @@ pub struct SimWorldConfig {
     pub stage_repeatability_mm: f64,
     /// How the stage is simulated.
     pub stage_mode: StageMode,
-    /// Zaber microsteps per mm.
+    /// Zaber microsteps per mm: resolution / 0.003048 mm (the simulated product's full step),
+    /// so a whole resolution (64 → 20997.375…); the simulated device reports that resolution.
     pub stage_microsteps_per_mm: f64,
     /// Stage travel (mm), from 0.
     pub stage_max_mm: f64,

@@ -160,7 +160,8 @@ impl RunningSimCell {
         let move_ms = (travel_s * 1000.0 * 2.0) as u64 + 2000;
         Some(ZaberStageAdapterConfig {
             port,
-            microsteps_per_mm: self.config.stage_microsteps_per_mm,
+            // A cross-check: the adapter derives the scale from the simulated device.
+            microsteps_per_mm: Some(self.config.stage_microsteps_per_mm),
             min_mm: 0.0,
             max_mm: self.config.stage_max_mm,
             tolerance_mm: 2.0 / self.config.stage_microsteps_per_mm,
@@ -218,6 +219,24 @@ async fn bind(port: u16, what: &str) -> Result<TcpListener, SimError> {
         })
 }
 
+/// Microstep resolution that gives the simulated Zaber product `microsteps_per_mm`: the device
+/// reports a whole number of microsteps per full step, so k × full step must be one.
+fn sim_stage_resolution(microsteps_per_mm: f64) -> Result<u32, SimError> {
+    let full_step_mm = zaber::product::SIM_PRODUCT.full_step_mm;
+    let r = (microsteps_per_mm * full_step_mm).round();
+    if r < 1.0
+        || r > f64::from(u16::MAX)
+        || ((r / full_step_mm - microsteps_per_mm) / microsteps_per_mm).abs() > 1e-9
+    {
+        return Err(SimError::Config(format!(
+            "stage_microsteps_per_mm {microsteps_per_mm} is not a whole resolution of the simulated \
+             Zaber stage (resolution / {full_step_mm} mm, e.g. 64 → {})",
+            64.0 / full_step_mm
+        )));
+    }
+    Ok(r as u32)
+}
+
 /// Start the simulated cell for `robot` (the nominal model): binds the tracker and robot
 /// listeners on 127.0.0.1, opens the ptys, and runs until `shutdown` completes or the returned
 /// handle is stopped or dropped. Must be called inside a Tokio runtime.
@@ -244,8 +263,13 @@ pub async fn start_cell(
     }
     let truth = true_model(&robot, &cfg)?;
     let k = cfg.stage_microsteps_per_mm;
+    let resolution = match cfg.stage_mode {
+        StageMode::Zaber => sim_stage_resolution(k)?,
+        StageMode::Manual => 0,
+    };
     let stage_sim = (cfg.stage_mode == StageMode::Zaber).then(|| {
         let sim = StageSim::new(StageSimConfig {
+            resolution,
             limit_min: 0,
             limit_max: (cfg.stage_max_mm * k).round() as i64,
             speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,

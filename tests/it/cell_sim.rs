@@ -412,6 +412,50 @@ async fn stage_faults_surface_as_their_kind_and_recover() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stage_limit_and_displacement_warnings_are_device_faults() {
+    bounded(async {
+        let c = cell(SimWorldConfig::default()).await;
+        let mut s = ZaberStageAdapter::new(c.stage_config().expect("zaber stage"));
+        let sim = c.stage_sim.clone().expect("stage sim");
+        s.prepare().await.expect("home");
+        sim.faults().limit_hit = 1;
+        let e = s.move_to(9.0).await.expect_err("WL");
+        assert_eq!(e.kind, FaultKind::Device, "{e}");
+        assert!(e.message.contains("WL"), "{e}");
+        s.prepare().await.expect("prepare clears and re-homes");
+        s.move_to(9.0).await.expect("move after WL");
+        sim.faults().displace = 1;
+        let e = s.move_to(8.0).await.expect_err("WM");
+        assert_eq!(e.kind, FaultKind::Device, "{e}");
+        assert!(e.message.contains("WM"), "{e}");
+        s.move_to(8.0).await.expect("move after WM was reported");
+        c.stop().await;
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stage_scale_comes_from_the_device_and_a_wrong_one_is_refused() {
+    bounded(async {
+        let c = cell(SimWorldConfig::default()).await;
+        let mut cfg = c.stage_config().expect("zaber stage");
+        cfg.microsteps_per_mm = None;
+        let mut s = ZaberStageAdapter::new(cfg.clone());
+        s.prepare().await.expect("scale from the device");
+        let back = s.move_to(7.5).await.expect("move");
+        assert!((back - 7.5).abs() < 1e-4, "{back}");
+        s.close(); // the port is exclusive
+        cfg.microsteps_per_mm = Some(1000.0);
+        let mut wrong = ZaberStageAdapter::new(cfg);
+        let e = wrong.prepare().await.expect_err("mismatch refused");
+        assert_eq!(e.kind, FaultKind::Device, "{e}");
+        assert!(e.message.contains("disagrees"), "{e}");
+        c.stop().await;
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn manual_stage_asks_validates_and_aborts() {
     bounded(async {
         let exact = Arc::new(ScriptedPrompter::exact());

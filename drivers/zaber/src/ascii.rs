@@ -236,6 +236,10 @@ impl Warning {
     pub const WR: Warning = Warning(*b"WR");
     /// Movement interrupted.
     pub const NI: Warning = Warning(*b"NI");
+    /// Unexpected limit trigger: a move stopped on a limit sensor it did not expect.
+    pub const WL: Warning = Warning(*b"WL");
+    /// Displaced when stationary: the idle axis was pushed off its position.
+    pub const WM: Warning = Warning(*b"WM");
 
     /// Parse two characters.
     pub fn parse(t: &str) -> Result<Self, CodecError> {

@@ -4,6 +4,7 @@
 //! * [`stage::ZaberStage`]: async stage client (`home`, `move_abs_mm`, `position_mm`, ...).
 //! * [`gauge::GaugeClient`]: async request/response gauge client (`read_mm`).
 //! * [`sim`]: stage and gauge simulators over any async stream, with fault injection.
+//! * [`product`]: which device facts give mm per microstep (known products).
 //! * [`pty`]: run a simulator on a pseudo-terminal so the real serial code path is exercised.
 //! * [`serial`]: serial port settings and opening via tokio-serial.
 #![warn(missing_docs)]
@@ -11,6 +12,7 @@
 pub mod ascii;
 pub mod gauge;
 mod lineio;
+pub mod product;
 pub mod pty;
 pub mod serial;
 pub mod sim;
@@ -18,4 +20,4 @@ pub mod stage;
 
 pub use gauge::{GaugeClient, GaugeConfig, GaugeError};
 pub use serial::SerialSettings;
-pub use stage::{StageConfig, StageError, ZaberStage};
+pub use stage::{StageConfig, StageError, StageIdentity, ZaberStage};

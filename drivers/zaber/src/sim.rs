@@ -9,8 +9,10 @@ use tracing::debug;
 
 use crate::ascii::{
     format_reply, parse_command, parse_steps, CodecError, Reply, ReplyFlag, Status, Warning,
+    WarningClass,
 };
 use crate::lineio::{read_line_until, LineRead};
+use crate::product::SIM_PRODUCT;
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
@@ -35,6 +37,18 @@ pub struct StageSimConfig {
     pub device: u8,
     /// Axis number.
     pub axis: u8,
+    /// `device.id` the device reports (default: [`SIM_PRODUCT`]).
+    pub device_id: u32,
+    /// `peripheral.id` the axis reports (default: [`SIM_PRODUCT`]).
+    pub peripheral_id: u32,
+    /// `system.serial` the device reports.
+    pub serial: u32,
+    /// `version` the device reports (`major.minor`).
+    pub version: String,
+    /// `version.build` the device reports.
+    pub build: u32,
+    /// `resolution`: microsteps per full step (X-series default 64).
+    pub resolution: u32,
     /// Travel limits in microsteps (inclusive).
     pub limit_min: i64,
     /// Travel limits in microsteps (inclusive).
@@ -55,6 +69,12 @@ impl Default for StageSimConfig {
         Self {
             device: 1,
             axis: 1,
+            device_id: SIM_PRODUCT.device_id,
+            peripheral_id: SIM_PRODUCT.peripheral_id,
+            serial: 123_456,
+            version: "7.38".into(),
+            build: 18_000,
+            resolution: 64,
             limit_min: 0,
             limit_max: 2_100_000,
             speed_steps_s: 20_000_000.0,
@@ -82,6 +102,15 @@ pub struct StageFaults {
     pub lose_home: u32,
     /// The next N moves are interrupted half-way (NI latched until `warnings clear`).
     pub interrupt: u32,
+    /// The next N moves stop two thirds of the way on a limit sensor (WL, unexpected limit
+    /// trigger, latched until `warnings clear`).
+    pub limit_hit: u32,
+    /// At the next N commands that find the axis stationary, it is first pushed
+    /// `displace_steps` off its position (WM, displaced when stationary, latched until
+    /// `warnings clear`).
+    pub displace: u32,
+    /// Offset applied by `displace`, microsteps.
+    pub displace_steps: i64,
     /// The next N moves end `overshoot_steps` off target (read-back ≠ target).
     pub overshoot: u32,
     /// Offset applied by `overshoot`, microsteps.
@@ -106,6 +135,9 @@ impl Default for StageFaults {
             fault_flag: "FF".into(),
             lose_home: 0,
             interrupt: 0,
+            limit_hit: 0,
+            displace: 0,
+            displace_steps: 200,
             overshoot: 0,
             overshoot_steps: 50,
             bad_checksum: 0,
@@ -122,7 +154,7 @@ struct Move {
     to: i64,
     start: Instant,
     duration: Duration,
-    /// Final flag to latch when the move ends (NI / fault).
+    /// Flag to latch when the move ends (NI / WL / fault).
     end_flag: Option<Warning>,
     stall: bool,
 }
@@ -132,7 +164,52 @@ struct StageState {
     pos: i64,
     homed: bool,
     mv: Option<Move>,
-    flag: Warning,
+    /// Latched warning flags in the order they were raised (WR while not homed).
+    flags: Vec<Warning>,
+}
+
+/// Severity rank of a flag: faults over warnings over notices.
+fn severity(w: Warning) -> u8 {
+    match w.class() {
+        WarningClass::Fault => 3,
+        WarningClass::Warning => 2,
+        WarningClass::Notice => 1,
+        WarningClass::None | WarningClass::Other => 0,
+    }
+}
+
+/// The flag a reply shows: the most severe latched one (the earliest among equals).
+fn top_flag(flags: &[Warning]) -> Warning {
+    flags.iter().fold(Warning::NONE, |best, w| {
+        if severity(*w) > severity(best) {
+            *w
+        } else {
+            best
+        }
+    })
+}
+
+fn latch(flags: &mut Vec<Warning>, w: Warning) {
+    if !flags.contains(&w) {
+        flags.push(w);
+    }
+}
+
+/// `warnings` data: two-digit count, then the flags (`00`, `02 WR NI`).
+fn warnings_data(flags: &[Warning]) -> String {
+    let mut s = format!("{:02}", flags.len());
+    for f in flags {
+        s.push(' ');
+        s.push_str(f.as_str());
+    }
+    s
+}
+
+/// Whether a setting belongs to the device (read at axis 0) or to an axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scope {
+    Device,
+    Axis,
 }
 
 /// Simulated stage; cheap to clone (shared state). The handle gives the integrator the position.
@@ -150,10 +227,10 @@ impl StageSim {
             pos: 0,
             homed: cfg.homed,
             mv: None,
-            flag: if cfg.homed {
-                Warning::NONE
+            flags: if cfg.homed {
+                Vec::new()
             } else {
-                Warning::WR
+                vec![Warning::WR]
             },
         };
         Self {
@@ -161,6 +238,11 @@ impl StageSim {
             st: Arc::new(Mutex::new(st)),
             faults: Arc::new(Mutex::new(StageFaults::default())),
         }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &StageSimConfig {
+        &self.cfg
     }
 
     /// Lock the fault configuration to arm faults.
@@ -179,7 +261,7 @@ impl StageSim {
         if now >= m.start + m.duration {
             st.pos = m.to;
             if let Some(f) = m.end_flag {
-                st.flag = f;
+                latch(&mut st.flags, f);
             }
             st.mv = None;
         } else {
@@ -207,12 +289,20 @@ impl StageSim {
         lock(&self.st).homed
     }
 
-    fn reply(&self, id: Option<u8>, flag: ReplyFlag, data: String) -> Reply {
+    /// The latched warning flags, in the order they were raised.
+    pub fn warning_flags(&self) -> Vec<Warning> {
+        let mut st = lock(&self.st);
+        self.update(&mut st);
+        st.flags.clone()
+    }
+
+    /// A reply on `axis` (0 for a device-scope command) with the current status and flag.
+    fn reply(&self, axis: u8, id: Option<u8>, flag: ReplyFlag, data: String) -> Reply {
         let mut st = lock(&self.st);
         self.update(&mut st);
         Reply {
             device: self.cfg.device,
-            axis: self.cfg.axis,
+            axis,
             id,
             flag,
             status: if st.mv.is_some() {
@@ -220,7 +310,7 @@ impl StageSim {
             } else {
                 Status::Idle
             },
-            warning: st.flag,
+            warning: top_flag(&st.flags),
             data,
         }
     }
@@ -235,6 +325,10 @@ impl StageSim {
         if take(&mut f.interrupt) {
             to = st.pos + (to - st.pos) / 2;
             end_flag = Some(Warning::NI);
+        }
+        if take(&mut f.limit_hit) {
+            to = st.pos + (to - st.pos) * 2 / 3;
+            end_flag = Some(Warning::WL);
         }
         if take(&mut f.fault) {
             to = st.pos + (to - st.pos) / 3;
@@ -257,22 +351,66 @@ impl StageSim {
         });
     }
 
-    /// Execute one parsed command and return the reply (None = not addressed to us).
+    /// Apply the one-shot faults that act before a command: lost home, displacement.
+    fn pre_command_faults(&self) {
+        let mut f = lock(&self.faults);
+        let mut st = lock(&self.st);
+        self.update(&mut st);
+        if take(&mut f.lose_home) {
+            st.homed = false;
+            latch(&mut st.flags, Warning::WR);
+        }
+        if st.mv.is_none() && take(&mut f.displace) {
+            st.pos += f.displace_steps;
+            latch(&mut st.flags, Warning::WM);
+        }
+    }
+
+    /// Value and scope of a readable setting (`None`: no such setting).
+    fn setting(&self, name: &str) -> Option<(Scope, String)> {
+        let c = &self.cfg;
+        let dev = |v: String| Some((Scope::Device, v));
+        let axis = |v: String| Some((Scope::Axis, v));
+        match name {
+            "device.id" | "deviceid" => dev(c.device_id.to_string()),
+            "system.serial" => dev(c.serial.to_string()),
+            "version" => dev(c.version.clone()),
+            "version.build" => dev(c.build.to_string()),
+            "comm.packet.size.max" => dev("80".into()),
+            "system.axiscount" => dev("1".into()),
+            "pos" => axis(self.position_steps().to_string()),
+            "resolution" => axis(c.resolution.to_string()),
+            "peripheral.id" | "peripheralid" => axis(c.peripheral_id.to_string()),
+            "limit.min" => axis(c.limit_min.to_string()),
+            "limit.max" => axis(c.limit_max.to_string()),
+            // ASCII velocity unit: microsteps per 1/1.6384 s.
+            "maxspeed" => axis(format!("{:.0}", c.speed_steps_s * 1.6384)),
+            _ => None,
+        }
+    }
+
+    /// `get <name>` on `axis`: device settings at axis 0 only; axis settings at axis 0 answer
+    /// for every axis (one here).
+    fn get(&self, axis: u8, id: Option<u8>, name: &str) -> Reply {
+        match self.setting(name) {
+            None => self.reply(axis, id, ReplyFlag::Rejected, "BADCOMMAND".into()),
+            Some((Scope::Device, _)) if axis != 0 => {
+                self.reply(axis, id, ReplyFlag::Rejected, "BADAXIS".into())
+            }
+            Some((_, v)) => self.reply(axis, id, ReplyFlag::Ok, v),
+        }
+    }
+
+    /// Execute one parsed command and return the reply (None = not addressed to us). Replies
+    /// carry the command's axis: 0 for device scope, like a real X-series device.
     fn execute(&self, dev: u8, axis: u8, id: Option<u8>, text: &str) -> Option<Reply> {
         if dev != 0 && dev != self.cfg.device {
             return None;
         }
         if axis != 0 && axis != self.cfg.axis {
-            return Some(self.reply(id, ReplyFlag::Rejected, "BADAXIS".into()));
+            return Some(self.reply(axis, id, ReplyFlag::Rejected, "BADAXIS".into()));
         }
-        {
-            let mut f = lock(&self.faults);
-            if take(&mut f.lose_home) {
-                let mut st = lock(&self.st);
-                st.homed = false;
-                st.flag = Warning::WR;
-            }
-        }
+        self.pre_command_faults();
         let words: Vec<&str> = text.split_whitespace().collect();
         let is_motion = matches!(words.first(), Some(&"move") | Some(&"home"));
         if is_motion {
@@ -280,65 +418,58 @@ impl StageSim {
             if take(&mut f.reject) {
                 let reason = f.reject_reason.clone();
                 drop(f);
-                return Some(self.reply(id, ReplyFlag::Rejected, reason));
+                return Some(self.reply(axis, id, ReplyFlag::Rejected, reason));
             }
         }
+        let ok = |data: &str| Some(self.reply(axis, id, ReplyFlag::Ok, data.into()));
+        let rejected = |why: &str| Some(self.reply(axis, id, ReplyFlag::Rejected, why.into()));
         match words.as_slice() {
-            [] => Some(self.reply(id, ReplyFlag::Ok, "0".into())),
+            [] => ok("0"),
             ["home"] => {
                 {
                     let mut st = lock(&self.st);
                     st.homed = true;
-                    if st.flag == Warning::WR {
-                        st.flag = Warning::NONE;
-                    }
+                    st.flags.retain(|w| *w != Warning::WR);
                 }
                 self.start_move(0);
-                Some(self.reply(id, ReplyFlag::Ok, "0".into()))
+                ok("0")
             }
             ["move", "abs", n] => {
                 let Ok(to) = parse_steps(n) else {
-                    return Some(self.reply(id, ReplyFlag::Rejected, "BADDATA".into()));
+                    return rejected("BADDATA");
                 };
                 if !lock(&self.st).homed {
-                    return Some(self.reply(id, ReplyFlag::Rejected, "BADCOMMAND".into()));
+                    return rejected("BADCOMMAND");
                 }
                 if to < self.cfg.limit_min || to > self.cfg.limit_max {
-                    return Some(self.reply(id, ReplyFlag::Rejected, "BADDATA".into()));
+                    return rejected("BADDATA");
                 }
                 self.start_move(to);
-                Some(self.reply(id, ReplyFlag::Ok, "0".into()))
+                ok("0")
             }
             ["stop"] => {
                 let mut st = lock(&self.st);
                 self.update(&mut st);
                 if st.mv.take().is_some() {
-                    st.flag = Warning::NI;
+                    latch(&mut st.flags, Warning::NI);
                 }
                 drop(st);
-                Some(self.reply(id, ReplyFlag::Ok, "0".into()))
+                ok("0")
             }
-            ["get", "pos"] => {
-                let p = self.position_steps();
-                Some(self.reply(id, ReplyFlag::Ok, p.to_string()))
-            }
+            ["get", name] => Some(self.get(axis, id, name)),
             ["warnings"] => {
-                let w = lock(&self.st).flag;
-                let data = if w == Warning::NONE {
-                    "00".to_string()
-                } else {
-                    format!("01 {w}")
-                };
-                Some(self.reply(id, ReplyFlag::Ok, data))
+                let data = warnings_data(&self.warning_flags());
+                ok(&data)
             }
             ["warnings", "clear"] => {
-                let r = self.reply(id, ReplyFlag::Ok, "0".into());
+                // Replies with the flags it clears; WR persists until homed.
+                let r = ok(&warnings_data(&self.warning_flags()));
                 let mut st = lock(&self.st);
-                // WR persists until homed.
-                st.flag = if st.homed { Warning::NONE } else { Warning::WR };
-                Some(r)
+                let homed = st.homed;
+                st.flags.retain(|w| *w == Warning::WR && !homed);
+                r
             }
-            _ => Some(self.reply(id, ReplyFlag::Rejected, "BADCOMMAND".into())),
+            _ => rejected("BADCOMMAND"),
         }
     }
 }
@@ -362,7 +493,7 @@ where
             Ok(c) => c,
             Err(CodecError::Checksum { .. }) => {
                 // Real devices reply RJ with BADDATA? They drop the command; reply a rejection.
-                let r = sim.reply(None, ReplyFlag::Rejected, "BADDATA".into());
+                let r = sim.reply(0, None, ReplyFlag::Rejected, "BADDATA".into());
                 io.get_mut()
                     .write_all(format_reply(&r, sim.cfg.checksum_replies).as_bytes())
                     .await?;

@@ -11,6 +11,7 @@ use crate::ascii::{
     Status, Warning, WarningClass,
 };
 use crate::lineio::{read_line, LineRead};
+use crate::product;
 
 /// Typed stage error.
 #[derive(Debug, thiserror::Error)]
@@ -53,6 +54,133 @@ pub enum StageError {
     /// I/O error (opening or using the port).
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
+    /// The axis stopped on a limit sensor it did not expect (`WL`): a stage fault.
+    #[error("unexpected limit trigger (WL): the axis stopped on a limit sensor")]
+    UnexpectedLimit,
+    /// The idle axis was pushed off its position (`WM`): a stage fault.
+    #[error("axis displaced while stationary (WM)")]
+    Displaced,
+    /// The device's identity is not in [`crate::product::KNOWN_PRODUCTS`] and no
+    /// `microsteps_per_mm` is configured, so mm cannot be converted to microsteps.
+    #[error(
+        "unknown stage product (device.id {device_id}, peripheral.id {peripheral_id}): \
+         add it to zaber::product or configure microsteps_per_mm"
+    )]
+    UnknownProduct {
+        /// `device.id` read from the device.
+        device_id: u32,
+        /// `peripheral.id` read from the axis.
+        peripheral_id: u32,
+    },
+    /// The configured `microsteps_per_mm` disagrees with the one the device's facts give.
+    #[error(
+        "configured microsteps_per_mm {configured} disagrees with the device: {product} at \
+         resolution {resolution} has {device} microsteps per mm"
+    )]
+    ScaleMismatch {
+        /// Configured value.
+        configured: f64,
+        /// Value derived from the device.
+        device: f64,
+        /// Product name from the table.
+        product: &'static str,
+        /// Microsteps per full step read from the device.
+        resolution: u32,
+    },
+    /// A configuration value is unusable (e.g. a non-positive or NaN microsteps_per_mm).
+    #[error("invalid stage configuration: {0}")]
+    InvalidConfig(String),
+}
+
+/// Largest accepted relative difference between a configured `microsteps_per_mm` and the
+/// device's (1e-4: 5 µm over 50 mm of travel).
+pub const SCALE_REL_TOLERANCE: f64 = 1e-4;
+
+/// What the device said about itself at [`ZaberStage::identify`], and the scale derived.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageIdentity {
+    /// `device.id`.
+    pub device_id: u32,
+    /// `peripheral.id` of the axis.
+    pub peripheral_id: u32,
+    /// `system.serial`.
+    pub serial: u32,
+    /// `version` (firmware `major.minor`).
+    pub firmware: String,
+    /// `resolution`: microsteps per full step.
+    pub resolution: u32,
+    /// Microsteps per mm in use.
+    pub microsteps_per_mm: f64,
+    /// Product from the table; `None` when the scale came from the configuration.
+    pub product: Option<&'static str>,
+}
+
+/// Microsteps per mm from the device's identity and resolution, cross-checked against a
+/// configured value (see [`crate::product`]); returns the scale and the product name.
+pub fn resolve_scale(
+    device_id: u32,
+    peripheral_id: u32,
+    resolution: u32,
+    configured: Option<f64>,
+) -> Result<(f64, Option<&'static str>), StageError> {
+    if let Some(c) = configured {
+        if !(c.is_finite() && c > 0.0) {
+            return Err(StageError::InvalidConfig(format!(
+                "microsteps_per_mm must be a positive number, got {c}"
+            )));
+        }
+    }
+    if resolution == 0 {
+        return Err(StageError::Protocol("device reports resolution 0".into()));
+    }
+    match (product::lookup(device_id, peripheral_id), configured) {
+        (Some(p), configured) => {
+            let k = product::microsteps_per_mm(p, resolution);
+            match configured {
+                Some(c) if ((c - k) / k).abs() > SCALE_REL_TOLERANCE => {
+                    Err(StageError::ScaleMismatch {
+                        configured: c,
+                        device: k,
+                        product: p.name,
+                        resolution,
+                    })
+                }
+                _ => Ok((k, Some(p.name))),
+            }
+        }
+        (None, Some(c)) => {
+            warn!(
+                device_id,
+                peripheral_id, "unknown stage product: using the configured microsteps_per_mm"
+            );
+            Ok((c, None))
+        }
+        (None, None) => Err(StageError::UnknownProduct {
+            device_id,
+            peripheral_id,
+        }),
+    }
+}
+
+/// Flags listed in `warnings` / `warnings clear` data (`02 WR NI`); malformed tokens skipped.
+pub fn parse_warning_list(data: &str) -> Vec<Warning> {
+    data.split_whitespace()
+        .skip(1)
+        .filter_map(|t| Warning::parse(t).ok())
+        .collect()
+}
+
+/// The stage fault among `flags`, most severe first: `F*`, then `WL`, then `WM`.
+pub fn safety_error(flags: &[Warning]) -> Option<StageError> {
+    if let Some(f) = flags.iter().find(|w| w.class() == WarningClass::Fault) {
+        return Some(StageError::Fault(f.to_string()));
+    }
+    if flags.contains(&Warning::WL) {
+        return Some(StageError::UnexpectedLimit);
+    }
+    flags
+        .contains(&Warning::WM)
+        .then_some(StageError::Displaced)
 }
 
 /// Stage configuration.
@@ -62,8 +190,10 @@ pub struct StageConfig {
     pub device: u8,
     /// Axis number (1 for a single-axis device).
     pub axis: u8,
-    /// Microsteps per millimetre (device-specific; e.g. 1 / 0.000047625 mm for many LSM stages).
-    pub microsteps_per_mm: f64,
+    /// Expected microsteps per millimetre: `None` takes the device's (see [`crate::product`]);
+    /// `Some` is a cross-check that [`ZaberStage::identify`] refuses on a mismatch beyond
+    /// [`SCALE_REL_TOLERANCE`], or the scale itself for a product not in the table.
+    pub microsteps_per_mm: Option<f64>,
     /// Lowest allowed target in mm.
     pub min_mm: f64,
     /// Highest allowed target in mm.
@@ -89,7 +219,7 @@ impl Default for StageConfig {
         Self {
             device: 1,
             axis: 1,
-            microsteps_per_mm: 1.0 / 0.000_047_625,
+            microsteps_per_mm: None,
             min_mm: 0.0,
             max_mm: 100.0,
             tolerance_mm: 0.001,
@@ -109,8 +239,11 @@ pub struct ZaberStage<S> {
     io: Option<BufReader<S>>,
     cfg: StageConfig,
     next_id: u8,
-    /// Set after a timeout or bad line: discard stale input before the next command.
+    /// Set while a command is in flight and after a timeout or bad line: discard stale input
+    /// before the next command (so a dropped command future cannot desynchronise the line).
     dirty: bool,
+    /// Identity and scale, once [`ZaberStage::identify`] ran.
+    ident: Option<StageIdentity>,
 }
 
 impl ZaberStage<tokio_serial::SerialStream> {
@@ -129,6 +262,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
             cfg,
             next_id: 0,
             dirty: false,
+            ident: None,
         }
     }
 
@@ -137,14 +271,69 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         &self.cfg
     }
 
-    /// Convert millimetres to microsteps (rounded).
-    pub fn mm_to_steps(&self, mm: f64) -> i64 {
-        (mm * self.cfg.microsteps_per_mm).round() as i64
+    /// The identity read by [`ZaberStage::identify`], if it ran.
+    pub fn identity(&self) -> Option<&StageIdentity> {
+        self.ident.as_ref()
     }
 
-    /// Convert microsteps to millimetres.
-    pub fn steps_to_mm(&self, steps: i64) -> f64 {
-        steps as f64 / self.cfg.microsteps_per_mm
+    /// Microsteps per mm in use (known once identified).
+    pub fn microsteps_per_mm(&self) -> Option<f64> {
+        self.ident.as_ref().map(|i| i.microsteps_per_mm)
+    }
+
+    /// Scale in use, identifying the device first if needed. Not cancel-safe on its own
+    /// (see [`ZaberStage::command`] for why a drop never desynchronises).
+    async fn scale(&mut self) -> Result<f64, StageError> {
+        match &self.ident {
+            Some(i) => Ok(i.microsteps_per_mm),
+            None => Ok(self.identify().await?.microsteps_per_mm),
+        }
+    }
+
+    /// Read `device.id`, `system.serial`, `version` (device scope, axis 0) and the axis's
+    /// `peripheral.id` and `resolution`, derive microsteps per mm ([`resolve_scale`]) and keep
+    /// them. Cancel-safe in the sense of [`ZaberStage::command`]: a drop leaves it unidentified.
+    pub async fn identify(&mut self) -> Result<StageIdentity, StageError> {
+        let axis = self.cfg.axis;
+        let device_id = self.query_u32(0, "device.id").await?;
+        let serial = self.query_u32(0, "system.serial").await?;
+        let firmware = self.query(0, "version").await?;
+        let peripheral_id = self.query_u32(axis, "peripheral.id").await?;
+        let resolution = self.query_u32(axis, "resolution").await?;
+        let (k, product) = resolve_scale(
+            device_id,
+            peripheral_id,
+            resolution,
+            self.cfg.microsteps_per_mm,
+        )?;
+        let ident = StageIdentity {
+            device_id,
+            peripheral_id,
+            serial,
+            firmware,
+            resolution,
+            microsteps_per_mm: k,
+            product,
+        };
+        debug!(?ident, "zaber: identified");
+        self.ident = Some(ident.clone());
+        Ok(ident)
+    }
+
+    /// `get <name>` on `axis` (0 = device scope); the data, or `Rejected`.
+    async fn query(&mut self, axis: u8, name: &str) -> Result<String, StageError> {
+        let r = self.command_at(axis, &format!("get {name}")).await?;
+        if r.flag == ReplyFlag::Rejected {
+            return Err(StageError::Rejected(format!("get {name}: {}", r.data)));
+        }
+        Ok(r.data)
+    }
+
+    async fn query_u32(&mut self, axis: u8, name: &str) -> Result<u32, StageError> {
+        let data = self.query(axis, name).await?;
+        data.trim()
+            .parse::<u32>()
+            .map_err(|_| StageError::Protocol(format!("get {name}: not a count: {data:?}")))
     }
 
     /// Discard bytes already received (partial or stale lines) after an error.
@@ -163,28 +352,39 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
     }
 
     /// Send one command to the configured device/axis and return its reply (warnings unchecked).
+    /// Cancel-safe: a dropped call leaves the client marked dirty, so the next command first
+    /// drains any late reply, and replies are matched by message id.
     pub async fn command(&mut self, text: &str) -> Result<Reply, StageError> {
+        let axis = self.cfg.axis;
+        self.command_at(axis, text).await
+    }
+
+    /// Send one device-scope command (axis 0); the reply comes on axis 0. Cancel-safe like
+    /// [`ZaberStage::command`].
+    pub async fn device_command(&mut self, text: &str) -> Result<Reply, StageError> {
+        self.command_at(0, text).await
+    }
+
+    async fn command_at(&mut self, axis: u8, text: &str) -> Result<Reply, StageError> {
         if self.dirty {
             self.discard_input().await;
-            self.dirty = false;
         }
-        let r = self.command_inner(text).await;
-        if matches!(
+        self.dirty = true;
+        let r = self.exchange(axis, text).await;
+        self.dirty = matches!(
             r,
             Err(StageError::Timeout(_)) | Err(StageError::Protocol(_)) | Err(StageError::Checksum)
-        ) {
-            self.dirty = true;
-        }
+        );
         r
     }
 
-    async fn command_inner(&mut self, text: &str) -> Result<Reply, StageError> {
+    async fn exchange(&mut self, axis: u8, text: &str) -> Result<Reply, StageError> {
         let id = self.next_id;
         self.next_id = (self.next_id + 1) % 100;
         let line = format_command(
             &Command {
                 device: self.cfg.device,
-                axis: self.cfg.axis,
+                axis,
                 id: Some(id),
                 text: text.to_string(),
             },
@@ -232,7 +432,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
                 Ok(Message::Info { text, .. }) => debug!(text, "zaber info"),
                 Ok(Message::Alert { warning, .. }) => debug!(%warning, "zaber alert"),
                 Ok(Message::Reply(r)) => {
-                    if r.device != self.cfg.device || r.axis != self.cfg.axis || r.id != Some(id) {
+                    if r.device != self.cfg.device || r.axis != axis || r.id != Some(id) {
                         // Stale reply (e.g. to a command that timed out) or another device.
                         debug!(?r, "skipping reply that does not match the command");
                         continue;
@@ -243,11 +443,12 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         }
     }
 
-    /// Send a command and check the reply: RJ → Rejected (WR → NotHomed), F* → Fault.
+    /// Send a command and check the reply: F* → Fault, WL → UnexpectedLimit, WM → Displaced,
+    /// RJ → Rejected (WR → NotHomed).
     async fn checked(&mut self, text: &str) -> Result<Reply, StageError> {
         let r = self.command(text).await?;
-        if r.warning.class() == WarningClass::Fault {
-            return Err(StageError::Fault(r.warning.to_string()));
+        if let Some(e) = safety_error(&[r.warning]) {
+            return Err(e);
         }
         if r.flag == ReplyFlag::Rejected {
             if r.warning == Warning::WR {
@@ -256,6 +457,23 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
             return Err(StageError::Rejected(r.data));
         }
         Ok(r)
+    }
+
+    /// `warnings clear`: the flags it cleared (WR stays until homed). Cancel-safe like
+    /// [`ZaberStage::command`].
+    pub async fn clear_warnings(&mut self) -> Result<Vec<Warning>, StageError> {
+        let r = self.command("warnings clear").await?;
+        if r.flag == ReplyFlag::Rejected {
+            return Err(StageError::Rejected(r.data));
+        }
+        let mut flags = parse_warning_list(&r.data);
+        if r.warning != Warning::NONE && !flags.contains(&r.warning) {
+            flags.push(r.warning);
+        }
+        if !flags.is_empty() {
+            debug!(?flags, "zaber: warnings cleared");
+        }
+        Ok(flags)
     }
 
     /// Check a status reply's warning flag during motion.
@@ -272,21 +490,32 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         }
     }
 
-    /// Home the axis and wait until idle (`home_timeout`).
+    /// Home the axis and wait until idle (`home_timeout`). A latched fault fails it; a latched
+    /// WL/WM does not (homing re-references the axis). Not cancel-safe for the motion: a drop
+    /// leaves the axis homing (the protocol stays in sync, see [`ZaberStage::command`]).
     pub async fn home(&mut self) -> Result<(), StageError> {
-        self.checked("warnings clear").await?;
+        let cleared = self.clear_warnings().await?;
+        if let Some(f) = cleared.iter().find(|w| w.class() == WarningClass::Fault) {
+            return Err(StageError::Fault(f.to_string()));
+        }
         self.checked("home").await?;
         let t = self.cfg.home_timeout;
         self.poll_until_idle(t).await
     }
 
-    /// Start an absolute move to `mm` without waiting.
+    /// Start an absolute move to `mm` without waiting. Latched F*/WL/WM flags are cleared and
+    /// reported as an error instead of moving (reported once). Cancel-safe like
+    /// [`ZaberStage::command`]; a drop may leave the move started.
     pub async fn start_move_abs_mm(&mut self, mm: f64) -> Result<(), StageError> {
         if !mm.is_finite() || mm < self.cfg.min_mm || mm > self.cfg.max_mm {
             return Err(StageError::OutOfRange(mm));
         }
-        self.checked("warnings clear").await?;
-        let steps = self.mm_to_steps(mm);
+        let k = self.scale().await?;
+        let cleared = self.clear_warnings().await?;
+        if let Some(e) = safety_error(&cleared) {
+            return Err(e);
+        }
+        let steps = (mm * k).round() as i64;
         let r = self.checked(&format!("move abs {steps}")).await?;
         if r.warning == Warning::WR {
             return Err(StageError::NotHomed);
@@ -295,6 +524,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
     }
 
     /// Move to `mm`, wait until idle (`move_timeout`), check read-back; returns the read-back mm.
+    /// Cancel-safe like [`ZaberStage::start_move_abs_mm`].
     pub async fn move_abs_mm(&mut self, mm: f64) -> Result<f64, StageError> {
         self.start_move_abs_mm(mm).await?;
         let t = self.cfg.move_timeout;
@@ -309,7 +539,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         Ok(readback_mm)
     }
 
-    /// Poll status until IDLE, failing on fault / not-homed / interrupted flags or timeout.
+    /// Poll status until IDLE, failing on fault / WL / WM / not-homed / interrupted flags or
+    /// timeout. Cancel-safe like [`ZaberStage::command`].
     pub async fn poll_until_idle(&mut self, timeout: Duration) -> Result<(), StageError> {
         let deadline = Instant::now() + timeout;
         loop {
@@ -325,19 +556,25 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         }
     }
 
-    /// Current position in mm (`get pos`).
+    /// Current position in mm (`get pos`); fails on latched F*/WL/WM. Cancel-safe like
+    /// [`ZaberStage::command`].
     pub async fn position_mm(&mut self) -> Result<f64, StageError> {
+        let k = self.scale().await?;
         let r = self.checked("get pos").await?;
         let steps = parse_steps(&r.data).map_err(|e| StageError::Protocol(e.to_string()))?;
-        Ok(self.steps_to_mm(steps))
+        Ok(steps as f64 / k)
     }
 
-    /// Stop the axis (decelerate) and wait briefly until idle; the NI notice is expected.
+    /// Stop the axis (decelerate) and wait briefly until idle; the NI notice is expected and
+    /// only F* faults fail it. Cancel-safe like [`ZaberStage::command`].
     pub async fn stop(&mut self) -> Result<(), StageError> {
-        self.checked("stop").await?;
+        let r = self.command("stop").await?;
+        if r.flag == ReplyFlag::Rejected {
+            return Err(StageError::Rejected(r.data));
+        }
         let deadline = Instant::now() + self.cfg.reply_timeout * 4;
         loop {
-            let r = self.checked("").await?;
+            let r = self.command("").await?;
             if r.warning.class() == WarningClass::Fault {
                 return Err(StageError::Fault(r.warning.to_string()));
             }

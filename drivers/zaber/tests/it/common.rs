@@ -4,11 +4,11 @@ use zaber::pty::{spawn_stage_pty, PtyDevice};
 use zaber::sim::{StageSim, StageSimConfig};
 use zaber::{StageConfig, ZaberStage};
 
-pub const STEPS_PER_MM: f64 = 1000.0;
+/// Microsteps per mm of the simulated product at its default resolution 64.
+pub const STEPS_PER_MM: f64 = 64.0 / 0.003_048;
 
 pub fn stage_cfg() -> StageConfig {
     StageConfig {
-        microsteps_per_mm: STEPS_PER_MM,
         min_mm: 0.0,
         max_mm: 5000.0,
         tolerance_mm: 0.001,

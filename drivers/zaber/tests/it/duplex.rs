@@ -5,9 +5,9 @@ use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use zaber::ascii::{append_checksum, parse_command};
 use zaber::sim::{serve_stage, StageSim, StageSimConfig};
-use zaber::{GaugeClient, GaugeConfig, GaugeError, StageError, ZaberStage};
+use zaber::{GaugeClient, GaugeConfig, GaugeError, StageConfig, StageError, ZaberStage};
 
-use crate::common::{sim, stage_cfg};
+use crate::common::{sim, stage_cfg, STEPS_PER_MM};
 
 #[tokio::test]
 async fn stage_sim_over_duplex() {
@@ -16,7 +16,7 @@ async fn stage_sim_over_duplex() {
     tokio::spawn(serve_stage(b, s.clone()));
     let mut st = ZaberStage::from_stream(a, stage_cfg());
     st.home().await.unwrap();
-    assert!((st.move_abs_mm(7.0).await.unwrap() - 7.0).abs() < 1e-9);
+    assert!((st.move_abs_mm(7.0).await.unwrap() - 7.0).abs() <= 0.5 / STEPS_PER_MM);
 }
 
 #[tokio::test]
@@ -34,11 +34,12 @@ async fn move_overhead_keeps_a_move_busy_and_zero_ends_it_at_once() {
         st.start_move_abs_mm(7.0).await.unwrap();
         assert_eq!(s.is_busy(), busy, "move overhead {overhead:?}");
         st.poll_until_idle(Duration::from_secs(1)).await.unwrap();
-        assert!((st.position_mm().await.unwrap() - 7.0).abs() < 1e-9);
+        assert!((st.position_mm().await.unwrap() - 7.0).abs() <= 0.5 / STEPS_PER_MM);
     }
 }
 
-/// Scripted device: skips info/alert lines and a stale reply, answers with checksums.
+/// Scripted device of a product not in the table: answers the identity queries, then skips
+/// info/alert lines and a stale reply, answers with checksums.
 #[tokio::test]
 async fn client_skips_info_alert_and_stale_replies() {
     let (a, b) = tokio::io::duplex(1024);
@@ -46,10 +47,19 @@ async fn client_skips_info_alert_and_stale_replies() {
         let (rd, mut wr) = tokio::io::split(b);
         let mut rd = BufReader::new(rd);
         let mut line = String::new();
-        rd.read_line(&mut line).await.unwrap();
-        let (cmd, had_cs) = parse_command(&line).unwrap();
-        assert!(had_cs);
-        assert_eq!(cmd.text, "get pos");
+        let cmd = loop {
+            line.clear();
+            rd.read_line(&mut line).await.unwrap();
+            let (cmd, had_cs) = parse_command(&line).unwrap();
+            assert!(had_cs);
+            if cmd.text == "get pos" {
+                break cmd;
+            }
+            let reply = format!("@01 {} {} OK IDLE -- 7", cmd.axis, cmd.id.unwrap());
+            wr.write_all(format!("{}\r\n", append_checksum(&reply)).as_bytes())
+                .await
+                .unwrap();
+        };
         let id = cmd.id.unwrap();
         let stale = append_checksum(&format!("@01 1 {} OK IDLE -- 1", (id + 99) % 100));
         let info = "#01 1 some info text";
@@ -61,9 +71,15 @@ async fn client_skips_info_alert_and_stale_replies() {
         }
         let _ = rd.read_line(&mut line).await;
     });
-    let mut st = ZaberStage::from_stream(a, stage_cfg());
+    let cfg = StageConfig {
+        microsteps_per_mm: Some(1000.0),
+        ..stage_cfg()
+    };
+    let mut st = ZaberStage::from_stream(a, cfg);
     let p = st.position_mm().await.unwrap();
     assert!((p + 2.5).abs() < 1e-12);
+    let id = st.identity().unwrap();
+    assert_eq!((id.device_id, id.product), (7, None));
 }
 
 #[tokio::test]

@@ -4,5 +4,6 @@ mod common;
 mod corpus;
 mod duplex;
 mod gauge_pty;
+mod identity;
 mod props;
 mod stage_pty;

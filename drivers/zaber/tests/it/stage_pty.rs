@@ -10,17 +10,18 @@ async fn normal_session_over_real_pty() {
     st.home().await.unwrap();
     assert!(sim.is_homed());
     let rb = st.move_abs_mm(12.345).await.unwrap();
-    assert!((rb - 12.345).abs() < 1e-9, "{rb}");
-    assert_eq!(sim.position_steps(), 12345);
-    assert!((st.position_mm().await.unwrap() - 12.345).abs() < 1e-9);
+    let half_step_mm = 0.5 / STEPS_PER_MM;
+    assert!((rb - 12.345).abs() <= half_step_mm, "{rb}");
+    assert_eq!(sim.position_steps(), (12.345 * STEPS_PER_MM).round() as i64);
+    assert!((st.position_mm().await.unwrap() - 12.345).abs() <= half_step_mm);
     st.start_move_abs_mm(100.0).await.unwrap();
     st.poll_until_idle(Duration::from_secs(1)).await.unwrap();
-    assert_eq!(sim.position_steps() as f64, 100.0 * STEPS_PER_MM);
+    assert_eq!(sim.position_steps(), (100.0 * STEPS_PER_MM).round() as i64);
     st.stop().await.unwrap();
     // Close and reopen the same slave path (like re-opening a USB port).
     drop(st);
     let mut st = ZaberStage::open(&dev.path(), stage_cfg()).unwrap();
-    assert!((st.position_mm().await.unwrap() - 100.0).abs() < 1e-9);
+    assert!((st.position_mm().await.unwrap() - 100.0).abs() <= 0.5 / STEPS_PER_MM);
 }
 
 #[tokio::test]
@@ -94,7 +95,7 @@ async fn fault_interrupt_overshoot() {
     {
         let mut f = sim.faults();
         f.overshoot = 1;
-        f.overshoot_steps = 7;
+        f.overshoot_steps = 100;
     }
     let e = st.move_abs_mm(20.0).await.unwrap_err();
     match e {
@@ -103,7 +104,11 @@ async fn fault_interrupt_overshoot() {
             readback_mm,
         } => {
             assert_eq!(target_mm, 20.0);
-            assert!((readback_mm - 20.007).abs() < 1e-9);
+            let expected = 20.0 + 100.0 / STEPS_PER_MM;
+            assert!(
+                (readback_mm - expected).abs() <= 1.0 / STEPS_PER_MM,
+                "{readback_mm}"
+            );
         }
         e => panic!("{e:?}"),
     }
