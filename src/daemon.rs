@@ -13,7 +13,6 @@ use crate::campaign::session::{open_session, SessionError};
 use crate::campaign::{run_campaign, CampaignCommand, CampaignEvent, Control, Outcome};
 use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
 use crate::config::CellConfig;
-use crate::identify::ObsModel;
 use crate::store::{CampaignRow, Store, StoreError};
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
@@ -51,34 +50,18 @@ pub struct CampaignOverrides {
 }
 
 impl CampaignOverrides {
-    /// Apply to a configuration, with the same checks as the configuration file.
+    /// Apply to a configuration, with the same checks as the configuration file
+    /// ([`crate::config::CampaignSection::check`]).
     pub fn apply(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
         let c = &mut cfg.campaign;
         if let Some(m) = &self.model {
-            if ObsModel::parse(m).is_none() {
-                return Err(DaemonError::BadRequest(format!(
-                    "model: `{m}` is not one of position, np, op, full"
-                )));
-            }
             c.model = m.clone();
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);
         c.seed = self.seed.unwrap_or(c.seed);
-        if c.poses > 100_000 {
-            return Err(DaemonError::BadRequest(format!(
-                "poses: at most 100000, got {}",
-                c.poses
-            )));
-        }
-        if c.ident == 0 || c.ident >= c.poses {
-            return Err(DaemonError::BadRequest(format!(
-                "ident: must be between 1 and poses − 1 ({}), got {}",
-                c.poses.saturating_sub(1),
-                c.ident
-            )));
-        }
-        Ok(())
+        c.check()
+            .map_err(|e| DaemonError::BadRequest(e.to_string()))
     }
 }
 
@@ -278,7 +261,13 @@ impl Daemon {
             )));
         }
         let (prompter, mut prompts) = ChannelPrompter::new(4);
-        let session = open_session(cfg, &self.store_path, id, Arc::new(prompter)).await?;
+        // an infeasible campaign is the client's request to fix (400), before anything starts
+        let session = open_session(cfg, &self.store_path, id, Arc::new(prompter))
+            .await
+            .map_err(|e| match e {
+                SessionError::Infeasible(f) => DaemonError::BadRequest(f.to_string()),
+                e => DaemonError::Session(e),
+            })?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
         let pending: Arc<StdMutex<Option<PendingPrompt>>> = Arc::default();

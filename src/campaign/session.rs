@@ -45,6 +45,9 @@ pub enum SessionError {
     /// Inconsistent request.
     #[error("{0}")]
     Invalid(String),
+    /// The campaign cannot run as configured, or the campaign to resume is not stored.
+    #[error(transparent)]
+    Infeasible(#[from] super::feasibility::FeasibilityError),
 }
 
 /// A ready campaign: context, devices and (when simulated) the running simulated cell.
@@ -95,6 +98,7 @@ pub async fn open_session(
 ) -> Result<Session, SessionError> {
     let mut nominal: RobotModel = load_robot(&cfg.robot)?;
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
+    super::feasibility::check_session(&cfg, &nominal, store_path, campaign)?;
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
     // simulated devices
     let sim = if cfg.any_simulated() {
@@ -148,6 +152,8 @@ pub async fn open_session(
                 _ => ZaberStageAdapterConfig {
                     port: cfg.stage.serial_path.clone(),
                     microsteps_per_mm: cfg.stage.microsteps_per_mm,
+                    min_mm: cfg.stage.range_mm[0],
+                    max_mm: cfg.stage.range_mm[1],
                     ..ZaberStageAdapterConfig::default()
                 },
             };

@@ -6,6 +6,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::identify::ObsModel;
+use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
 
 /// Why a configuration could not be loaded (names the file and the key).
@@ -494,6 +495,16 @@ impl CampaignSection {
 }
 
 impl SetupSection {
+    /// The tool-frame plan request these settings describe (angles in rad).
+    pub fn tool_frame_request(&self) -> ToolFramePlanRequest {
+        ToolFramePlanRequest {
+            jog_mm: self.jog_mm,
+            angles_rad: self.angles_deg.iter().map(|d| d.to_radians()).collect(),
+            home_pairs: self.home_pairs,
+            ..ToolFramePlanRequest::default()
+        }
+    }
+
     /// The setup rules: positive jog, at least two non-zero rotations within ±90°, at least
     /// one home pair, at least three registration poses, RMS limits above zero. Whether
     /// `home_deg` fits the robot is a campaign feasibility check.
