@@ -13,3 +13,4 @@ mod setup;
 mod significance;
 mod store;
 mod terminal;
+mod validation;
