@@ -109,6 +109,12 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
         (r#"{"poses": 40, "sneaky": 1}"#, "sneaky"),
         (r#"{"poses": 10, "ident": 10}"#, "ident"),
         (r#"{"model": "xyz"}"#, "model"),
+        // infeasible: the feasibility checks of `cellcal run`, before anything is stored
+        (r#"{"model": "full"}"#, "campaign.model: full needs"),
+        (
+            r#"{"poses": 40, "ident": 10}"#,
+            "campaign.ident: 10 identification poses",
+        ),
         (r#"{"poses": "many"}"#, "poses"),
         ("{", "EOF"),
     ] {
