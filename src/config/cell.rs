@@ -574,6 +574,13 @@ mod tests {
         }
     }
 
+    /// The error loading `text` as `cell.toml`.
+    fn load_error(text: &str) -> String {
+        parse_cell_config(text, Path::new("cell.toml"))
+            .unwrap_err()
+            .to_string()
+    }
+
     #[test]
     fn non_finite_safety_values_are_named_by_file_and_key() {
         for (text, want) in [
@@ -626,10 +633,7 @@ mod tests {
                 "sim.faults.tracker.beam_break_probability: inf is not a finite number",
             ),
         ] {
-            let e = parse_cell_config(text, Path::new("cell.toml"))
-                .unwrap_err()
-                .to_string();
-            assert_eq!(e, format!("cell.toml: {want}"), "{text}");
+            assert_eq!(load_error(text), format!("cell.toml: {want}"), "{text}");
         }
     }
 
@@ -649,10 +653,7 @@ mod tests {
                 "stage.range_mm: has 3 values; it takes exactly 2",
             ),
         ] {
-            let e = parse_cell_config(text, Path::new("cell.toml"))
-                .unwrap_err()
-                .to_string();
-            assert_eq!(e, format!("cell.toml: {want}"), "{text}");
+            assert_eq!(load_error(text), format!("cell.toml: {want}"), "{text}");
         }
         let e = parse_cell_config("[campaign]\nbox_size_mm = [1, 2]\n", Path::new("c.toml"))
             .unwrap_err()

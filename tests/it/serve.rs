@@ -221,7 +221,8 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
 #[test]
 fn technician_questions_are_answered_over_rest() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let cfg = fast_config(dir.path(), "manual", 20, 10);
+    // 14 ident poses × 6 equations ≥ 3 × 28 parameters (OP with base): the fewest create accepts
+    let cfg = fast_config(dir.path(), "manual", 20, 14);
     let s = start(&cfg, &dir.path().join("c.db"));
     let (code, v) = post(&s, "/api/campaigns", "{}");
     assert_eq!(code, 201, "{v}");
