@@ -30,7 +30,6 @@ use crate::campaign::{
 };
 use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
 use crate::config::CellConfig;
-use crate::identify::ObsModel;
 use crate::store::{CampaignRow, EventRecord, JournalEntry, Store, StoreError, StoreReader};
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
@@ -71,34 +70,18 @@ pub struct CampaignOverrides {
 }
 
 impl CampaignOverrides {
-    /// Apply to a configuration, with the same checks as the configuration file.
+    /// Apply to a configuration, with the same checks as the configuration file
+    /// ([`crate::config::CampaignSection::check`]).
     pub fn apply(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
         let c = &mut cfg.campaign;
         if let Some(m) = &self.model {
-            if ObsModel::parse(m).is_none() {
-                return Err(DaemonError::BadRequest(format!(
-                    "model: `{m}` is not one of position, np, op, full"
-                )));
-            }
             c.model = m.clone();
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);
         c.seed = self.seed.unwrap_or(c.seed);
-        if c.poses > 100_000 {
-            return Err(DaemonError::BadRequest(format!(
-                "poses: at most 100000, got {}",
-                c.poses
-            )));
-        }
-        if c.ident == 0 || c.ident >= c.poses {
-            return Err(DaemonError::BadRequest(format!(
-                "ident: must be between 1 and poses − 1 ({}), got {}",
-                c.poses.saturating_sub(1),
-                c.ident
-            )));
-        }
-        Ok(())
+        c.check()
+            .map_err(|e| DaemonError::BadRequest(e.to_string()))
     }
 }
 
@@ -325,6 +308,8 @@ fn refusal(e: SessionError) -> DaemonError {
         SessionError::Done(_)
         | SessionError::ConfigChanged { .. }
         | SessionError::Store(StoreError::Locked { .. }) => DaemonError::Conflict(e.to_string()),
+        // an infeasible campaign is the client's request to fix, before anything starts
+        SessionError::Infeasible(f) => DaemonError::BadRequest(f.to_string()),
         e => DaemonError::Session(e),
     }
 }

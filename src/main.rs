@@ -17,6 +17,7 @@ use cellcal::campaign::FaultPolicy;
 use cellcal::dataset::{parse_csv, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
+use cellcal::model::checked_toml::parse_checked;
 use cellcal::model::load_robot;
 use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
 use cellcal::report::{calibrate, summary_text};
@@ -629,7 +630,7 @@ fn run_simulate(a: &SimArgs) -> Result<(), Failure> {
 }
 
 /// The part of a cell configuration file that `cellcal sim` reads.
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, serde::Serialize)]
 struct SimFile {
     #[serde(default)]
     sim: cellcal::sim::SimWorldConfig,
@@ -672,10 +673,8 @@ fn run_sim(config: &Path) -> Result<(), Failure> {
     let table: toml::Table = toml::from_str(&text)
         .with_context(|| format!("{}: invalid TOML", config.display()))
         .map_err(input)?;
-    let mut cfg = toml::from_str::<SimFile>(&text)
-        .with_context(|| format!("{}: invalid [sim] table", config.display()))
-        .map_err(input)?
-        .sim;
+    // every number finite and every array its exact length, in the whole file
+    let mut cfg = parse_checked::<SimFile>(&text, config).map_err(input)?.sim;
     let dir = config.parent().unwrap_or(Path::new("."));
     if !matches!(cfg.errors.as_str(), "paper" | "random" | "none" | "") {
         cfg.errors = dir.join(&cfg.errors).to_string_lossy().into_owned();

@@ -8,6 +8,7 @@
 
 pub mod engine;
 pub mod events;
+pub mod feasibility;
 pub mod lock;
 pub mod session;
 

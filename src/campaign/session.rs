@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use super::engine::{CampaignContext, Devices, FaultPolicy};
 use super::events::{CampaignEvent, Control};
+use super::feasibility;
 use super::lock::CampaignLock;
 use crate::cell::stage_manual::{ManualStage, ManualStageConfig};
 use crate::cell::{
@@ -65,6 +66,9 @@ pub enum SessionError {
         /// The dotted keys that differ.
         keys: Vec<String>,
     },
+    /// The campaign cannot run as configured, or the campaign to resume is not stored.
+    #[error(transparent)]
+    Infeasible(#[from] super::feasibility::FeasibilityError),
 }
 
 /// A stored campaign to resume.
@@ -143,10 +147,16 @@ pub async fn open_session(
     campaign: Option<Resume>,
     prompter: Arc<dyn Prompter>,
 ) -> Result<Session, SessionError> {
-    let path = store_path.to_owned();
-    let store = tokio::task::spawn_blocking(move || Store::open(&path))
-        .await
-        .map_err(|e| SessionError::Invalid(format!("store task failed: {e}")))??;
+    let (path, checked) = (store_path.to_owned(), cfg.clone());
+    // infeasible or unknown: refused before the store file is even created
+    let store = tokio::task::spawn_blocking(move || {
+        let mut nominal = load_robot(&checked.robot)?;
+        nominal.tool = Vector3::from(checked.campaign.tool_mm);
+        feasibility::check_session(&checked, &nominal, &path, campaign.map(|r| r.id))?;
+        Ok::<_, SessionError>(Store::open(&path)?)
+    })
+    .await
+    .map_err(|e| SessionError::Invalid(format!("store task failed: {e}")))??;
     let store = Arc::new(Mutex::new(store));
     open_session_with(cfg, store, campaign, prompter, EVENT_CAPACITY).await
 }
@@ -232,6 +242,10 @@ fn plan_and_store(
 ) -> Result<Prepared, SessionError> {
     let resumed = {
         let s = lock_store(store)?;
+        match campaign {
+            None => feasibility::check_new(cfg, nominal)?,
+            Some(r) => feasibility::check_resumed(cfg, nominal, &s, r.id)?,
+        }
         campaign
             .map(|r| stored_campaign(&s, r, &cfg.text, &robot_text))
             .transpose()?
@@ -435,6 +449,8 @@ fn stage_device(
                 _ => ZaberStageAdapterConfig {
                     port: cfg.stage.serial_path.clone(),
                     microsteps_per_mm: cfg.stage.microsteps_per_mm,
+                    min_mm: cfg.stage.range_mm[0],
+                    max_mm: cfg.stage.range_mm[1],
                     ..ZaberStageAdapterConfig::default()
                 },
             };

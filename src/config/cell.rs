@@ -3,15 +3,17 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::identify::ObsModel;
+use crate::measure::tool_frame::ToolFramePlanRequest;
+use crate::model::checked_toml::parse_checked;
 
 /// Why a configuration could not be loaded (names the file and the key).
 pub type ConfigError = crate::model::file::FileError;
 
 /// Simulated device (started in-process from `[sim]`) or real device at an address.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DeviceMode {
     /// Part of the simulated cell.
@@ -21,7 +23,7 @@ pub enum DeviceMode {
 }
 
 /// `[tracker]`: the laser tracker and the measurement quality gate.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrackerSection {
     /// `sim` or `real`.
@@ -55,7 +57,7 @@ impl Default for TrackerSection {
 }
 
 /// `[robot]`: the robot controller.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RobotSection {
     /// `sim` or `real`.
@@ -87,7 +89,7 @@ impl Default for RobotSection {
 }
 
 /// How the stage moves between P1 and P2.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StageMode {
     /// A motorised Zaber stage on a serial line.
@@ -99,7 +101,7 @@ pub enum StageMode {
 }
 
 /// `[stage]`: the 1D stage carrying the ball.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StageSection {
     /// `sim` (simulated serial stage) or `real`.
@@ -122,6 +124,9 @@ pub struct StageSection {
     pub axis: String,
     /// Accepted difference between requested and read stage position (mm).
     pub tolerance_mm: f64,
+    /// Usable range of the stage or micrometer, `[min, max]` (mm): P1 and P1 + travel must lie
+    /// inside it, and the Zaber driver refuses targets outside it.
+    pub range_mm: [f64; 2],
 }
 
 impl Default for StageSection {
@@ -136,6 +141,7 @@ impl Default for StageSection {
             travel_mm: 10.0,
             axis: "+y".into(),
             tolerance_mm: 0.02,
+            range_mm: [0.0, 25.0],
         }
     }
 }
@@ -154,7 +160,7 @@ impl StageSection {
 }
 
 /// `[campaign]`: defaults of a campaign.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CampaignSection {
     /// Workspace box centre in the robot base frame (mm).
@@ -209,7 +215,7 @@ impl Default for CampaignSection {
 }
 
 /// `[setup]`: the cell setup steps run once per campaign before the first pose.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SetupSection {
     /// Run the tool-frame procedure of METHOD §4 (jogs along flange x/y, rotations about them,
@@ -253,7 +259,7 @@ impl Default for SetupSection {
     }
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct CellFile {
     robot: Option<PathBuf>,
@@ -320,124 +326,22 @@ pub fn load_cell_config(path: &Path) -> Result<CellConfig, ConfigError> {
 }
 
 /// Parse and validate configuration text; `path` names the file in errors and anchors
-/// relative paths.
+/// relative paths. Every number in the file (the `[sim]` table included) is finite and every
+/// array has its exact length ([`parse_checked`]); then each section's rules apply.
 pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigError> {
-    let f: CellFile = toml::from_str(text).map_err(|e| ConfigError::Parse {
+    let f: CellFile = parse_checked(text, path)?;
+    let invalid = |e: InvalidKey| ConfigError::Invalid {
         path: path.to_owned(),
-        message: e.to_string().trim_end().replace('\n', " "),
-    })?;
-    let invalid = |key: &str, message: String| ConfigError::Invalid {
-        path: path.to_owned(),
-        key: key.to_owned(),
-        message,
+        key: e.key,
+        message: e.message,
     };
+    f.tracker.check().map_err(invalid)?;
+    f.robot_controller.check().map_err(invalid)?;
+    f.stage.check().map_err(invalid)?;
+    f.campaign.check().map_err(invalid)?;
+    f.setup.check().map_err(invalid)?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: PathBuf| if p.is_absolute() { p } else { dir.join(p) };
-    let c = &f.campaign;
-    if ObsModel::parse(&c.model).is_none() {
-        return Err(invalid(
-            "campaign.model",
-            format!("`{}` is not one of position, np, op, full", c.model),
-        ));
-    }
-    if c.ident == 0 || c.ident >= c.poses {
-        return Err(invalid(
-            "campaign.ident",
-            format!(
-                "must be between 1 and poses − 1 ({}), got {}",
-                c.poses.saturating_sub(1),
-                c.ident
-            ),
-        ));
-    }
-    if c.box_size_mm.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-        return Err(invalid(
-            "campaign.box_size_mm",
-            "must be three positive numbers".into(),
-        ));
-    }
-    if !(c.line_of_sight_max_deg > 0.0 && c.line_of_sight_max_deg <= 180.0) {
-        return Err(invalid(
-            "campaign.line_of_sight_max_deg",
-            "must be in (0, 180]".into(),
-        ));
-    }
-    if !(c.drift_max_mm.is_finite() && c.drift_max_mm > 0.0) {
-        return Err(invalid("campaign.drift_max_mm", "must be positive".into()));
-    }
-    if f.stage.axis_vector().is_none() {
-        return Err(invalid(
-            "stage.axis",
-            format!("`{}` is not one of +x, -x, +y, -y", f.stage.axis),
-        ));
-    }
-    if !(f.stage.travel_mm.is_finite() && f.stage.travel_mm > 0.0) {
-        return Err(invalid("stage.travel_mm", "must be positive".into()));
-    }
-    let tol = f.robot_controller.settle_tolerance_deg;
-    if !(tol.is_finite() && tol > 0.0) {
-        return Err(invalid(
-            "robot_controller.settle_tolerance_deg",
-            "must be positive".into(),
-        ));
-    }
-    if !(f.stage.tolerance_mm.is_finite() && f.stage.tolerance_mm > 0.0) {
-        return Err(invalid("stage.tolerance_mm", "must be positive".into()));
-    }
-    if !(f.robot_controller.speed_pct > 0.0 && f.robot_controller.speed_pct <= 100.0) {
-        return Err(invalid(
-            "robot_controller.speed_pct",
-            "must be in (0, 100]".into(),
-        ));
-    }
-    if f.tracker.measure_ms == 0 {
-        return Err(invalid("tracker.measure_ms", "must be positive".into()));
-    }
-    if !(f.tracker.max_std_total_mm.is_finite() && f.tracker.max_std_total_mm > 0.0) {
-        return Err(invalid(
-            "tracker.max_std_total_mm",
-            "must be positive".into(),
-        ));
-    }
-    let st = &f.setup;
-    if !(st.jog_mm.is_finite() && st.jog_mm > 0.0) {
-        return Err(invalid("setup.jog_mm", "must be positive".into()));
-    }
-    if st.angles_deg.len() < 2
-        || st
-            .angles_deg
-            .iter()
-            .any(|a| !a.is_finite() || *a == 0.0 || a.abs() > 90.0)
-    {
-        return Err(invalid(
-            "setup.angles_deg",
-            "needs at least two non-zero angles within ±90°".into(),
-        ));
-    }
-    if st.home_pairs == 0 {
-        return Err(invalid("setup.home_pairs", "must be at least 1".into()));
-    }
-    if st.base_registration && st.base_poses < 3 {
-        return Err(invalid("setup.base_poses", "must be at least 3".into()));
-    }
-    if st
-        .home_deg
-        .as_ref()
-        .is_some_and(|h| h.iter().any(|v| !v.is_finite()))
-    {
-        return Err(invalid("setup.home_deg", "must be finite numbers".into()));
-    }
-    for (key, v) in [
-        ("setup.max_sphere_rms_mm", st.max_sphere_rms_mm),
-        ("setup.max_base_rms_mm", st.max_base_rms_mm),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(invalid(key, "must be positive".into()));
-        }
-    }
-    if f.tracker.max_attempts == 0 || f.robot_controller.max_attempts == 0 {
-        return Err(invalid("max_attempts", "must be at least 1".into()));
-    }
     Ok(CellConfig {
         path: path.to_owned(),
         text: text.to_owned(),
@@ -453,6 +357,192 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         setup: f.setup,
         sim: f.sim,
     })
+}
+
+/// A value outside its key's rule (the key is dotted from the file's top, e.g.
+/// `campaign.ident`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key}: {message}")]
+pub struct InvalidKey {
+    /// Dotted key.
+    pub key: String,
+    /// The rule it breaks.
+    pub message: String,
+}
+
+/// `Err` naming `key` and `rule` unless `ok`.
+fn rule(ok: bool, key: &str, rule: impl Into<String>) -> Result<(), InvalidKey> {
+    if ok {
+        Ok(())
+    } else {
+        Err(InvalidKey {
+            key: key.to_owned(),
+            message: rule.into(),
+        })
+    }
+}
+
+/// A length, time or tolerance that must be above zero (a zero or negative one would switch
+/// its check off).
+fn positive(key: &str, v: f64) -> Result<(), InvalidKey> {
+    rule(v > 0.0, key, format!("must be positive, got {v}"))
+}
+
+impl TrackerSection {
+    /// The tracker rules: measuring time, quality gate and attempts above zero.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        rule(
+            self.measure_ms > 0,
+            "tracker.measure_ms",
+            "must be positive",
+        )?;
+        positive("tracker.max_std_total_mm", self.max_std_total_mm)?;
+        rule(
+            self.max_attempts > 0,
+            "tracker.max_attempts",
+            "must be at least 1",
+        )
+    }
+}
+
+impl RobotSection {
+    /// The robot controller rules: speed in (0, 100] %, settle time, attempts and settle
+    /// tolerance above zero.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        rule(
+            self.speed_pct > 0.0 && self.speed_pct <= 100.0,
+            "robot_controller.speed_pct",
+            format!("must be in (0, 100], got {}", self.speed_pct),
+        )?;
+        rule(
+            self.settle_timeout_ms > 0,
+            "robot_controller.settle_timeout_ms",
+            "must be positive",
+        )?;
+        rule(
+            self.max_attempts > 0,
+            "robot_controller.max_attempts",
+            "must be at least 1",
+        )?;
+        rule(
+            self.settle_tolerance_deg > 0.0,
+            "robot_controller.settle_tolerance_deg",
+            "must be positive",
+        )
+    }
+}
+
+impl StageSection {
+    /// The stage rules: a known axis, positive scale, travel and tolerance, a tolerance below
+    /// half the travel (else a stage that did not move passes), and `range_mm` = [min, max]
+    /// with min < max. Whether P1 and P2 lie in the range is a campaign feasibility check.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        rule(
+            self.axis_vector().is_some(),
+            "stage.axis",
+            format!("`{}` is not one of +x, -x, +y, -y", self.axis),
+        )?;
+        if let Some(v) = self.microsteps_per_mm {
+            positive("stage.microsteps_per_mm", v)?;
+        }
+        positive("stage.travel_mm", self.travel_mm)?;
+        positive("stage.tolerance_mm", self.tolerance_mm)?;
+        rule(
+            self.tolerance_mm < 0.5 * self.travel_mm,
+            "stage.tolerance_mm",
+            format!(
+                "must be below half of stage.travel_mm ({} mm), got {}",
+                self.travel_mm, self.tolerance_mm
+            ),
+        )?;
+        let [lo, hi] = self.range_mm;
+        rule(
+            lo < hi,
+            "stage.range_mm",
+            format!("must be [min, max] with min < max, got [{lo}, {hi}]"),
+        )
+    }
+}
+
+/// Most poses a campaign may plan.
+pub const MAX_POSES: usize = 100_000;
+
+impl CampaignSection {
+    /// The campaign rules: a known model, 1 ≤ ident < poses ≤ [`MAX_POSES`], a box of positive
+    /// size, wrist margin in [0, 90)°, line-of-sight angle in (0, 180]°, drift limit above
+    /// zero. The daemon applies the same rules to its overrides.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        rule(
+            ObsModel::parse(&self.model).is_some(),
+            "campaign.model",
+            format!("`{}` is not one of position, np, op, full", self.model),
+        )?;
+        rule(
+            self.poses <= MAX_POSES,
+            "campaign.poses",
+            format!("at most {MAX_POSES}, got {}", self.poses),
+        )?;
+        rule(
+            self.ident > 0 && self.ident < self.poses,
+            "campaign.ident",
+            format!(
+                "must be between 1 and poses − 1 ({}), got {}",
+                self.poses.saturating_sub(1),
+                self.ident
+            ),
+        )?;
+        for (k, v) in self.box_size_mm.iter().enumerate() {
+            positive(&format!("campaign.box_size_mm[{k}]"), *v)?;
+        }
+        rule(
+            (0.0..90.0).contains(&self.wrist_min_deg),
+            "campaign.wrist_min_deg",
+            format!("must be in [0, 90), got {}", self.wrist_min_deg),
+        )?;
+        rule(
+            self.line_of_sight_max_deg > 0.0 && self.line_of_sight_max_deg <= 180.0,
+            "campaign.line_of_sight_max_deg",
+            format!("must be in (0, 180], got {}", self.line_of_sight_max_deg),
+        )?;
+        positive("campaign.drift_max_mm", self.drift_max_mm)
+    }
+}
+
+impl SetupSection {
+    /// The tool-frame plan request these settings describe (angles in rad).
+    pub fn tool_frame_request(&self) -> ToolFramePlanRequest {
+        ToolFramePlanRequest {
+            jog_mm: self.jog_mm,
+            angles_rad: self.angles_deg.iter().map(|d| d.to_radians()).collect(),
+            home_pairs: self.home_pairs,
+            ..ToolFramePlanRequest::default()
+        }
+    }
+
+    /// The setup rules: positive jog, at least two non-zero rotations within ±90°, at least
+    /// one home pair, at least three registration poses, RMS limits above zero. Whether
+    /// `home_deg` fits the robot is a campaign feasibility check.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        positive("setup.jog_mm", self.jog_mm)?;
+        rule(
+            self.angles_deg.len() >= 2
+                && self.angles_deg.iter().all(|a| *a != 0.0 && a.abs() <= 90.0),
+            "setup.angles_deg",
+            "needs at least two non-zero angles within ±90°",
+        )?;
+        rule(
+            self.home_pairs > 0,
+            "setup.home_pairs",
+            "must be at least 1",
+        )?;
+        rule(
+            !self.base_registration || self.base_poses >= 3,
+            "setup.base_poses",
+            "must be at least 3",
+        )?;
+        positive("setup.max_sphere_rms_mm", self.max_sphere_rms_mm)?;
+        positive("setup.max_base_rms_mm", self.max_base_rms_mm)
+    }
 }
 
 #[cfg(test)]
@@ -495,6 +585,156 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(key), "{text}: {e}");
+        }
+    }
+
+    /// The error loading `text` as `cell.toml`.
+    fn load_error(text: &str) -> String {
+        parse_cell_config(text, Path::new("cell.toml"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn non_finite_safety_values_are_named_by_file_and_key() {
+        for (text, want) in [
+            (
+                "[campaign]\nbox_center_mm = [nan, 0, 550]\n",
+                "campaign.box_center_mm[0]: nan is not a finite number",
+            ),
+            (
+                "[campaign]\nbox_size_mm = [1000, inf, 1000]\n",
+                "campaign.box_size_mm[1]: inf is not a finite number",
+            ),
+            (
+                "[campaign]\nfloor_z_mm = nan\n",
+                "campaign.floor_z_mm: nan is not a finite number",
+            ),
+            (
+                "[campaign]\nfloor_z_mm = -inf\n",
+                "campaign.floor_z_mm: -inf is not a finite number",
+            ),
+            (
+                "[campaign]\nwrist_min_deg = nan\n",
+                "campaign.wrist_min_deg: nan is not a finite number",
+            ),
+            (
+                "[campaign]\nline_of_sight_max_deg = nan\n",
+                "campaign.line_of_sight_max_deg: nan is not a finite number",
+            ),
+            (
+                "[campaign]\ntool_mm = [0, 0, inf]\n",
+                "campaign.tool_mm[2]: inf is not a finite number",
+            ),
+            (
+                "[tracker]\nposition_mm = [inf, 0, 0]\n",
+                "tracker.position_mm[0]: inf is not a finite number",
+            ),
+            (
+                "[stage]\np1_mm = nan\n",
+                "stage.p1_mm: nan is not a finite number",
+            ),
+            (
+                "[setup]\nhome_deg = [0, 30, nan, 0, 45, 0]\n",
+                "setup.home_deg[2]: nan is not a finite number",
+            ),
+            (
+                "[sim]\ntracker_noise_scale = nan\n",
+                "sim.tracker_noise_scale: nan is not a finite number",
+            ),
+            (
+                "[sim.faults.tracker]\nbeam_break_probability = inf\n",
+                "sim.faults.tracker.beam_break_probability: inf is not a finite number",
+            ),
+        ] {
+            assert_eq!(load_error(text), format!("cell.toml: {want}"), "{text}");
+        }
+    }
+
+    #[test]
+    fn arrays_have_their_exact_length() {
+        for (text, want) in [
+            (
+                "[campaign]\nbox_center_mm = [550, 0, 550, 1]\n",
+                "campaign.box_center_mm: has 4 values; it takes exactly 3",
+            ),
+            (
+                "[tracker]\nposition_mm = [2550, 0, 0, 0]\n",
+                "tracker.position_mm: has 4 values; it takes exactly 3",
+            ),
+            (
+                "[stage]\nrange_mm = [0, 25, 50]\n",
+                "stage.range_mm: has 3 values; it takes exactly 2",
+            ),
+        ] {
+            assert_eq!(load_error(text), format!("cell.toml: {want}"), "{text}");
+        }
+        let e = parse_cell_config("[campaign]\nbox_size_mm = [1, 2]\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("c.toml: campaign.box_size_mm: "), "{e}");
+    }
+
+    #[test]
+    fn values_that_would_switch_a_check_off_are_refused() {
+        for (text, key) in [
+            (
+                "[campaign]\nbox_size_mm = [1000, 0, 1000]\n",
+                "campaign.box_size_mm[1]",
+            ),
+            (
+                "[campaign]\nbox_size_mm = [-5, 1000, 1000]\n",
+                "campaign.box_size_mm[0]",
+            ),
+            ("[campaign]\nwrist_min_deg = -1\n", "campaign.wrist_min_deg"),
+            ("[campaign]\nwrist_min_deg = 90\n", "campaign.wrist_min_deg"),
+            (
+                "[campaign]\nline_of_sight_max_deg = 0\n",
+                "campaign.line_of_sight_max_deg",
+            ),
+            (
+                "[campaign]\nline_of_sight_max_deg = 181\n",
+                "campaign.line_of_sight_max_deg",
+            ),
+            ("[campaign]\ndrift_max_mm = 0\n", "campaign.drift_max_mm"),
+            ("[campaign]\nposes = 200000\nident = 10\n", "campaign.poses"),
+            (
+                "[robot_controller]\nspeed_pct = 0\n",
+                "robot_controller.speed_pct",
+            ),
+            (
+                "[robot_controller]\nsettle_timeout_ms = 0\n",
+                "robot_controller.settle_timeout_ms",
+            ),
+            (
+                "[robot_controller]\nmax_attempts = 0\n",
+                "robot_controller.max_attempts",
+            ),
+            ("[tracker]\nmax_attempts = 0\n", "tracker.max_attempts"),
+            (
+                "[tracker]\nmax_std_total_mm = 0\n",
+                "tracker.max_std_total_mm",
+            ),
+            (
+                "[stage]\nmicrosteps_per_mm = 0\n",
+                "stage.microsteps_per_mm",
+            ),
+            ("[stage]\ntravel_mm = -10\n", "stage.travel_mm"),
+            ("[stage]\ntolerance_mm = 0\n", "stage.tolerance_mm"),
+            ("[stage]\ntolerance_mm = 5\n", "stage.tolerance_mm"),
+            ("[stage]\nrange_mm = [5, 5]\n", "stage.range_mm"),
+            ("[setup]\njog_mm = 0\n", "setup.jog_mm"),
+            ("[setup]\nangles_deg = [10, 0]\n", "setup.angles_deg"),
+            (
+                "[setup]\nmax_sphere_rms_mm = 0\n",
+                "setup.max_sphere_rms_mm",
+            ),
+            ("[setup]\nmax_base_rms_mm = -1\n", "setup.max_base_rms_mm"),
+        ] {
+            let e = parse_cell_config(text, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with(&format!("c.toml: {key}: ")), "{text}: {e}");
         }
     }
 

@@ -1,11 +1,12 @@
 //! Cell configuration (TOML): devices, robot model, stage, tracker gate, campaign defaults,
-//! store path, and the simulated world. Unknown keys are errors; every error names the file
-//! and the key. Relative paths are resolved against the configuration file's folder.
+//! store path, and the simulated world. Unknown keys are errors, every number must be finite,
+//! every array has its exact length, and each key has a rule (see `config/cell.example.toml`);
+//! every error names the file and the key. Relative paths are resolved against the configuration file's folder.
 
 pub mod cell;
 pub mod diff;
 
 pub use cell::{
     load_cell_config, parse_cell_config, CampaignSection, CellConfig, ConfigError, DeviceMode,
-    RobotSection, StageMode, StageSection, TrackerSection,
+    InvalidKey, RobotSection, SetupSection, StageMode, StageSection, TrackerSection, MAX_POSES,
 };

@@ -163,7 +163,7 @@ fn structural_key(nominal: &RobotModel, obs: &ObsConfig, candidates: &[ParamId])
 /// The parameters identifiable in general (on 32 generic poses) for this model and
 /// observation. Memoised per process: the result depends only on the key's inputs, so the
 /// cache changes no output, it only spares a repeated service call ~0.2 ms.
-fn structural_set(
+pub fn structural_set(
     nominal: &RobotModel,
     obs: &ObsConfig,
     candidates: &[ParamId],

@@ -19,13 +19,15 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::chain::{JointLimit, Mdh, RobotModel};
+use super::checked_toml::parse_checked;
 use super::rotation::from_rotation_vector;
 
 /// Why a TOML file (robot model, cell configuration) could not be loaded; always names the
-/// file and, where known, the key.
+/// file and, where known, the key (`campaign.box_center_mm[0]`: number arrays are indexed from
+/// 0, arrays of tables such as `[[joints]]` from 1, so `joints[1]` is joint 1).
 #[derive(Debug, thiserror::Error)]
 pub enum FileError {
     /// The file could not be read.
@@ -45,7 +47,7 @@ pub enum FileError {
         message: String,
     },
     /// A value is invalid.
-    #[error("{path}: key `{key}`: {message}")]
+    #[error("{path}: {key}: {message}")]
     Invalid {
         /// File path.
         path: PathBuf,
@@ -56,7 +58,7 @@ pub enum FileError {
     },
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RobotFile {
     name: String,
@@ -65,7 +67,7 @@ struct RobotFile {
     tool: Option<ToolEntry>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct JointEntry {
     theta_deg: Option<f64>,
@@ -79,14 +81,14 @@ struct JointEntry {
     limits_deg: [f64; 2],
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct BaseEntry {
     translation_mm: [f64; 3],
     rotation_vector_rad: [f64; 3],
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct ToolEntry {
     translation_mm: [f64; 3],
@@ -114,12 +116,10 @@ fn deg_to_rad(deg: f64) -> f64 {
     }
 }
 
-/// Parse a robot model from TOML text; `path` is used in error messages.
+/// Parse a robot model from TOML text; `path` is used in error messages. Every number is
+/// finite and every array has its exact length ([`parse_checked`]).
 pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError> {
-    let file: RobotFile = toml::from_str(text).map_err(|e| RobotFileError::Parse {
-        path: path.to_owned(),
-        message: e.to_string().trim_end().replace('\n', " "),
-    })?;
+    let file: RobotFile = parse_checked(text, path)?;
     let invalid = |key: String, message: &str| RobotFileError::Invalid {
         path: path.to_owned(),
         key,
@@ -130,65 +130,47 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
     }
     let angle = |i: usize, stem: &str, deg: Option<f64>, rad: Option<f64>, required: bool| {
         let key = format!("joints[{}].{stem}_deg|{stem}_rad", i + 1);
-        let v = match (deg, rad) {
-            (Some(_), Some(_)) => return Err(invalid(key, "give degrees or radians, not both")),
-            (Some(d), None) => deg_to_rad(d),
-            (None, Some(r)) => r,
-            (None, None) if required => return Err(invalid(key, "missing")),
-            (None, None) => 0.0,
-        };
-        if v.is_finite() {
-            Ok(v)
-        } else {
-            Err(invalid(key, "must be a finite number"))
+        match (deg, rad) {
+            (Some(_), Some(_)) => Err(invalid(key, "give degrees or radians, not both")),
+            (Some(d), None) => Ok(deg_to_rad(d)),
+            (None, Some(r)) => Ok(r),
+            (None, None) if required => Err(invalid(key, "missing")),
+            (None, None) => Ok(0.0),
         }
     };
     let mut joints = Vec::new();
     let mut limits = Vec::new();
     for (i, j) in file.joints.iter().enumerate() {
-        let mdh = Mdh {
+        joints.push(Mdh {
             theta: angle(i, "theta", j.theta_deg, j.theta_rad, true)?,
             d: j.d_mm,
             a: j.a_mm,
             alpha: angle(i, "alpha", j.alpha_deg, j.alpha_rad, true)?,
             beta: angle(i, "beta", j.beta_deg, j.beta_rad, false)?,
-        };
-        for (k, v) in [("d_mm", j.d_mm), ("a_mm", j.a_mm)] {
-            if !v.is_finite() {
-                return Err(invalid(format!("joints[{}].{k}", i + 1), "must be finite"));
-            }
-        }
+        });
         let [lo, hi] = j.limits_deg;
-        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+        if lo >= hi {
             return Err(invalid(
                 format!("joints[{}].limits_deg", i + 1),
                 "must be [min, max] with min < max",
             ));
         }
-        joints.push(mdh);
         limits.push(JointLimit {
             min: lo.to_radians(),
             max: hi.to_radians(),
         });
     }
-    let finite3 = |key: &str, v: [f64; 3]| {
-        if v.iter().all(|x| x.is_finite()) {
-            Ok(Vector3::from(v))
-        } else {
-            Err(invalid(key.into(), "must be three finite numbers"))
-        }
-    };
     let (base_rotation, base_translation) = match &file.base {
         Some(b) => (
-            from_rotation_vector(&finite3("base.rotation_vector_rad", b.rotation_vector_rad)?),
-            finite3("base.translation_mm", b.translation_mm)?,
+            from_rotation_vector(&Vector3::from(b.rotation_vector_rad)),
+            Vector3::from(b.translation_mm),
         ),
         None => (nalgebra::Matrix3::identity(), Vector3::zeros()),
     };
-    let tool = match &file.tool {
-        Some(t) => finite3("tool.translation_mm", t.translation_mm)?,
-        None => Vector3::zeros(),
-    };
+    let tool = file
+        .tool
+        .as_ref()
+        .map_or_else(Vector3::zeros, |t| Vector3::from(t.translation_mm));
     Ok(RobotModel {
         name: file.name,
         joints,
@@ -238,6 +220,50 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("joints[1].theta"), "{e}");
+    }
+
+    #[test]
+    fn non_finite_and_truncated_values_are_named() {
+        for (from, to, want) in [
+            ("d_mm = 0", "d_mm = nan", "r.toml: joints[1].d_mm: nan is not a finite number"),
+            ("a_mm = 0", "a_mm = -inf", "r.toml: joints[1].a_mm: -inf is not a finite number"),
+            (
+                "theta_deg = 180",
+                "theta_deg = inf",
+                "r.toml: joints[1].theta_deg: inf is not a finite number",
+            ),
+            (
+                "alpha_deg = 90",
+                "alpha_rad = nan",
+                "r.toml: joints[1].alpha_rad: nan is not a finite number",
+            ),
+            (
+                "[-10, 10]",
+                "[-10, nan]",
+                "r.toml: joints[1].limits_deg[1]: nan is not a finite number",
+            ),
+            (
+                "[-10, 10]",
+                "[-10, 10, 20]",
+                "r.toml: joints[1].limits_deg: has 3 values; it takes exactly 2",
+            ),
+            (
+                "name = \"x\"",
+                "name = \"x\"\n[base]\ntranslation_mm = [0, 0, 0, 1]\nrotation_vector_rad = [0, 0, 0]",
+                "r.toml: base.translation_mm: has 4 values; it takes exactly 3",
+            ),
+        ] {
+            let text = ONE.replacen(from, to, 1);
+            let e = parse_robot(&text, Path::new("r.toml"))
+                .unwrap_err()
+                .to_string();
+            assert_eq!(e, want, "{to}");
+        }
+        let short = ONE.replace("[-10, 10]", "[-10]");
+        let e = parse_robot(&short, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("joints[1].limits_deg"), "{e}");
     }
 
     #[test]

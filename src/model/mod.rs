@@ -4,6 +4,7 @@
 //! Pure code: no I/O except [`file::load_robot`], which reads one TOML file.
 
 pub mod chain;
+pub mod checked_toml;
 pub mod file;
 pub mod ik;
 pub mod kinematics;

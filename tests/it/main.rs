@@ -14,4 +14,4 @@ mod setup;
 mod significance;
 mod store;
 mod terminal;
-mod zaber_motion;
+mod validation;

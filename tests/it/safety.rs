@@ -465,3 +465,60 @@ async fn a_robot_reconnect_pauses_and_never_powers_the_arm_on() {
         .iter()
         .any(|s| s["state"] == "paused"));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failed_identification_ends_in_failed_with_the_reason() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 30")
+        .replace("ident = 100", "ident = 20")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let cfg_path = write_config(dir.path(), &text);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let store = dir.path().join("c.db");
+    let session = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
+        .await
+        .expect("session");
+    let (mut ctx, mut devices) = (session.ctx, session.devices);
+    // the stored data can then not serve the model: the 1D stage gives no full orientation
+    ctx.cfg.campaign.model = "full".into();
+    let mut rx = ctx.control.events.subscribe();
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    let Outcome::Failed(reason) = outcome else {
+        panic!("{outcome:?}");
+    };
+    assert!(reason.contains("identification"), "{reason}");
+    // the last live event is the terminal state (a stream ends on it)
+    let mut last = None;
+    while let Ok(j) = rx.try_recv() {
+        last = Some(j.event);
+    }
+    assert!(
+        matches!(
+            last,
+            Some(CampaignEvent::State {
+                state: CampaignState::Failed { .. }
+            })
+        ),
+        "{last:?}"
+    );
+    assert_eq!(
+        journal_states(&store, ctx.campaign_id)
+            .last()
+            .expect("states")["state"],
+        "failed"
+    );
+    assert_eq!(
+        Store::open(&store)
+            .expect("store")
+            .campaign(ctx.campaign_id)
+            .expect("row")
+            .state,
+        "failed",
+        "no state left claiming `identifying`"
+    );
+    session.sim.expect("sim").stop().await;
+}

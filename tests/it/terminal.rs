@@ -102,7 +102,8 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false")
         .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 10");
+        // 14 × 6 equations ≥ 3 × 28 parameters (OP with base): the fewest a run accepts
+        .replace("ident = 100", "ident = 14");
     let cfg = write_config(dir.path(), &text);
     let store = dir.path().join("c.db");
     let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
@@ -156,7 +157,8 @@ fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
     // the first 7 measurements find the beam broken: 5 attempts fail, the campaign pauses
     let text = config_text("", "", "")
         .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 10")
+        // 14 × 6 equations ≥ 3 × 28 parameters (OP with base): the fewest a run accepts
+        .replace("ident = 100", "ident = 14")
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false")
         .replace(
@@ -190,7 +192,7 @@ fn ctrl_c_at_a_technician_question_aborts_at_once() {
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false")
         .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 10");
+        .replace("ident = 100", "ident = 14");
     let cfg = write_config(dir.path(), &text);
     let store = dir.path().join("c.db");
     let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));

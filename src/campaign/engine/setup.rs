@@ -135,12 +135,7 @@ impl Run<'_> {
     /// METHOD §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
     async fn tool_frame(&mut self) -> Result<ToolFrameResult, Stop> {
         let cfg = &self.ctx.cfg.setup;
-        let req = ToolFramePlanRequest {
-            jog_mm: cfg.jog_mm,
-            angles_rad: cfg.angles_deg.iter().map(|d| d.to_radians()).collect(),
-            home_pairs: cfg.home_pairs,
-            ..ToolFramePlanRequest::default()
-        };
+        let req = cfg.tool_frame_request();
         let max_rms = cfg.max_sphere_rms_mm;
         let targets = match &cfg.home_deg {
             Some(h) => {
