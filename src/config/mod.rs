@@ -5,6 +5,6 @@
 pub mod cell;
 
 pub use cell::{
-    load_cell_config, parse_cell_config, CampaignSection, CellConfig, ConfigError, DeviceMode,
-    RobotSection, StageMode, StageSection, TrackerSection,
+    load_cell_config, parse_cell_config, ApiSection, ApiToken, CampaignSection, CellConfig,
+    ConfigError, DeviceMode, RobotSection, StageMode, StageSection, TrackerSection,
 };
