@@ -110,7 +110,7 @@ impl Gate {
     }
 
     /// Admit `req` (leaving its [`Principal`] in the extensions) or answer it with the refusal.
-    fn admit(&self, req: &mut Request) -> Result<(), Response> {
+    fn admit(&self, req: &mut Request) -> Result<(), Refusal> {
         let host = req
             .headers()
             .get(HOST)
@@ -153,7 +153,7 @@ impl Gate {
     }
 
     /// The principal of the request's bearer token, or the 401 answer.
-    fn authenticate(&self, headers: &HeaderMap) -> Result<Principal, Response> {
+    fn authenticate(&self, headers: &HeaderMap) -> Result<Principal, Refusal> {
         let Some(value) = headers.get(AUTHORIZATION) else {
             return Err(unauthorized(
                 "missing `Authorization: Bearer <token>`",
@@ -213,7 +213,7 @@ fn normal_origin(origin: &str) -> Option<String> {
 }
 
 /// 415 unless the body is declared `application/json` (parameters such as `charset` allowed).
-fn check_json_body(headers: &HeaderMap) -> Result<(), Response> {
+fn check_json_body(headers: &HeaderMap) -> Result<(), Refusal> {
     let declared = headers.get(CONTENT_TYPE).and_then(|v| v.to_str().ok());
     let mime = declared.map(|v| v.split(';').next().unwrap_or("").trim());
     if mime.is_some_and(|m| m.eq_ignore_ascii_case("application/json")) {
@@ -228,29 +228,53 @@ fn check_json_body(headers: &HeaderMap) -> Result<(), Response> {
     ))
 }
 
-/// A JSON error response.
-fn refuse(status: StatusCode, message: String) -> Response {
-    ApiError(status, message).into_response()
+/// Why the gate turned a request away; answered as a JSON error.
+#[derive(Debug)]
+struct Refusal {
+    status: StatusCode,
+    message: String,
+    /// The `WWW-Authenticate` challenge of a 401.
+    challenge: Option<&'static str>,
+}
+
+impl IntoResponse for Refusal {
+    fn into_response(self) -> Response {
+        let mut r = ApiError(self.status, self.message).into_response();
+        if let Some(c) = self.challenge {
+            r.headers_mut()
+                .insert(WWW_AUTHENTICATE, HeaderValue::from_static(c));
+        }
+        r
+    }
+}
+
+/// A refusal with `status` and `message`.
+fn refuse(status: StatusCode, message: String) -> Refusal {
+    Refusal {
+        status,
+        message,
+        challenge: None,
+    }
 }
 
 /// 401 with `WWW-Authenticate: Bearer` (and `error="invalid_token"` for a wrong token).
-fn unauthorized(message: &str, invalid_token: bool) -> Response {
-    let mut r = refuse(StatusCode::UNAUTHORIZED, message.to_owned());
-    let challenge = if invalid_token {
-        r#"Bearer realm="cellcal", error="invalid_token""#
-    } else {
-        r#"Bearer realm="cellcal""#
-    };
-    r.headers_mut()
-        .insert(WWW_AUTHENTICATE, HeaderValue::from_static(challenge));
-    r
+fn unauthorized(message: &str, invalid_token: bool) -> Refusal {
+    Refusal {
+        status: StatusCode::UNAUTHORIZED,
+        message: message.to_owned(),
+        challenge: Some(if invalid_token {
+            r#"Bearer realm="cellcal", error="invalid_token""#
+        } else {
+            r#"Bearer realm="cellcal""#
+        }),
+    }
 }
 
 /// Middleware: [`Gate::admit`] every request before routing.
 pub async fn guard(State(gate): State<Arc<Gate>>, mut req: Request, next: Next) -> Response {
     match gate.admit(&mut req) {
         Ok(()) => next.run(req).await,
-        Err(refusal) => refusal,
+        Err(refusal) => refusal.into_response(),
     }
 }
 
