@@ -176,6 +176,14 @@ fn raw(
     (status, head.to_ascii_lowercase(), body)
 }
 
+/// Create a campaign with the configuration's defaults: its id and its commands path.
+fn create_default(s: &Server) -> (i64, String) {
+    let (code, v) = post(s, "/api/campaigns", "{}");
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_i64().expect("id");
+    (id, format!("/api/campaigns/{id}/commands"))
+}
+
 fn wait_for_state(s: &Server, id: i64, want: &str) -> Value {
     let deadline = Instant::now() + Duration::from_secs(90);
     loop {
@@ -324,10 +332,7 @@ fn technician_questions_are_answered_over_rest() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = fast_config(dir.path(), "manual", 20, 10);
     let s = start(&cfg, &dir.path().join("c.db"));
-    let (code, v) = post(&s, "/api/campaigns", "{}");
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
-    let path = format!("/api/campaigns/{id}/commands");
+    let (id, path) = create_default(&s);
     post(&s, &path, r#"{"command": "arm"}"#);
     post(&s, &path, r#"{"command": "start"}"#);
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -530,10 +535,7 @@ fn browser_attacks_are_refused() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = fast_config(dir.path(), "serial", 20, 10);
     let s = start(&cfg, &dir.path().join("c.db"));
-    let (code, v) = post(&s, "/api/campaigns", "{}");
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
-    let path = format!("/api/campaigns/{id}/commands");
+    let (id, path) = create_default(&s);
     let auth = bearer(&s.token);
     let arm = br#"{"command": "arm"}"#;
     // a web page's form post: cross-origin, text/plain, no preflight; with or without a token
