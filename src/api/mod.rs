@@ -149,7 +149,8 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
 }
 
 /// Serve `app` on `listener` (TLS when `tls` is given) until `handle` shuts it down.
-/// Cancel-safe: dropping the future closes the listener and every connection.
+/// Cancel-safe: dropping the future stops accepting; connections already open run on until
+/// they end (a graceful stop goes through `handle`).
 pub async fn serve(
     listener: std::net::TcpListener,
     app: Router,

@@ -726,9 +726,9 @@ fn a_printed_token_entry_authenticates_its_token() {
         &[],
     );
     let mut warning = String::new();
-    BufReader::new(s.child.stderr.take().expect("stderr"))
-        .read_line(&mut warning)
-        .expect("stderr line");
+    // kept open to the end: the daemon's later stderr lines must not hit a closed pipe
+    let mut stderr = BufReader::new(s.child.stderr.take().expect("stderr"));
+    stderr.read_line(&mut warning).expect("stderr line");
     assert!(
         warning.contains("warning") && warning.contains("plain HTTP"),
         "{warning}"
