@@ -14,6 +14,7 @@
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
+//! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
 //!
@@ -22,6 +23,7 @@
 
 pub mod analysis;
 pub mod api;
+pub mod auth;
 pub mod campaign;
 pub mod cell;
 pub mod config;

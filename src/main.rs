@@ -8,6 +8,7 @@ use anyhow::{anyhow, Context};
 use clap::{Parser, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
+mod cli;
 mod run_cmd;
 mod signals;
 mod terminal;
@@ -179,6 +180,17 @@ enum Command {
         /// Store file (default: `store` of the configuration).
         #[arg(long)]
         store: Option<PathBuf>,
+    },
+    /// Make a random REST API token: prints it once (`token: …`) and the `[[api.tokens]]`
+    /// entry (name, role, SHA-256) to paste into the cell configuration.
+    Token {
+        /// Who will hold the token (named in refusals; the token itself is never stored).
+        #[arg(long)]
+        name: String,
+        /// What it may do: `viewer` (reads, abort), `technician` (also answer, pause),
+        /// `operator` (everything).
+        #[arg(long, value_parser = ["viewer", "technician", "operator"])]
+        role: String,
     },
     /// Write a stored campaign's measurements as an identify CSV.
     Export {
@@ -379,6 +391,7 @@ fn main() -> ExitCode {
             listen,
             store,
         } => run_cmd::serve(&config, &listen, store),
+        Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export {
             store,
             campaign,

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, Context};
 
-use cellcal::api;
+use cellcal::api::{self, Scheme};
 use cellcal::campaign::session::{open_session, Resume, SessionError};
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
@@ -17,6 +17,7 @@ use cellcal::model::load_robot;
 use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
 
+use crate::cli::access;
 use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
@@ -184,32 +185,46 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
     let addr: std::net::SocketAddr = listen
         .parse()
         .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;
+    let api_cfg = cfg.api.clone();
+    access::check_exposure(addr, &api_cfg)?;
+    let tls = match &api_cfg.tls {
+        Some((cert, key)) => Some(api::tls::server_config(cert, key).map_err(input)?),
+        None => None,
+    };
+    let scheme = if tls.is_some() {
+        Scheme::Https
+    } else {
+        Scheme::Http
+    };
     let store_path = store.unwrap_or_else(|| cfg.store.clone());
     let rt = runtime()?;
     rt.block_on(async move {
         let daemon = Arc::new(Daemon::new(cfg, &store_path).map_err(input)?);
-        let listener = tokio::net::TcpListener::bind(addr)
-            .await
+        let listener = std::net::TcpListener::bind(addr)
             .with_context(|| format!("cannot listen on {addr}"))
             .map_err(other)?;
         let bound = listener.local_addr().map_err(other)?;
-        println!("listening on http://{bound}");
+        let (tokens, one_time) = access::accepted_tokens(&api_cfg)?;
+        println!("listening on {}://{bound}", scheme.as_str());
+        if let Some(token) = one_time {
+            println!("open {}://{bound}/?token={token}", scheme.as_str());
+        }
         eprintln!("campaign store {}", store_path.display());
         let mut signals = StopSignals::install().map_err(other)?;
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let server = axum::serve(listener, api::router(Arc::clone(&daemon)))
-            .with_graceful_shutdown(async move {
-                let _ = stop_rx.await;
-            });
-        let server = std::future::IntoFuture::into_future(server);
+        let app = api::router(
+            Arc::clone(&daemon),
+            access::gate(tokens, scheme, bound, &api_cfg),
+        );
+        let handle = axum_server::Handle::new();
+        let server = api::serve(listener, app, tls, handle.clone());
         tokio::pin!(server);
         tokio::select! {
             r = &mut server => r.map_err(other)?,
             _ = signals.next() => {
                 eprintln!("stopping: aborting the loaded campaign");
                 daemon.shutdown().await;
-                let _ = stop_tx.send(());
-                let _ = tokio::time::timeout(std::time::Duration::from_secs(5), server).await;
+                handle.graceful_shutdown(Some(std::time::Duration::from_secs(5)));
+                let _ = tokio::time::timeout(std::time::Duration::from_secs(6), server).await;
             }
         }
         Ok(())

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
+use crate::auth::{Role, TokenDigest};
 use crate::identify::ObsModel;
 use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
@@ -259,6 +260,116 @@ impl Default for SetupSection {
     }
 }
 
+/// One `[[api.tokens]]` entry as written in the file.
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+struct ApiTokenFile {
+    name: String,
+    role: Role,
+    sha256: String,
+}
+
+/// `[api]` as written in the file.
+#[derive(Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+struct ApiFile {
+    tokens: Vec<ApiTokenFile>,
+    tls_cert: Option<PathBuf>,
+    tls_key: Option<PathBuf>,
+    allowed_hosts: Vec<String>,
+    allowed_origins: Vec<String>,
+}
+
+/// A REST API token the configuration accepts: who holds it, its role, its SHA-256 digest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ApiToken {
+    /// Who holds the token (shown in refusals, never the token).
+    pub name: String,
+    /// What the holder may do.
+    pub role: Role,
+    /// SHA-256 of the token (the token itself is never stored).
+    pub digest: TokenDigest,
+}
+
+/// `[api]`: who may use the REST API of `cellcal serve`, and how it is served.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ApiSection {
+    /// Accepted tokens; none = `serve` makes a one-time operator token (loopback only).
+    pub tokens: Vec<ApiToken>,
+    /// TLS certificate chain and private key (PEM, resolved), when served over HTTPS.
+    pub tls: Option<(PathBuf, PathBuf)>,
+    /// Extra `Host` names the daemon answers to (`name` or `name:port`).
+    pub allowed_hosts: Vec<String>,
+    /// Extra origins (`scheme://host[:port]`) whose browser requests are accepted.
+    pub allowed_origins: Vec<String>,
+}
+
+/// Validate `[api]`; `invalid` names the file, `resolve` anchors relative paths.
+fn api_section(
+    f: ApiFile,
+    invalid: impl Fn(&str, String) -> ConfigError,
+    resolve: impl Fn(PathBuf) -> PathBuf,
+) -> Result<ApiSection, ConfigError> {
+    let mut tokens: Vec<ApiToken> = Vec::with_capacity(f.tokens.len());
+    for (i, t) in f.tokens.into_iter().enumerate() {
+        if t.name.trim().is_empty() {
+            return Err(invalid(
+                &format!("api.tokens[{i}].name"),
+                "must not be empty".into(),
+            ));
+        }
+        if tokens.iter().any(|o| o.name == t.name) {
+            return Err(invalid(
+                &format!("api.tokens[{i}].name"),
+                format!("`{}` is used twice", t.name),
+            ));
+        }
+        let digest = TokenDigest::from_hex(&t.sha256)
+            .map_err(|e| invalid(&format!("api.tokens[{i}].sha256"), e.to_string()))?;
+        tokens.push(ApiToken {
+            name: t.name,
+            role: t.role,
+            digest,
+        });
+    }
+    let tls = match (f.tls_cert, f.tls_key) {
+        (Some(c), Some(k)) => Some((resolve(c), resolve(k))),
+        (None, None) => None,
+        (Some(_), None) => return Err(invalid("api.tls_key", "missing: tls_cert needs it".into())),
+        (None, Some(_)) => return Err(invalid("api.tls_cert", "missing: tls_key needs it".into())),
+    };
+    if let Some(h) = f
+        .allowed_hosts
+        .iter()
+        .find(|h| h.is_empty() || h.contains(['/', '@', ' ']))
+    {
+        return Err(invalid(
+            "api.allowed_hosts",
+            format!("`{h}` is not a host name (`name` or `name:port`)"),
+        ));
+    }
+    if let Some(o) = f.allowed_origins.iter().find(|o| !is_origin(o)) {
+        return Err(invalid(
+            "api.allowed_origins",
+            format!("`{o}` is not an origin (`http://host[:port]` or `https://host[:port]`)"),
+        ));
+    }
+    Ok(ApiSection {
+        tokens,
+        tls,
+        allowed_hosts: f.allowed_hosts,
+        allowed_origins: f.allowed_origins,
+    })
+}
+
+/// Whether `s` is `http://host[:port]` or `https://host[:port]` (no path).
+fn is_origin(s: &str) -> bool {
+    let rest = s
+        .strip_prefix("http://")
+        .or_else(|| s.strip_prefix("https://"));
+    rest.is_some_and(|r| !r.is_empty() && !r.contains(['/', '@', ' ']))
+}
+
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct CellFile {
@@ -274,6 +385,8 @@ struct CellFile {
     campaign: CampaignSection,
     #[serde(default)]
     setup: SetupSection,
+    #[serde(default)]
+    api: ApiFile,
     sim: Option<toml::Table>,
 }
 
@@ -298,6 +411,8 @@ pub struct CellConfig {
     pub campaign: CampaignSection,
     /// Setup steps.
     pub setup: SetupSection,
+    /// REST API access (`[api]`).
+    pub api: ApiSection,
     /// The `[sim]` table, if any (the simulated world's own configuration).
     pub sim: Option<toml::Table>,
 }
@@ -342,6 +457,15 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     f.setup.check().map_err(invalid)?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: PathBuf| if p.is_absolute() { p } else { dir.join(p) };
+    let api = api_section(
+        f.api,
+        |key: &str, message: String| ConfigError::Invalid {
+            path: path.to_owned(),
+            key: key.to_owned(),
+            message,
+        },
+        resolve,
+    )?;
     Ok(CellConfig {
         path: path.to_owned(),
         text: text.to_owned(),
@@ -355,6 +479,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         stage: f.stage,
         campaign: f.campaign,
         setup: f.setup,
+        api,
         sim: f.sim,
     })
 }
@@ -735,6 +860,59 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.starts_with(&format!("c.toml: {key}: ")), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn api_tokens_and_tls_are_read_and_checked() {
+        let digest = TokenDigest::of_token("t").to_hex();
+        let c = parse_cell_config(
+            &format!(
+                "[api]\ntls_cert = \"c.pem\"\ntls_key = \"/k.pem\"\nallowed_hosts = [\"cell.lan\"]\n\
+                 [[api.tokens]]\nname = \"alice\"\nrole = \"technician\"\nsha256 = \"{digest}\"\n"
+            ),
+            Path::new("/etc/cellcal/cell.toml"),
+        )
+        .unwrap();
+        assert_eq!(c.api.tokens.len(), 1);
+        assert_eq!(c.api.tokens[0].role, Role::Technician);
+        assert_eq!(c.api.tokens[0].digest, TokenDigest::of_token("t"));
+        assert_eq!(
+            c.api.tls,
+            Some((PathBuf::from("/etc/cellcal/c.pem"), PathBuf::from("/k.pem")))
+        );
+        assert!(parse_cell_config("", Path::new("c.toml"))
+            .unwrap()
+            .api
+            .tokens
+            .is_empty());
+        let entry = |name: &str, role: &str, sha: &str| {
+            format!("[[api.tokens]]\nname = \"{name}\"\nrole = \"{role}\"\nsha256 = \"{sha}\"\n")
+        };
+        for (text, key) in [
+            (entry("a", "operator", "abc"), "api.tokens[0].sha256"),
+            (entry("", "operator", &digest), "api.tokens[0].name"),
+            (
+                entry("a", "viewer", &digest) + &entry("a", "viewer", &digest),
+                "api.tokens[1].name",
+            ),
+            (entry("a", "admin", &digest), "admin"),
+            (entry("a", "viewer", &digest) + "secret = 1\n", "secret"),
+            ("[api]\ntls_cert = \"c.pem\"\n".into(), "api.tls_key"),
+            (
+                "[api]\nallowed_origins = [\"evil\"]\n".into(),
+                "api.allowed_origins",
+            ),
+            (
+                "[api]\nallowed_hosts = [\"a/b\"]\n".into(),
+                "api.allowed_hosts",
+            ),
+            ("[api]\ntoken = 1\n".into(), "token"),
+        ] {
+            let e = parse_cell_config(&text, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("c.toml") && e.contains(key), "{text}: {e}");
         }
     }
 

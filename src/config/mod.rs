@@ -7,6 +7,7 @@ pub mod cell;
 pub mod diff;
 
 pub use cell::{
-    load_cell_config, parse_cell_config, CampaignSection, CellConfig, ConfigError, DeviceMode,
-    InvalidKey, RobotSection, SetupSection, StageMode, StageSection, TrackerSection, MAX_POSES,
+    load_cell_config, parse_cell_config, ApiSection, ApiToken, CampaignSection, CellConfig,
+    ConfigError, DeviceMode, InvalidKey, RobotSection, SetupSection, StageMode, StageSection,
+    TrackerSection, MAX_POSES,
 };
