@@ -18,7 +18,9 @@ use crate::cell::{
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
 use crate::model::{load_robot, RobotModel};
-use crate::plan::{plan_campaign, Plan, PlanEntry, PlanRequest, Workspace};
+use crate::plan::{
+    count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
+};
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
 use crate::store::{NewCampaign, PlannedPose, Store};
 
@@ -68,6 +70,7 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
             size_mm: Vector3::from(c.box_size_mm),
             wrist_min_rad: c.wrist_min_deg.to_radians(),
             floor_z_mm: c.floor_z_mm,
+            path_margin_mm: c.path_margin_mm,
         },
         poses: c.poses,
         ident: c.ident,
@@ -75,6 +78,7 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         tracker_mm: Vector3::from(cfg.tracker.position_mm),
         line_of_sight_max_rad: c.line_of_sight_max_deg.to_radians(),
         tool_mm: Vector3::from(c.tool_mm),
+        drift_every: c.drift_every,
     }
 }
 
@@ -184,7 +188,7 @@ pub async fn open_session(
         Some(id) => {
             let row = store.campaign(id)?;
             let stored = store.plan(id)?;
-            let poses = stored
+            let poses: Vec<PlanEntry> = stored
                 .into_iter()
                 .map(|p| PlanEntry {
                     index: p.index,
@@ -192,6 +196,15 @@ pub async fn open_session(
                     q_rad: p.q_rad,
                 })
                 .collect();
+            let mut router = Router::new(
+                &nominal,
+                &req.workspace,
+                &req.tool_mm,
+                &fresh.drift_reference,
+            )
+            .map_err(PlanError::from)?;
+            let via_points =
+                count_via_points(&mut router, req.drift_every, &poses).map_err(PlanError::from)?;
             // identify with the model the campaign was created with
             model_of_resumed = Some(row.model);
             (
@@ -199,6 +212,7 @@ pub async fn open_session(
                 Plan {
                     poses,
                     drift_reference: fresh.drift_reference.clone(),
+                    via_points,
                 },
                 true,
             )

@@ -167,6 +167,8 @@ pub struct CampaignSection {
     pub wrist_min_deg: f64,
     /// Every frame origin above this height (mm).
     pub floor_z_mm: f64,
+    /// How far beyond the box a move may sweep the flange and the ball (mm).
+    pub path_margin_mm: f64,
     /// Maximum angle between the ball's opening (flange +z) and the line to the tracker (deg).
     pub line_of_sight_max_deg: f64,
     /// Measure the drift reference pose every N poses (0 = only at start and end).
@@ -192,6 +194,7 @@ impl Default for CampaignSection {
             model: "op".into(),
             wrist_min_deg: 10.0,
             floor_z_mm: -300.0,
+            path_margin_mm: 100.0,
             line_of_sight_max_deg: 180.0,
             drift_every: 50,
             drift_max_mm: 0.1,
@@ -350,6 +353,12 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
             "must be three positive numbers".into(),
         ));
     }
+    if !(c.path_margin_mm.is_finite() && c.path_margin_mm >= 0.0) {
+        return Err(invalid(
+            "campaign.path_margin_mm",
+            "must be a non-negative number".into(),
+        ));
+    }
     if !(c.line_of_sight_max_deg > 0.0 && c.line_of_sight_max_deg <= 180.0) {
         return Err(invalid(
             "campaign.line_of_sight_max_deg",
@@ -471,6 +480,10 @@ mod tests {
         for (text, key) in [
             ("[campaign]\nmodel = \"xyz\"\n", "campaign.model"),
             ("[campaign]\nident = 400\n", "campaign.ident"),
+            (
+                "[campaign]\npath_margin_mm = -1.0\n",
+                "campaign.path_margin_mm",
+            ),
             ("[stage]\naxis = \"+z\"\n", "stage.axis"),
             (
                 "[robot_controller]\nspeed_pct = 150\n",
