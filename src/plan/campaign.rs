@@ -87,9 +87,10 @@ pub fn target_ok(model: &RobotModel, q: &[f64], req: &PlanRequest) -> bool {
 
 /// Plan a campaign on the nominal model.
 ///
-/// Candidates are sampled until `poses + 1` pass [`target_ok`]; the wrist side (see
-/// [`wrist_side`]) most of them share is kept (a joint move between the two sides crosses the
-/// wrist singularity); the drift reference is the hub of every route (see [`choose_hub`]);
+/// Candidates are sampled until `poses + 1` pass [`target_ok`]; only those with the wrist bent
+/// to the positive side (see [`wrist_side`]; TX60: q5 > 0) are kept, since a joint move between
+/// the two sides crosses the wrist singularity (a robot starting on the other side gets no
+/// route: jog it over first); the drift reference is the hub of every route (see [`choose_hub`]);
 /// a pose is kept when the direct move between it and the drift reference passes the path
 /// check, so every move of the campaign has a route (direct, or through the drift reference).
 /// The first `ident` poses in sampling order identify; the move order is greedy nearest
@@ -100,7 +101,7 @@ pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, Plan
     let mut rng = ChaCha8Rng::seed_from_u64(req.seed);
     let wanted = req.poses + 1;
     let first = candidates(model, req, wanted, None, &mut rng)?;
-    let side = majority_wrist_side(&first);
+    let side = preferred_wrist_side(&first);
     let mut found: Vec<Candidate> = first.into_iter().filter(|c| c.side == side).collect();
     let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
     let hub_i = choose_hub(&mut checker, &found).ok_or(PlanError::Unreachable {
@@ -193,15 +194,17 @@ fn candidates(
         .collect())
 }
 
-/// The wrist side most candidates are bent to (ties: the positive side); `None` for arms
-/// without a wrist check.
-fn majority_wrist_side(cs: &[Candidate]) -> Option<bool> {
-    let sided = cs.iter().filter(|c| c.side.is_some()).count();
-    if sided == 0 {
-        return None;
+/// The wrist side a plan keeps: the positive side (Stäubli TX60: q5 > 0, where the simulated
+/// robot and the usual home poses are) when any candidate is bent to it, else the negative one;
+/// `None` for arms without a wrist check.
+fn preferred_wrist_side(cs: &[Candidate]) -> Option<bool> {
+    if cs.iter().any(|c| c.side == Some(true)) {
+        Some(true)
+    } else if cs.iter().any(|c| c.side == Some(false)) {
+        Some(false)
+    } else {
+        None
     }
-    let positive = cs.iter().filter(|c| c.side == Some(true)).count();
-    Some(2 * positive >= sided)
 }
 
 /// Candidates tried as the hub: the nearest the box centre.

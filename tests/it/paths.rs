@@ -119,3 +119,62 @@ fn a_thirty_thousand_pose_plan_is_complete_and_routable() {
         Ok(plan.via_points)
     );
 }
+
+/// The engine routes every move from the robot's joints: a robot standing outside the grown box
+/// (arm stretched along −y) has no safe path, so the campaign fails before anything moves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_outside_the_grown_box_is_refused_before_any_motion() {
+    use cellcal::campaign::session::open_session;
+    use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
+    use cellcal::cell::ScriptedPrompter;
+    use cellcal::config::parse_cell_config;
+    use cellcal::sim::lock_world;
+    use std::sync::Arc;
+
+    let text = super::campaign::config_text("", "", "")
+        .replace("poses = 300", "poses = 10")
+        .replace("ident = 100", "ident = 5")
+        .replace(
+            "initial_joints_deg = [0.0, 0.0, 90.0, 0.0, 45.0, 0.0]",
+            "initial_joints_deg = [90.0, 90.0, 0.0, 0.0, 30.0, 0.0]",
+        );
+    assert!(text.contains("[90.0, 90.0, 0.0"), "cell.sim.toml changed");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg_path = super::campaign::write_config(dir.path(), &text);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let session = open_session(
+        cfg,
+        &dir.path().join("c.db"),
+        None,
+        Arc::new(ScriptedPrompter::exact()),
+    )
+    .await
+    .expect("session");
+    let mut ctx = session.ctx;
+    ctx.on_fault = FaultPolicy::Fail;
+    let mut devices = session.devices;
+    let sim = session.sim.expect("sim");
+    let moves_before = lock_world(&sim.world).moves();
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = tokio::time::timeout(
+        std::time::Duration::from_secs(30),
+        run_campaign(&ctx, &mut devices),
+    )
+    .await
+    .expect("the run ends")
+    .expect("runs");
+    let Outcome::Failed(reason) = outcome else {
+        panic!("{outcome:?}");
+    };
+    assert!(
+        reason.contains("no safe path") && reason.contains("start"),
+        "{reason}"
+    );
+    assert_eq!(
+        lock_world(&sim.world).moves(),
+        moves_before,
+        "the robot moved"
+    );
+    sim.stop().await;
+}
