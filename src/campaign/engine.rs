@@ -8,7 +8,7 @@
 //! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
 //! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
 //! in `failed`, resumable. A safety refusal (not armed, target outside the limits or the
-//! workspace) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
+//! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
 //! campaign resumable at the first unmeasured pose. Every event (state change, measured pose,
 //! fault, drift check, setup, note, result) is journalled in the store's `events` table before
 //! it is emitted, and emitted with its journal sequence number ([`journal_event`]). Whatever
@@ -30,7 +30,7 @@ use crate::config::CellConfig;
 use crate::identify::solver::Options;
 use crate::identify::{IdentifyOptions, ObsConfig};
 use crate::model::RobotModel;
-use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest};
+use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
 use crate::store::{EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
 
@@ -267,6 +267,8 @@ struct Run<'a> {
     stage_mm: Option<f64>,
     /// Joints of the drift reference (the frame reference's, once known).
     drift_q: Vec<f64>,
+    /// Routes of every move through the drift reference (its error refuses every move).
+    router: Result<Router, RouteError>,
 }
 
 /// Retry a step after the operator fixed a fault: `Stop::Fault` pauses (or fails, per the
@@ -491,9 +493,11 @@ impl Run<'_> {
         self.ctx.nominal.within_limits(q) && target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
     }
 
-    /// Move to a joint target after the safety checks; returns the joints read after settling.
-    /// Every attempt re-checks that the campaign is armed; joints that settle farther than
-    /// `settle_tolerance_deg` from the target count as a failed attempt.
+    /// Move to a joint target after the safety checks, through the via points of its route
+    /// from the robot's joints as read before each attempt (every leg passes the path check);
+    /// returns the joints read after settling at the target. Every attempt re-checks that the
+    /// campaign is armed; joints that settle farther than `settle_tolerance_deg` from the
+    /// target count as a failed attempt. Not cancel-safe: abort stops the robot.
     async fn move_to(&mut self, q: &[f64]) -> Result<Vec<f64>, Stop> {
         if !self.target_safe(q) {
             return Err(Stop::Failed(format!(
@@ -513,16 +517,29 @@ impl Run<'_> {
             if !self.ctx.control.is_armed() {
                 return Err(Stop::Failed("the campaign is not armed: no motion".into()));
             }
+            let router = self
+                .router
+                .as_mut()
+                .map_err(|e| Stop::Failed(format!("no move is routed: {e}")))?;
             let r = {
                 let robot = &mut self.dev.robot;
                 guarded(&self.ctx.control.abort, async {
+                    let from = robot.joints().await?;
+                    let vias = match router.route(&from, q) {
+                        Ok(vias) => vias,
+                        Err(e) => return Ok(Err(e)),
+                    };
+                    for via in &vias {
+                        robot.move_joints(via).await?;
+                        robot.wait_settled(timeout).await?;
+                    }
                     robot.move_joints(q).await?;
-                    robot.wait_settled(timeout).await
+                    robot.wait_settled(timeout).await.map(Ok)
                 })
                 .await?
             };
             match r {
-                Ok(joints) => match settle_error(q, &joints, tol) {
+                Ok(Ok(joints)) => match settle_error(q, &joints, tol) {
                     None => return Ok(joints),
                     Some(why) => {
                         self.fault(DeviceKind::Robot, FaultKind::Device, &why, "repeat move")
@@ -530,6 +547,11 @@ impl Run<'_> {
                         last = why;
                     }
                 },
+                Ok(Err(e)) => {
+                    return Err(Stop::Failed(format!(
+                        "no safe path to {q:?}: {e}: not sent"
+                    )))
+                }
                 Err(e) if e.is_transient() => {
                     last = e.to_string();
                     self.recover(&e).await?;
@@ -895,11 +917,18 @@ pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
 ) -> Result<Outcome, CampaignError> {
+    let router = Router::new(
+        &ctx.nominal,
+        &ctx.plan_request.workspace,
+        &ctx.plan_request.tool_mm,
+        &ctx.plan.drift_reference,
+    );
     let mut run = Run {
         ctx,
         dev: devices,
         stage_mm: None,
         drift_q: ctx.plan.drift_reference.clone(),
+        router,
     };
     match run.run_to_end().await {
         Ok(outcome) => Ok(outcome),

@@ -21,7 +21,9 @@ use crate::config::diff::changed_keys;
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
 use crate::model::{load_robot, RobotModel};
-use crate::plan::{plan_campaign, Plan, PlanEntry, PlanRequest, Workspace};
+use crate::plan::{
+    count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
+};
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
 use crate::store::{CampaignRow, EventRecord, NewCampaign, PlannedPose, Store};
 
@@ -114,6 +116,7 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
             size_mm: Vector3::from(c.box_size_mm),
             wrist_min_rad: c.wrist_min_deg.to_radians(),
             floor_z_mm: c.floor_z_mm,
+            path_margin_mm: c.path_margin_mm,
         },
         poses: c.poses,
         ident: c.ident,
@@ -121,6 +124,7 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         tracker_mm: Vector3::from(cfg.tracker.position_mm),
         line_of_sight_max_rad: c.line_of_sight_max_deg.to_radians(),
         tool_mm: Vector3::from(c.tool_mm),
+        drift_every: c.drift_every,
     }
 }
 
@@ -253,9 +257,20 @@ fn plan_and_store(
     let fresh = plan_campaign(nominal, req)?;
     let (campaign_id, plan, model_of_resumed, accepted_changes) = match resumed {
         Some(s) => {
+            // a stored plan whose moves cannot all be routed is refused before anything moves
+            let mut router = Router::new(
+                nominal,
+                &req.workspace,
+                &req.tool_mm,
+                &fresh.drift_reference,
+            )
+            .map_err(PlanError::from)?;
+            let via_points = count_via_points(&mut router, req.drift_every, &s.poses)
+                .map_err(PlanError::from)?;
             let plan = Plan {
                 poses: s.poses,
                 drift_reference: fresh.drift_reference,
+                via_points,
             };
             (s.id, plan, Some(s.model), s.accepted_changes)
         }

@@ -180,6 +180,8 @@ pub struct CampaignSection {
     pub wrist_min_deg: f64,
     /// Every frame origin above this height (mm).
     pub floor_z_mm: f64,
+    /// How far beyond the box a move may sweep the flange and the ball (mm).
+    pub path_margin_mm: f64,
     /// Maximum angle between the ball's opening (flange +z) and the line to the tracker (deg).
     pub line_of_sight_max_deg: f64,
     /// Measure the drift reference pose every N poses (0 = only at start and end).
@@ -205,6 +207,7 @@ impl Default for CampaignSection {
             model: "op".into(),
             wrist_min_deg: 10.0,
             floor_z_mm: -300.0,
+            path_margin_mm: 100.0,
             line_of_sight_max_deg: 180.0,
             drift_every: 50,
             drift_max_mm: 0.1,
@@ -625,6 +628,11 @@ impl CampaignSection {
             format!("must be in [0, 90), got {}", self.wrist_min_deg),
         )?;
         rule(
+            self.path_margin_mm >= 0.0,
+            "campaign.path_margin_mm",
+            format!("must be a non-negative number, got {}", self.path_margin_mm),
+        )?;
+        rule(
             self.line_of_sight_max_deg > 0.0 && self.line_of_sight_max_deg <= 180.0,
             "campaign.line_of_sight_max_deg",
             format!("must be in (0, 180], got {}", self.line_of_sight_max_deg),
@@ -699,6 +707,10 @@ mod tests {
         for (text, key) in [
             ("[campaign]\nmodel = \"xyz\"\n", "campaign.model"),
             ("[campaign]\nident = 400\n", "campaign.ident"),
+            (
+                "[campaign]\npath_margin_mm = -1.0\n",
+                "campaign.path_margin_mm",
+            ),
             ("[stage]\naxis = \"+z\"\n", "stage.axis"),
             (
                 "[robot_controller]\nspeed_pct = 150\n",

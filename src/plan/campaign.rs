@@ -6,9 +6,12 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::sampling::{sample_poses, PlanError, Workspace};
+use super::order::{nearest_neighbour_order, travel};
+use super::path::{wrist_side, PathChecker};
+use super::route::{RouteError, Router};
+use super::sampling::{sample_poses_where, PlanError, Workspace};
 use crate::dataset::PoseSet;
-use crate::model::kinematics::forward;
+use crate::model::kinematics::{forward, Pose};
 use crate::model::RobotModel;
 
 /// What to plan.
@@ -28,6 +31,9 @@ pub struct PlanRequest {
     pub line_of_sight_max_rad: f64,
     /// Ball position in the flange frame (mm).
     pub tool_mm: Vector3<f64>,
+    /// The drift reference is measured again every this many poses (0 = start and end only);
+    /// the return moves count in [`Plan::via_points`].
+    pub drift_every: usize,
 }
 
 /// One planned pose.
@@ -46,8 +52,12 @@ pub struct PlanEntry {
 pub struct Plan {
     /// Poses in move order.
     pub poses: Vec<PlanEntry>,
-    /// Drift reference pose (rad): measured at the start, every N poses and at the end.
+    /// Drift reference pose (rad): measured at the start, every N poses and at the end; the
+    /// hub of every route.
     pub drift_reference: Vec<f64>,
+    /// Via points the campaign's moves need (for the operator; the engine routes every move
+    /// again from the robot's actual joints).
+    pub via_points: usize,
 }
 
 /// Whether the target ball at `q` faces the tracker within the limit.
@@ -55,8 +65,14 @@ pub fn line_of_sight_ok(model: &RobotModel, q: &[f64], req: &PlanRequest) -> boo
     if req.line_of_sight_max_rad >= std::f64::consts::PI {
         return true;
     }
-    let f = forward(model, q);
-    let fl = f.flange();
+    facing_tracker(forward(model, q).flange(), req)
+}
+
+/// [`line_of_sight_ok`] of the flange pose `fl`.
+fn facing_tracker(fl: &Pose, req: &PlanRequest) -> bool {
+    if req.line_of_sight_max_rad >= std::f64::consts::PI {
+        return true;
+    }
     let ball = fl.transform_point(&req.tool_mm);
     let to_tracker = req.tracker_mm - ball;
     let facing = fl.r.column(2);
@@ -69,76 +85,179 @@ pub fn target_ok(model: &RobotModel, q: &[f64], req: &PlanRequest) -> bool {
     req.workspace.accepts(model, q) && line_of_sight_ok(model, q, req)
 }
 
-/// Time-like distance between two joint configurations: the largest joint travel (rad).
-fn travel(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
-}
-
 /// Plan a campaign on the nominal model.
+///
+/// Candidates are sampled until `poses + 1` pass [`target_ok`]; only those with the wrist bent
+/// to the positive side (see [`wrist_side`]; TX60: q5 > 0) are kept, since a joint move between
+/// the two sides crosses the wrist singularity (a robot starting on the other side gets no
+/// route: jog it over first); the drift reference is the hub of every route (see [`choose_hub`]);
+/// a pose is kept when the direct move between it and the drift reference passes the path
+/// check, so every move of the campaign has a route (direct, or through the drift reference).
+/// The first `ident` poses in sampling order identify; the move order is greedy nearest
+/// neighbour from the drift reference, and [`Plan::via_points`] counts the via points of every
+/// move the engine makes (drift reference first, returns to it every `drift_every` poses and at
+/// the end). O(n log n) for the order, O(n) path checks otherwise.
 pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, PlanError> {
     let mut rng = ChaCha8Rng::seed_from_u64(req.seed);
     let wanted = req.poses + 1;
-    let mut found: Vec<Vec<f64>> = Vec::with_capacity(wanted);
-    let mut tried = 0usize;
-    while found.len() < wanted {
-        let batch = sample_poses(model, &req.workspace, wanted - found.len(), &mut rng)?;
-        tried += batch.len();
-        found.extend(
-            batch
-                .into_iter()
-                .filter(|q| line_of_sight_ok(model, q, req)),
+    let first = candidates(model, req, wanted, None, &mut rng)?;
+    let side = preferred_wrist_side(&first);
+    let mut found: Vec<Candidate> = first.into_iter().filter(|c| c.side == side).collect();
+    let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
+    let hub_i = choose_hub(&mut checker, &found).ok_or(PlanError::Unreachable {
+        found: 0,
+        wanted,
+        tried: wanted,
+    })?;
+    let drift_reference = found.remove(hub_i).q;
+    let mut drawn = wanted;
+    let mut kept: Vec<Vec<f64>> = Vec::with_capacity(req.poses);
+    loop {
+        let need = req.poses - kept.len();
+        kept.extend(
+            found
+                .drain(..)
+                .map(|c| c.q)
+                .filter(|q| checker.check_move(q, &drift_reference).is_ok())
+                .take(need),
         );
-        if tried > 200 * wanted && found.len() < wanted {
+        let need = req.poses - kept.len();
+        if need == 0 {
+            break;
+        }
+        if drawn > 200 * wanted {
             return Err(PlanError::Unreachable {
-                found: found.len(),
+                found: kept.len() + 1,
                 wanted,
-                tried,
+                tried: drawn,
             });
         }
+        found = candidates(model, req, need, side, &mut rng)?;
+        drawn += need;
     }
-    // drift reference: the candidate closest to the box centre
-    let centre = req.workspace.center_mm;
-    let (ref_i, _) = found
-        .iter()
-        .enumerate()
-        .map(|(i, q)| (i, (forward(model, q).flange().p - centre).norm()))
-        .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-    let drift_reference = found.remove(ref_i);
-    // sampling order is random: the first `ident` are the identification set
-    let entries: Vec<PlanEntry> = found
+    let order = nearest_neighbour_order(&drift_reference, &kept);
+    let poses: Vec<PlanEntry> = order
         .into_iter()
-        .enumerate()
-        .map(|(index, q_rad)| PlanEntry {
+        .map(|index| PlanEntry {
             index,
             set: if index < req.ident {
                 PoseSet::Ident
             } else {
                 PoseSet::Verify
             },
-            q_rad,
+            q_rad: std::mem::take(&mut kept[index]),
         })
         .collect();
-    // greedy nearest-neighbour order from the drift reference
-    let mut left = entries;
-    let mut order = Vec::with_capacity(left.len());
-    let mut at = drift_reference.clone();
-    while !left.is_empty() {
-        let (k, _) = left
-            .iter()
-            .enumerate()
-            .map(|(k, e)| (k, travel(&at, &e.q_rad)))
-            .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-        let e = left.swap_remove(k);
-        at = e.q_rad.clone();
-        order.push(e);
-    }
+    let mut router = Router::new(model, &req.workspace, &req.tool_mm, &drift_reference)?;
+    let via_points = count_via_points(&mut router, req.drift_every, &poses)?;
     Ok(Plan {
-        poses: order,
+        poses,
         drift_reference,
+        via_points,
     })
+}
+
+/// A sampled configuration that passes [`target_ok`], with what planning needs of its frames.
+struct Candidate {
+    /// Joints (rad).
+    q: Vec<f64>,
+    /// Its wrist side ([`wrist_side`]).
+    side: Option<bool>,
+    /// Distance of the flange from the box centre (mm).
+    centre_mm: f64,
+}
+
+/// `n` sampled configurations that pass [`target_ok`] with their wrist bent to `side` (any side
+/// when `None`), in sampling order.
+fn candidates(
+    model: &RobotModel,
+    req: &PlanRequest,
+    n: usize,
+    side: Option<bool>,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Candidate>, PlanError> {
+    let centre = req.workspace.center_mm;
+    let mut info = Vec::with_capacity(n);
+    let max_tries = 1000 * n.max(1) + 100_000;
+    let qs = sample_poses_where(model, &req.workspace, n, rng, max_tries, |_, f| {
+        let s = wrist_side(f);
+        let keep = side.is_none_or(|w| s == Some(w)) && facing_tracker(f.flange(), req);
+        if keep {
+            info.push((s, (f.flange().p - centre).norm()));
+        }
+        keep
+    })?;
+    Ok(qs
+        .into_iter()
+        .zip(info)
+        .map(|(q, (side, centre_mm))| Candidate { q, side, centre_mm })
+        .collect())
+}
+
+/// The wrist side a plan keeps: the positive side (Stäubli TX60: q5 > 0, where the simulated
+/// robot and the usual home poses are) when any candidate is bent to it, else the negative one;
+/// `None` for arms without a wrist check.
+fn preferred_wrist_side(cs: &[Candidate]) -> Option<bool> {
+    if cs.iter().any(|c| c.side == Some(true)) {
+        Some(true)
+    } else if cs.iter().any(|c| c.side == Some(false)) {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// Candidates tried as the hub: the nearest the box centre.
+const HUB_CANDIDATES: usize = 16;
+/// Poses each hub candidate is tried against.
+const HUB_PROBES: usize = 64;
+
+/// Index of the hub among `qs`: of the [`HUB_CANDIDATES`] configurations whose flange is nearest
+/// the box centre, the one with a passing direct move to the most of the first [`HUB_PROBES`]
+/// (ties: the nearer the centre).
+fn choose_hub(checker: &mut PathChecker, cs: &[Candidate]) -> Option<usize> {
+    let mut by_distance: Vec<(f64, usize)> = cs.iter().map(|c| c.centre_mm).zip(0..).collect();
+    let k = HUB_CANDIDATES.min(by_distance.len());
+    if k == 0 {
+        return None;
+    }
+    by_distance.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    by_distance.truncate(k);
+    by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let probes = &cs[..HUB_PROBES.min(cs.len())];
+    let mut best: Option<(usize, usize)> = None;
+    for &(_, i) in &by_distance {
+        let reached = probes
+            .iter()
+            .filter(|p| checker.check_move(&cs[i].q, &p.q).is_ok())
+            .count();
+        if best.is_none_or(|(r, _)| reached > r) {
+            best = Some((reached, i));
+        }
+    }
+    best.map(|(_, i)| i)
+}
+
+/// Via points of every move the engine makes for `poses` (in move order), the router's hub
+/// being the drift reference: hub → first pose, pose to pose, back to the hub after every
+/// `drift_every` poses (not after the last) and at the end.
+pub fn count_via_points(
+    router: &mut Router,
+    drift_every: usize,
+    poses: &[PlanEntry],
+) -> Result<usize, RouteError> {
+    let hub = router.hub().to_vec();
+    let mut at = hub.clone();
+    let mut vias = 0;
+    for (done, p) in poses.iter().enumerate().map(|(i, p)| (i + 1, p)) {
+        vias += router.route(&at, &p.q_rad)?.len();
+        at.clone_from(&p.q_rad);
+        if drift_every > 0 && done % drift_every == 0 && done < poses.len() {
+            vias += router.route(&at, &hub)?.len();
+            at.clone_from(&hub);
+        }
+    }
+    Ok(vias + router.route(&at, &hub)?.len())
 }
 
 /// Total robot travel of a move order (sum of largest joint travels, rad).
@@ -155,7 +274,7 @@ pub fn total_travel(start: &[f64], poses: &[PlanEntry]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::parse_robot;
+    use crate::model::tx60;
 
     fn req() -> PlanRequest {
         PlanRequest {
@@ -166,15 +285,8 @@ mod tests {
             tracker_mm: Vector3::new(2550.0, 0.0, 0.0),
             line_of_sight_max_rad: 80f64.to_radians(),
             tool_mm: Vector3::zeros(),
+            drift_every: 20,
         }
-    }
-
-    fn tx60() -> RobotModel {
-        parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .unwrap()
     }
 
     #[test]

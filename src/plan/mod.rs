@@ -1,7 +1,13 @@
-//! Planning: pose sampling in the workspace box (METHOD.md §7) and campaign plans.
+//! Planning: pose sampling in the workspace box (METHOD.md §7), campaign plans, path checks of
+//! joint moves and their routing.
 
 pub mod campaign;
+pub mod order;
+pub mod path;
+pub mod route;
 pub mod sampling;
 
-pub use campaign::{plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};
+pub use campaign::{count_via_points, plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};
+pub use path::{BoxFace, CheckedPoint, PathCheck, PathChecker, PathFault, PATH_STEP_MM};
+pub use route::{RouteError, Router};
 pub use sampling::{sample_poses, PlanError, Workspace};

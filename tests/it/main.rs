@@ -7,6 +7,7 @@ mod common;
 mod frames;
 mod identifiability;
 mod paper;
+mod paths;
 mod robust;
 mod safety;
 mod serve;
