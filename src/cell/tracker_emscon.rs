@@ -196,15 +196,33 @@ impl Tracker for EmsconTracker {
         })
     }
 
+    /// GoLastMeasuredPoint, then a check that a reflector is locked (GetMeasurementStatusInfo);
+    /// when it is not (the last point is often the previous pose's, far away), FindReflector.
     async fn relock(&mut self) -> Result<(), CellError> {
         let distance = self.cfg.search_distance_mm;
         let c = self.connected()?;
         match c.go_last_measured_point().await {
-            Ok(()) => return Ok(()),
+            Ok(()) => {
+                let status = c.measurement_status().await.map_err(cell_err)?;
+                if status.reflector_found() {
+                    return Ok(());
+                }
+                warn!("GoLastMeasuredPoint found no reflector there, trying FindReflector");
+            }
             Err(e) if e.is_connection_lost() => return Err(cell_err(e)),
             Err(e) => warn!(error = %e, "GoLastMeasuredPoint failed, trying FindReflector"),
         }
-        c.find_reflector(distance).await.map_err(cell_err)
+        c.find_reflector(distance).await.map_err(cell_err)?;
+        let status = c.measurement_status().await.map_err(cell_err)?;
+        if status.reflector_found() {
+            Ok(())
+        } else {
+            Err(CellError::new(
+                DeviceKind::Tracker,
+                FaultKind::BeamBroken,
+                "FindReflector returned, but no reflector is locked",
+            ))
+        }
     }
 
     async fn reconnect(&mut self) -> Result<(), CellError> {

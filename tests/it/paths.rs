@@ -132,8 +132,8 @@ async fn a_robot_outside_the_grown_box_is_refused_before_any_motion() {
     use std::sync::Arc;
 
     let text = super::campaign::config_text("", "", "")
-        .replace("poses = 300", "poses = 10")
-        .replace("ident = 100", "ident = 5")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 14")
         .replace(
             "initial_joints_deg = [0.0, 0.0, 90.0, 0.0, 45.0, 0.0]",
             "initial_joints_deg = [90.0, 90.0, 0.0, 0.0, 30.0, 0.0]",
