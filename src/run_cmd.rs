@@ -75,7 +75,11 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         if session.resumed {
             eprintln!("campaign {id}: resuming from {}", store_path.display());
         } else {
-            eprintln!("campaign {id}: {total} poses planned, stored in {}", store_path.display());
+            eprintln!(
+                "campaign {id}: {total} poses planned ({} via points keep every path in the workspace), stored in {}",
+                ctx.plan.via_points,
+                store_path.display()
+            );
         }
         if let Some(sim) = &session.sim {
             eprintln!(

@@ -16,3 +16,4 @@ mod significance;
 mod store;
 mod terminal;
 mod validation;
+mod zaber_motion;

@@ -522,3 +522,62 @@ async fn a_failed_identification_ends_in_failed_with_the_reason() {
     );
     session.sim.expect("sim").stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn abort_mid_move_stops_the_simulated_arm_within_200_ms() {
+    // slow joints (10 deg/s): the first move takes seconds
+    let text = config_text("", "", "")
+        .replace("move_speed_deg_s = 200000.0\n", "move_speed_deg_s = 10.0\n")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg_path = write_config(dir.path(), &text);
+    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+    let session = open_session(
+        cfg,
+        &dir.path().join("c.db"),
+        None,
+        Arc::new(ScriptedPrompter::exact()),
+    )
+    .await
+    .expect("session");
+    let (ctx, mut devices) = (session.ctx, session.devices);
+    let sim = session.sim.expect("sim");
+    let (world, control) = (sim.world.clone(), ctx.control.clone());
+    let watcher = tokio::spawn(async move {
+        // wait until the arm has been moving for 300 ms, then abort and time the stop
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !cellcal::sim::lock_world(&world).is_moving() {
+            assert!(Instant::now() < deadline, "the arm never moved");
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(
+            cellcal::sim::lock_world(&world).is_moving(),
+            "the move is long enough"
+        );
+        let aborted = Instant::now();
+        control.apply(&CampaignCommand::Abort);
+        while cellcal::sim::lock_world(&world).is_moving() {
+            assert!(
+                aborted.elapsed() < Duration::from_secs(10),
+                "the arm never stopped"
+            );
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        aborted.elapsed()
+    });
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    let latency = watcher.await.expect("watcher");
+    eprintln!("abort → arm stopped: {latency:?}");
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    assert!(
+        latency < Duration::from_millis(200),
+        "abort latency {latency:?}"
+    );
+    sim.stop().await;
+}
