@@ -36,6 +36,21 @@ pub(crate) fn config_text(sim_extra: &str, campaign_extra: &str, faults: &str) -
     s
 }
 
+/// A session on the simulated cell of `text` (written to `dir`), stored in `dir/c.db`, with a
+/// scripted technician.
+pub(crate) async fn sim_session(dir: &Path, text: &str) -> cellcal::campaign::session::Session {
+    let cfg_path = write_config(dir, text);
+    let cfg = parse_cell_config(text, &cfg_path).expect("config");
+    open_session(
+        cfg,
+        &dir.join("c.db"),
+        None,
+        Arc::new(ScriptedPrompter::exact()),
+    )
+    .await
+    .expect("session")
+}
+
 pub(crate) fn write_config(dir: &Path, text: &str) -> PathBuf {
     let robots = dir.join("robots");
     std::fs::create_dir_all(&robots).expect("mkdir");
@@ -154,16 +169,7 @@ async fn campaign_with_faults_loses_and_duplicates_nothing() {
 async fn nothing_moves_unless_armed_and_abort_is_accepted() {
     let dir = tempfile::tempdir().expect("tempdir");
     let text = config_text("", "", "");
-    let cfg_path = write_config(dir.path(), &text);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
-    let session = open_session(
-        cfg,
-        &dir.path().join("c.db"),
-        None,
-        Arc::new(ScriptedPrompter::exact()),
-    )
-    .await
-    .expect("session");
+    let session = sim_session(dir.path(), &text).await;
     let ctx = session.ctx;
     let mut devices = session.devices;
     let sim = session.sim.expect("sim");

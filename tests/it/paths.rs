@@ -124,12 +124,8 @@ fn a_thirty_thousand_pose_plan_is_complete_and_routable() {
 /// (arm stretched along −y) has no safe path, so the campaign fails before anything moves.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_robot_outside_the_grown_box_is_refused_before_any_motion() {
-    use cellcal::campaign::session::open_session;
     use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
-    use cellcal::cell::ScriptedPrompter;
-    use cellcal::config::parse_cell_config;
     use cellcal::sim::lock_world;
-    use std::sync::Arc;
 
     let text = super::campaign::config_text("", "", "")
         .replace("poses = 300", "poses = 20")
@@ -140,16 +136,7 @@ async fn a_robot_outside_the_grown_box_is_refused_before_any_motion() {
         );
     assert!(text.contains("[90.0, 90.0, 0.0"), "cell.sim.toml changed");
     let dir = tempfile::tempdir().expect("tempdir");
-    let cfg_path = super::campaign::write_config(dir.path(), &text);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
-    let session = open_session(
-        cfg,
-        &dir.path().join("c.db"),
-        None,
-        Arc::new(ScriptedPrompter::exact()),
-    )
-    .await
-    .expect("session");
+    let session = super::campaign::sim_session(dir.path(), &text).await;
     let mut ctx = session.ctx;
     ctx.on_fault = FaultPolicy::Fail;
     let mut devices = session.devices;

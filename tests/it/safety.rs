@@ -14,7 +14,9 @@ use cellcal::cell::ScriptedPrompter;
 use cellcal::config::parse_cell_config;
 use cellcal::store::{PointKind, Store};
 
-use super::campaign::{check_complete, config_text, journal_states, run_steered, write_config};
+use super::campaign::{
+    check_complete, config_text, journal_states, run_steered, sim_session, write_config,
+};
 
 fn cellcal() -> Command {
     Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
@@ -474,12 +476,8 @@ async fn a_failed_identification_ends_in_failed_with_the_reason() {
         .replace("ident = 100", "ident = 20")
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false");
-    let cfg_path = write_config(dir.path(), &text);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
     let store = dir.path().join("c.db");
-    let session = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
-        .await
-        .expect("session");
+    let session = sim_session(dir.path(), &text).await;
     let (mut ctx, mut devices) = (session.ctx, session.devices);
     // the stored data can then not serve the model: the 1D stage gives no full orientation
     ctx.cfg.campaign.model = "full".into();
@@ -533,16 +531,7 @@ async fn abort_mid_move_stops_the_simulated_arm_within_200_ms() {
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false");
     let dir = tempfile::tempdir().expect("tempdir");
-    let cfg_path = write_config(dir.path(), &text);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
-    let session = open_session(
-        cfg,
-        &dir.path().join("c.db"),
-        None,
-        Arc::new(ScriptedPrompter::exact()),
-    )
-    .await
-    .expect("session");
+    let session = sim_session(dir.path(), &text).await;
     let (ctx, mut devices) = (session.ctx, session.devices);
     let sim = session.sim.expect("sim");
     let (world, control) = (sim.world.clone(), ctx.control.clone());
