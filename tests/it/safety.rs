@@ -570,3 +570,33 @@ async fn abort_mid_move_stops_the_simulated_arm_within_200_ms() {
     );
     sim.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_relock_that_finds_no_reflector_searches_before_measuring_again() {
+    let text = config_text("", "", "")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 14")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let mut armed = false;
+    let (outcome, store, id) = run_steered(&text, move |e, cell, _| {
+        if matches!(e, CampaignEvent::Measured { done: 3, .. }) && !armed {
+            armed = true;
+            // the beam breaks; pointing at the last point does not find the reflector there
+            let mut f = cell.tracker_faults.lock().expect("faults");
+            f.beam_break_before_measure = 1;
+            f.go_last_without_lock = 1;
+        }
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let breaks = Store::open(&store)
+        .expect("store")
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .filter(|e| e.kind == "fault" && e.message.contains("BeamBroken"))
+        .count();
+    // one break, one relock (GoLast, not locked → FindReflector): no second failed measurement
+    assert_eq!(breaks, 1, "the relock was not checked");
+}

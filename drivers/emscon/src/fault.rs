@@ -59,6 +59,9 @@ pub struct FaultConfig {
     pub relock_after_ms: Option<u64>,
     /// Status of FindReflector / GoLastMeasuredPoint when no reflector is visible (10014).
     pub target_not_found_status: i32,
+    /// Next N GoLastMeasuredPoint commands answer OK without locking on (the last point was
+    /// somewhere the reflector no longer is).
+    pub go_last_without_lock: u32,
     /// Next N commands (see `no_reply_command`) get no reply at all.
     pub no_reply: u32,
     /// Restricts `no_reply` to this command id.
@@ -97,6 +100,7 @@ impl Default for FaultConfig {
             beam_break_sends_error: true,
             relock_after_ms: None,
             target_not_found_status: status::SYSTEM_NOT_READY_FOR_MEASUREMENT,
+            go_last_without_lock: 0,
             no_reply: 0,
             no_reply_command: None,
             rt_without_result: 0,

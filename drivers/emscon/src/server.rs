@@ -699,6 +699,8 @@ async fn handle_command(
             body: ReplyBody::ObjectTemperature(ctx.backend.meteo().temperature_c),
         },
         Command::FindReflector { .. } | Command::GoLastMeasuredPoint => {
+            let no_lock = id == cmd::GO_LAST_MEASURED_POINT
+                && crate::fault::take(&mut ctx.faults().go_last_without_lock);
             let mut t = ctx.tracker();
             if !t.initialized {
                 Reply::failed(id, status::TRACKER_NOT_INITIALIZED)
@@ -707,6 +709,9 @@ async fn handle_command(
             } else if !ctx.backend.reflector_found() {
                 drop(t);
                 Reply::failed(id, ctx.faults().target_not_found_status)
+            } else if no_lock {
+                // pointed at the last point, but the reflector is not there: still unlocked
+                Reply::ok(id)
             } else {
                 t.broken = None;
                 Reply::ok(id)
