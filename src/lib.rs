@@ -15,6 +15,7 @@
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
+//! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
 //!
@@ -37,3 +38,4 @@ pub mod report;
 pub mod sim;
 pub mod simulate;
 pub mod store;
+pub mod wall_clock;

@@ -269,10 +269,7 @@ pub fn import(store: &Path, robot: &Path, data: &Path, model: &str) -> Result<()
         .with_context(|| data.display().to_string())
         .map_err(input)?;
     let mut s = Store::open(store).map_err(input)?;
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_millis() as i64)
-        .unwrap_or(0);
+    let now = cellcal::wall_clock::now_unix_ms();
     let id = s
         .import_observations(
             &NewCampaign {

@@ -20,7 +20,7 @@ pub use setup::{BaseResult, SetupResult, ToolFrameResult};
 
 use std::future::Future;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use nalgebra::Vector3;
 
@@ -33,6 +33,7 @@ use crate::model::RobotModel;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
 use crate::store::{EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
+use crate::wall_clock::{now_unix_ms, unix_ms};
 
 /// The three devices of the cell.
 pub struct Devices {
@@ -115,12 +116,6 @@ impl From<CampaignError> for Stop {
     }
 }
 
-fn ms(t: SystemTime) -> i64 {
-    t.duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis() as i64)
-        .unwrap_or(0)
-}
-
 fn record(p: &TrackerPoint, stage_mm: f64) -> PointRecord {
     PointRecord {
         x_mm: p.p_mm.x,
@@ -132,8 +127,8 @@ fn record(p: &TrackerPoint, stage_mm: f64) -> PointRecord {
         pressure_mbar: p.pressure_mbar,
         humidity_pct: p.humidity_pct,
         stage_mm,
-        sent_at_ms: ms(p.sent_at),
-        received_at_ms: ms(p.received_at),
+        sent_at_ms: unix_ms(p.sent_at),
+        received_at_ms: unix_ms(p.received_at),
     }
 }
 
@@ -242,7 +237,7 @@ pub async fn journal_event(
     event: CampaignEvent,
 ) -> Result<i64, CampaignError> {
     let rec = EventRecord {
-        at_ms: ms(SystemTime::now()),
+        at_ms: now_unix_ms(),
         kind: event.kind().to_owned(),
         message: serde_json::to_string(&event).map_err(|x| CampaignError::Task(x.to_string()))?,
     };

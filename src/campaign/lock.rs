@@ -2,9 +2,9 @@
 //! ([`Store::lock_campaign`]), and whether a recorded holder is still alive (Linux `/proc`).
 
 use std::sync::{Arc, Mutex};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use crate::store::{Acquired, LockHolder, Store, StoreError};
+use crate::wall_clock::now_unix_ms;
 
 /// Holds a campaign for this process until dropped (one short SQLite write on the store the
 /// session shares with the engine).
@@ -56,10 +56,7 @@ pub fn this_process() -> LockHolder {
         pid,
         host: host_name(),
         pid_start: process_start(pid).unwrap_or(0),
-        acquired_at_ms: SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map(|d| d.as_millis() as i64)
-            .unwrap_or(0),
+        acquired_at_ms: now_unix_ms(),
     }
 }
 

@@ -4,7 +4,6 @@
 
 use std::path::Path;
 use std::sync::{Arc, Mutex};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use nalgebra::Vector3;
 
@@ -26,6 +25,7 @@ use crate::plan::{
 };
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
 use crate::store::{CampaignRow, EventRecord, NewCampaign, PlannedPose, Store};
+use crate::wall_clock::now_unix_ms;
 
 /// Why a session could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -126,13 +126,6 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         tool_mm: Vector3::from(c.tool_mm),
         drift_every: c.drift_every,
     }
-}
-
-fn now_ms() -> i64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis() as i64)
-        .unwrap_or(0)
 }
 
 /// Capacity of a session's live event channel (a receiver further behind lags).
@@ -379,7 +372,7 @@ fn store_new_campaign(
     Ok(store.create_campaign(
         &NewCampaign {
             name: format!("{} {}", nominal.name, cfg.campaign.model),
-            created_at_ms: now_ms(),
+            created_at_ms: now_unix_ms(),
             model: cfg.campaign.model.clone(),
             seed: cfg.campaign.seed,
             config_toml: cfg.text.clone(),
@@ -521,7 +514,7 @@ fn note(store: &mut Store, id: i64, text: String) -> Result<(), SessionError> {
     store.add_event(
         id,
         &EventRecord {
-            at_ms: now_ms(),
+            at_ms: now_unix_ms(),
             kind: event.kind().to_owned(),
             message: serde_json::to_string(&event)
                 .map_err(|e| SessionError::Invalid(e.to_string()))?,
