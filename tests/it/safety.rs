@@ -18,6 +18,27 @@ use super::campaign::{
     check_complete, config_text, journal_states, run_steered, sim_session, write_config,
 };
 
+/// config/cell.sim.toml (accelerated) with `poses` poses, `ident` of them identification poses,
+/// and no setup steps (the subject of these tests is the measurement loop).
+fn no_setup_config(poses: usize, ident: usize) -> String {
+    config_text("", "", "")
+        .replace("poses = 300", &format!("poses = {poses}"))
+        .replace("ident = 100", &format!("ident = {ident}"))
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
+}
+
+/// The messages of campaign `id`'s journal, oldest first.
+fn journal_messages(store: &Path, id: i64) -> Vec<String> {
+    Store::open(store)
+        .expect("store")
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .map(|e| e.message)
+        .collect()
+}
+
 fn cellcal() -> Command {
     Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
 }
@@ -163,13 +184,7 @@ fn two_runners_on_one_campaign_the_second_is_refused_naming_the_first() {
         .expect("a stale lock");
     let (code, err) = finish(spawn_run(&cfg, &store, &["--campaign", "1"]));
     assert_eq!(code, Some(0), "{err}");
-    let notes: Vec<String> = Store::open(&store)
-        .expect("store")
-        .events(1)
-        .expect("events")
-        .into_iter()
-        .map(|e| e.message)
-        .collect();
+    let notes = journal_messages(&store, 1);
     assert!(
         notes
             .iter()
@@ -252,13 +267,7 @@ fn resuming_with_a_changed_configuration_is_refused_naming_the_keys() {
         &["--campaign", "1", "--accept-changed-config"],
     ));
     assert_eq!(code, Some(0), "{err}");
-    let journal: Vec<String> = Store::open(&store)
-        .expect("store")
-        .events(1)
-        .expect("events")
-        .into_iter()
-        .map(|e| e.message)
-        .collect();
+    let journal = journal_messages(&store, 1);
     assert!(
         journal
             .iter()
@@ -352,12 +361,7 @@ async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stage_slip_is_caught_by_the_travel_check_and_the_pose_measured_again() {
-    let text = config_text("", "", "")
-        .replace("poses = 300", "poses = 40")
-        .replace("ident = 100", "ident = 20")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false")
-        .replace("slip = 0 ", "slip = 2 ");
+    let text = no_setup_config(40, 20).replace("slip = 0 ", "slip = 2 ");
     let (outcome, store, id) = run_steered(&text, |_, _, _| {}).await;
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     check_complete(&store, id, 40);
@@ -389,11 +393,7 @@ async fn a_stage_slip_is_caught_by_the_travel_check_and_the_pose_measured_again(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn joints_settled_off_target_repeat_the_move_then_pause() {
-    let text = config_text("", "", "")
-        .replace("poses = 300", "poses = 40")
-        .replace("ident = 100", "ident = 20")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = no_setup_config(40, 20);
     let mut offset_set = false;
     let (outcome, store, id) = run_steered(&text, move |e, cell, control| {
         match e {
@@ -433,11 +433,7 @@ async fn joints_settled_off_target_repeat_the_move_then_pause() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_robot_reconnect_pauses_and_never_powers_the_arm_on() {
-    let text = config_text("", "", "")
-        .replace("poses = 300", "poses = 40")
-        .replace("ident = 100", "ident = 20")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = no_setup_config(40, 20);
     let mut power_ons = None;
     let (outcome, store, id) = run_steered(&text, move |e, cell, control| match e {
         CampaignEvent::Measured { done: 3, .. } if power_ons.is_none() => {
@@ -471,11 +467,7 @@ async fn a_robot_reconnect_pauses_and_never_powers_the_arm_on() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_failed_identification_ends_in_failed_with_the_reason() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let text = config_text("", "", "")
-        .replace("poses = 300", "poses = 30")
-        .replace("ident = 100", "ident = 20")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = no_setup_config(30, 20);
     let store = dir.path().join("c.db");
     let session = sim_session(dir.path(), &text).await;
     let (mut ctx, mut devices) = (session.ctx, session.devices);
@@ -573,11 +565,7 @@ async fn abort_mid_move_stops_the_simulated_arm_within_200_ms() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_relock_that_finds_no_reflector_searches_before_measuring_again() {
-    let text = config_text("", "", "")
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = no_setup_config(20, 14);
     let mut armed = false;
     let (outcome, store, id) = run_steered(&text, move |e, cell, _| {
         if matches!(e, CampaignEvent::Measured { done: 3, .. }) && !armed {

@@ -4,6 +4,7 @@
 
 use std::io::{Read, Write};
 use std::os::fd::OwnedFd;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -93,25 +94,31 @@ impl PtyChild {
     }
 }
 
-#[test]
-fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
-    let dir = tempfile::tempdir().expect("tempdir");
+/// `cellcal run --arm` on a pseudo-terminal: a 20-pose campaign with a manual micrometer in
+/// `dir`; returns the child and the store path.
+fn manual_run(dir: &Path) -> (PtyChild, PathBuf) {
     let text = config_text("", "", "")
         .replace("kind = \"serial\"", "kind = \"manual\"")
-        // the setup questions are the same kind; this test follows the pose questions
+        // the setup questions are the same kind; these tests follow the pose questions
         .replace("tool_frame = true", "tool_frame = false")
         .replace("base_registration = true", "base_registration = false")
         .replace("poses = 300", "poses = 20")
         // 14 × 6 equations ≥ 3 × 28 parameters (OP with base): the fewest a run accepts
         .replace("ident = 100", "ident = 14");
-    let cfg = write_config(dir.path(), &text);
-    let store = dir.path().join("c.db");
+    let cfg = write_config(dir, &text);
+    let store = dir.join("c.db");
     let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
     cmd.args(["run", "--arm", "--config"])
         .arg(&cfg)
         .arg("--store")
         .arg(&store);
-    let mut t = PtyChild::spawn(cmd);
+    (PtyChild::spawn(cmd), store)
+}
+
+#[test]
+fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut t, store) = manual_run(dir.path());
     // the drift reference at P1
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     t.send_line("0.000");
@@ -187,20 +194,7 @@ fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
 #[test]
 fn ctrl_c_at_a_technician_question_aborts_at_once() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let text = config_text("", "", "")
-        .replace("kind = \"serial\"", "kind = \"manual\"")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false")
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14");
-    let cfg = write_config(dir.path(), &text);
-    let store = dir.path().join("c.db");
-    let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
-    cmd.args(["run", "--arm", "--config"])
-        .arg(&cfg)
-        .arg("--store")
-        .arg(&store);
-    let mut t = PtyChild::spawn(cmd);
+    let (mut t, store) = manual_run(dir.path());
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     // Ctrl-C: the terminal sends SIGINT; nothing is typed afterwards
     let asked = Instant::now();
