@@ -99,6 +99,8 @@ pub enum ClientCommand {
     Pause,
     /// Resume a paused campaign (after an operator fault: retries the step).
     Resume,
+    /// Resume, re-registering the tracker frame if it is found moved (a new frame segment).
+    Reregister,
     /// Stop the robot now; the campaign stays resumable.
     Abort,
     /// Answer the technician question `seq`: a reading (`value_mm`), a confirmation (no
@@ -634,6 +636,7 @@ impl Daemon {
             ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
             ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
             ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
+            ClientCommand::Reregister => l.control.apply(&CampaignCommand::Reregister),
             ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
         }
         Ok(())

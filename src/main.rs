@@ -165,6 +165,11 @@ enum Command {
         /// created (the changed keys are journalled).
         #[arg(long, requires = "campaign")]
         accept_changed_config: bool,
+        /// Resume `--campaign` even if the tracker or the robot moved since its last session:
+        /// re-register the tracker frame (points of the old frame measured again at their
+        /// joints, a new frame segment fitted to them) instead of stopping.
+        #[arg(long, requires = "campaign")]
+        reregister: bool,
     },
     /// Run the campaign daemon: the REST API of one cell (`/api/...`, see README), until
     /// Ctrl-C / SIGTERM / SIGHUP (a running campaign is aborted: the robot stops, the campaign stays
@@ -371,6 +376,7 @@ fn main() -> ExitCode {
             quiet,
             on_fault,
             accept_changed_config,
+            reregister,
         } => run_cmd::run(run_cmd::RunOptions {
             config,
             arm,
@@ -385,6 +391,7 @@ fn main() -> ExitCode {
                 None => FaultPolicy::Fail,
             },
             accept_changed_config,
+            reregister,
         }),
         Command::Serve {
             config,

@@ -40,6 +40,8 @@ pub struct RunOptions {
     pub on_fault: FaultPolicy,
     /// Resume although the configuration or robot model changed since the campaign was created.
     pub accept_changed_config: bool,
+    /// Re-register a moved tracker frame instead of stopping.
+    pub reregister: bool,
 }
 
 /// The runtime of the campaign front ends (two workers: the engine and the store/front end).
@@ -69,6 +71,9 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         };
         let mut ctx = session.ctx;
         ctx.on_fault = opts.on_fault;
+        if opts.reregister {
+            ctx.control.apply(&CampaignCommand::Reregister);
+        }
         let mut devices = session.devices;
         let id = ctx.campaign_id;
         let total = ctx.plan.poses.len();

@@ -62,7 +62,7 @@ impl Prompter for TerminalPrompter {
 }
 
 /// The operator at the terminal: when the campaign pauses for a fault, show why and wait for
-/// Enter (resume) or `a` (abort).
+/// Enter (resume), `r` (resume and re-register a moved tracker frame) or `a` (abort).
 pub async fn ask_on_pause(mut rx: broadcast::Receiver<Journalled>, control: Control) {
     loop {
         let reason = match rx.recv().await.map(|j| j.event) {
@@ -73,20 +73,28 @@ pub async fn ask_on_pause(mut rx: broadcast::Receiver<Journalled>, control: Cont
             Err(broadcast::error::RecvError::Closed) => return,
         };
         let answer = tokio::task::spawn_blocking(move || {
-            eprint!("\nCampaign paused: {reason}\nFix the cause, then press Enter to resume, or type a to abort: ");
+            let offer = if reason.contains("re-register") {
+                ", r to re-register"
+            } else {
+                ""
+            };
+            eprint!("\nCampaign paused: {reason}\nFix the cause, then press Enter to resume{offer}, or type a to abort: ");
             let _ = std::io::stderr().flush();
             let mut line = String::new();
             match std::io::stdin().lock().read_line(&mut line) {
-                Ok(0) | Err(_) => Answer::Abort,
-                Ok(_) => parse_answer(&line).unwrap_or(Answer::Confirmed),
+                Ok(0) | Err(_) => CampaignCommand::Abort,
+                Ok(_) if !offer.is_empty() && matches!(line.trim(), "r" | "R") => {
+                    CampaignCommand::Reregister
+                }
+                Ok(_) => match parse_answer(&line) {
+                    Some(Answer::Abort) => CampaignCommand::Abort,
+                    _ => CampaignCommand::Resume,
+                },
             }
         })
         .await
-        .unwrap_or(Answer::Abort);
-        control.apply(&match answer {
-            Answer::Abort => CampaignCommand::Abort,
-            _ => CampaignCommand::Resume,
-        });
+        .unwrap_or(CampaignCommand::Abort);
+        control.apply(&answer);
     }
 }
 

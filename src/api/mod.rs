@@ -10,7 +10,7 @@
 //! | `GET /api/campaigns` | every stored campaign (`CampaignView`) |
 //! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
 //! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
-//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"abort"}` or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
+//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
 //! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
@@ -105,7 +105,7 @@ fn action_of(cmd: &ClientCommand) -> Action {
         ClientCommand::Disarm => Action::Disarm,
         ClientCommand::Start => Action::Start,
         ClientCommand::Pause => Action::Pause,
-        ClientCommand::Resume => Action::Resume,
+        ClientCommand::Resume | ClientCommand::Reregister => Action::Resume,
         ClientCommand::Abort => Action::Abort,
         ClientCommand::Answer { .. } => Action::Answer,
     }

@@ -14,6 +14,7 @@
 //! it is emitted, and emitted with its journal sequence number ([`journal_event`]). Whatever
 //! ends a run, the stored state is a final one ([`run_campaign`]).
 
+mod frame;
 mod setup;
 
 pub use setup::{BaseResult, SetupResult, ToolFrameResult};
@@ -264,6 +265,10 @@ struct Run<'a> {
     drift_q: Vec<f64>,
     /// Routes of every move through the drift reference (its error refuses every move).
     router: Result<Router, RouteError>,
+    /// Where the ball should be (once the base is registered).
+    aim: Option<frame::Aim>,
+    /// The predicted position of the point being measured: where a re-lock looks first.
+    aim_at: Option<Vector3<f64>>,
 }
 
 /// Retry a step after the operator fixed a fault: `Stop::Fault` pauses (or fails, per the
@@ -329,7 +334,10 @@ impl Run<'_> {
         self.fault(e.device, e.kind, &e.message, action).await?;
         let abort = &self.ctx.control.abort;
         let r = match (action, e.device) {
-            ("relock", _) => abort.run_until_cancelled(self.dev.tracker.relock()).await,
+            ("relock", _) => {
+                let at = self.aim_at;
+                abort.run_until_cancelled(self.dev.tracker.relock(at)).await
+            }
             ("reconnect", DeviceKind::Tracker) => {
                 abort
                     .run_until_cancelled(self.dev.tracker.reconnect())
@@ -376,6 +384,7 @@ impl Run<'_> {
         let max = self.ctx.cfg.tracker.max_attempts;
         let gate = self.ctx.cfg.tracker.max_std_total_mm;
         let mut last = String::new();
+        self.aim_at = self.aim.as_ref().and_then(|a| a.ball(joints, stage_mm));
         for _ in 0..max {
             let r = {
                 let t = &mut self.dev.tracker;
@@ -611,65 +620,6 @@ impl Run<'_> {
         Ok((p.p_mm, row))
     }
 
-    /// The reference point of the campaign's tracker frame. At the first start it is measured
-    /// and stored (frame segment 0); every later start measures it again at the same joints
-    /// and compares: farther than `drift_max_mm` means the tracker or the robot moved between
-    /// sessions, and measuring on would mix two frames in one campaign (an operator fault).
-    async fn frame_reference(&mut self, poses_done: usize) -> Result<Vector3<f64>, Stop> {
-        let id = self.ctx.campaign_id;
-        let refs = self.store(move |s| s.frame_refs(id)).await?;
-        let max = self.ctx.cfg.campaign.drift_max_mm;
-        let Some(last) = refs.last() else {
-            let q = self.ctx.plan.drift_reference.clone();
-            let (p, row) = self.drift_point(&q).await?;
-            self.store(move |s| s.add_frame_ref(id, row, poses_done))
-                .await?;
-            self.drift_q = q;
-            self.journal(CampaignEvent::Drift {
-                drift_mm: 0.0,
-                max_mm: max,
-            })
-            .await?;
-            return Ok(p);
-        };
-        self.drift_q = last.joints_rad.clone();
-        let stored = Vector3::new(last.point.x_mm, last.point.y_mm, last.point.z_mm);
-        let q = self.drift_q.clone();
-        let (p, _) = self.drift_point(&q).await?;
-        let moved = (p - stored).norm();
-        self.journal(CampaignEvent::Drift {
-            drift_mm: moved,
-            max_mm: max,
-        })
-        .await?;
-        if moved > max {
-            return Err(Stop::Fault(format!(
-                "the tracker or the robot moved by {moved:.3} mm since pose {poses_done} (limit {max} mm): \
-                 measuring on would mix two tracker frames in one campaign. Put it back and resume \
-                 (the reference is measured again), or abort"
-            )));
-        }
-        Ok(stored)
-    }
-
-    async fn check_drift(&mut self, baseline: &Vector3<f64>) -> Result<(), Stop> {
-        let q = self.drift_q.clone();
-        let (p, _) = self.drift_point(&q).await?;
-        let drift = (p - baseline).norm();
-        let max = self.ctx.cfg.campaign.drift_max_mm;
-        self.journal(CampaignEvent::Drift {
-            drift_mm: drift,
-            max_mm: max,
-        })
-        .await?;
-        if drift > max {
-            return Err(Stop::Fault(format!(
-                "drift {drift:.4} mm at the reference pose exceeds {max} mm: check the tracker and the mounting; resuming measures the reference again"
-            )));
-        }
-        Ok(())
-    }
-
     /// Wait for Start while armed. A Start that arrives while disarmed is forgotten (it must
     /// not turn a later Arm into motion).
     /// The stored state follows Arm and Disarm meanwhile (`armed` / `idle`).
@@ -827,7 +777,10 @@ impl Run<'_> {
             .await?;
         }
         with_operator!(self, self.prepare().await);
-        with_operator!(self, self.setup().await);
+        let setup = with_operator!(self, self.setup().await);
+        let axis = identify_options(&self.ctx.cfg).obs.stage_axis;
+        let p1 = self.ctx.cfg.stage.p1_mm;
+        self.aim = frame::Aim::new(&self.ctx.nominal, &setup, axis, p1);
         let baseline = with_operator!(self, self.frame_reference(count).await);
         let every = self.ctx.cfg.campaign.drift_every;
         let s1 = self.ctx.cfg.stage.p1_mm;
@@ -924,6 +877,8 @@ pub async fn run_campaign(
         stage_mm: None,
         drift_q: ctx.plan.drift_reference.clone(),
         router,
+        aim: None,
+        aim_at: None,
     };
     match run.run_to_end().await {
         Ok(outcome) => Ok(outcome),

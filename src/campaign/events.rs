@@ -22,6 +22,9 @@ pub enum CampaignCommand {
     Pause,
     /// Resume a paused campaign.
     Resume,
+    /// Resume, and if the tracker frame is found moved, re-register it (a new frame segment)
+    /// instead of pausing again.
+    Reregister,
     /// Stop the robot now; the campaign stays resumable.
     Abort,
     /// Answer a technician prompt.
@@ -202,6 +205,8 @@ pub struct Control {
     pub pause: watch::Sender<bool>,
     /// Start requested.
     pub start: watch::Sender<bool>,
+    /// Re-register a moved tracker frame at the next frame check (taken by that check).
+    pub reregister: Arc<AtomicBool>,
     /// Event stream: journalled events in journal order (a lagging receiver can replay the
     /// gap from the store).
     pub events: broadcast::Sender<Journalled>,
@@ -215,6 +220,7 @@ impl Control {
             abort: CancellationToken::new(),
             pause: watch::channel(false).0,
             start: watch::channel(false).0,
+            reregister: Arc::new(AtomicBool::new(false)),
             events: broadcast::channel(capacity).0,
         }
     }
@@ -233,9 +239,18 @@ impl Control {
             CampaignCommand::Resume => {
                 self.pause.send_replace(false);
             }
+            CampaignCommand::Reregister => {
+                self.reregister.store(true, Ordering::SeqCst);
+                self.pause.send_replace(false);
+            }
             CampaignCommand::Abort => self.abort.cancel(),
             CampaignCommand::Answer { .. } => {}
         }
+    }
+
+    /// Whether a re-registration was asked for; clears the request.
+    pub fn take_reregister(&self) -> bool {
+        self.reregister.swap(false, Ordering::SeqCst)
     }
 
     /// Whether motion is allowed.

@@ -136,8 +136,10 @@ pub trait Tracker: Send + Sync {
     async fn prepare(&mut self) -> Result<(), CellError>;
     /// One stationary measurement of the reflector.
     async fn measure(&mut self) -> Result<TrackerPoint, CellError>;
-    /// Re-acquire the target after a beam break (go to last point / find reflector).
-    async fn relock(&mut self) -> Result<(), CellError>;
+    /// Re-acquire the target after a beam break: first where the ball should be
+    /// (`predicted_mm`, tracker frame, when the caller knows it), then at the last measured
+    /// point, then by a search; `Ok` only with a reflector locked.
+    async fn relock(&mut self, predicted_mm: Option<Vector3<f64>>) -> Result<(), CellError>;
     /// Drop and re-establish the connection, then prepare again.
     async fn reconnect(&mut self) -> Result<(), CellError>;
 }

@@ -196,11 +196,27 @@ impl Tracker for EmsconTracker {
         })
     }
 
-    /// GoLastMeasuredPoint, then a check that a reflector is locked (GetMeasurementStatusInfo);
-    /// when it is not (the last point is often the previous pose's, far away), FindReflector.
-    async fn relock(&mut self) -> Result<(), CellError> {
+    /// GoPosition at the predicted ball position, then GoLastMeasuredPoint (the last point is
+    /// often the previous pose's, far away), then FindReflector; after each, a check that a
+    /// reflector is locked (GetMeasurementStatusInfo). Cancel-safe (the emScon client is).
+    async fn relock(&mut self, predicted_mm: Option<Vector3<f64>>) -> Result<(), CellError> {
         let distance = self.cfg.search_distance_mm;
+        let use_adm = self.cfg.use_adm;
         let c = self.connected()?;
+        if let Some(p) = predicted_mm.filter(|p| p.iter().all(|v| v.is_finite())) {
+            match c.go_position([p.x, p.y, p.z], use_adm).await {
+                Ok(()) => {
+                    let status = c.measurement_status().await.map_err(cell_err)?;
+                    if status.reflector_found() {
+                        debug!("relocked at the predicted position");
+                        return Ok(());
+                    }
+                    warn!("no reflector at the predicted position, trying the last point");
+                }
+                Err(e) if e.is_connection_lost() => return Err(cell_err(e)),
+                Err(e) => warn!(error = %e, "GoPosition failed, trying the last point"),
+            }
+        }
         match c.go_last_measured_point().await {
             Ok(()) => {
                 let status = c.measurement_status().await.map_err(cell_err)?;

@@ -27,6 +27,9 @@ impl TrackerBackend for SimTrackerBackend {
     fn reflector_found(&self) -> bool {
         lock_world(&self.world).reflector_visible()
     }
+    fn reflector_near(&self, xyz_mm: [f64; 3]) -> bool {
+        lock_world(&self.world).reflector_near(xyz_mm)
+    }
     fn meteo(&self) -> Meteo {
         Meteo::default()
     }

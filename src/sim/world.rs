@@ -564,6 +564,14 @@ impl World {
         !self.is_moving() && !self.stage_moving()
     }
 
+    /// Whether the beam aimed at `xyz_mm` (tracker frame) locks onto the ball: visible and within
+    /// the tracker's capture radius ([`emscon::backend::CAPTURE_RADIUS_MM`]) of where it is now.
+    pub fn reflector_near(&mut self, xyz_mm: [f64; 3]) -> bool {
+        let ball = self.true_ball_mm() + self.drift_mm_at(self.start.elapsed());
+        self.reflector_visible()
+            && (ball - Vector3::from(xyz_mm)).norm() <= emscon::backend::CAPTURE_RADIUS_MM
+    }
+
     /// Whether the laser is warmed up.
     pub fn warmed_up(&self) -> bool {
         self.start.elapsed() >= self.faults.not_warmed_up_for

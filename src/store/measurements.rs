@@ -7,6 +7,7 @@ use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
 
 use super::campaigns::{check_plan, insert_campaign};
 use super::error::{Ctx, StoreError};
+use super::frames::{map_point, to_first_frame};
 use super::records::{
     decode_joints, encode_joints, from_sql_index, opt, parse_set, to_sql_index, NewCampaign,
     PlannedPose, PointKind, PointRecord, PoseMeasurement,
@@ -260,6 +261,15 @@ impl Store {
 
     /// The campaign's measured poses with their set, in plan (move) order.
     pub fn measured_poses(&self, id: i64) -> Result<Vec<(PoseSet, PoseMeasurement)>, StoreError> {
+        Ok(self
+            .measured_rows(id)?
+            .into_iter()
+            .map(|(set, m, _)| (set, m))
+            .collect())
+    }
+
+    /// [`Store::measured_poses`] with each pose's P1 row id.
+    fn measured_rows(&self, id: i64) -> Result<Vec<(PoseSet, PoseMeasurement, i64)>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         let mut st = self
             .conn
@@ -299,6 +309,7 @@ impl Store {
                         p1,
                         p2,
                     },
+                    p1_id,
                 ))
             })
             .collect()
@@ -306,20 +317,26 @@ impl Store {
 
     /// The campaign's measured poses as data-set rows, in plan (move) order: `id` = pose
     /// index, `set` from the plan, `q` = joints read after settling, `p1`, `p2` (when
-    /// measured), no rotation, `line` 0. This is what `cellcal export` writes and what
-    /// identification consumes.
+    /// measured), no rotation, `line` 0; every point in segment 0's tracker frame (a
+    /// re-registered segment's points mapped by its stored transform). This is what
+    /// `cellcal export` writes and what identification consumes.
     pub fn observations(&self, id: i64) -> Result<Vec<Observation>, StoreError> {
+        let refs = self.frame_refs(id)?;
         Ok(self
-            .measured_poses(id)?
+            .measured_rows(id)?
             .into_iter()
-            .map(|(set, m)| Observation {
-                line: 0,
-                id: m.index.to_string(),
-                set,
-                q: m.joints_rad,
-                p1: Vector3::new(m.p1.x_mm, m.p1.y_mm, m.p1.z_mm),
-                p2: m.p2.map(|p| Vector3::new(p.x_mm, p.y_mm, p.z_mm)),
-                rotation: None,
+            .map(|(set, m, p1_row)| {
+                let t = to_first_frame(&refs, p1_row);
+                let v = |p: PointRecord| map_point(&t, Vector3::new(p.x_mm, p.y_mm, p.z_mm));
+                Observation {
+                    line: 0,
+                    id: m.index.to_string(),
+                    set,
+                    q: m.joints_rad,
+                    p1: v(m.p1),
+                    p2: m.p2.map(v),
+                    rotation: None,
+                }
             })
             .collect())
     }

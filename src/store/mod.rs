@@ -46,7 +46,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension};
 
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
-pub use frames::FrameRef;
+pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint};
 pub use locks::{Acquired, LockHolder};
 pub use measurements::IMPORTED_STATE;
 pub use records::{

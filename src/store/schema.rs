@@ -30,6 +30,10 @@
 //! measurement_id, poses_done)`: the drift-reference measurement that defines a campaign's
 //! tracker frame (segment 0 at the first start; a re-registration appends the next segment),
 //! append-only.
+//!
+//! Version 4 adds `frame_refs.to_first` (TEXT, JSON, `NULL` for segment 0): the rigid transform
+//! from a re-registered segment's tracker frame into segment 0's, `{"rotation": 3×3 rows,
+//! "translation_mm", "rms_mm", "max_mm", "points"}`, fitted on points re-measured at stored joints.
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -154,6 +158,11 @@ CREATE TRIGGER frame_refs_no_update BEFORE UPDATE ON frame_refs
 BEGIN SELECT RAISE(ABORT, 'frame references are append-only'); END;
 CREATE TRIGGER frame_refs_no_delete BEFORE DELETE ON frame_refs
 BEGIN SELECT RAISE(ABORT, 'frame references are append-only'); END;
+"#,
+    // 3 -> 4: the transform of a re-registered frame segment into segment 0's frame.
+    r#"
+ALTER TABLE frame_refs ADD COLUMN to_first TEXT
+    CHECK (to_first IS NULL OR (json_valid(to_first) AND json_type(to_first) = 'object'));
 "#,
 ];
 

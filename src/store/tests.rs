@@ -225,10 +225,15 @@ fn frame_references_number_segments_and_refuse_non_drift_points() {
     let setup_pt = s
         .add_point(id, PointKind::Setup, None, Some(&q), &point(2.0), "setup")
         .unwrap();
-    assert_eq!(s.add_frame_ref(id, d0, 0).unwrap(), 0);
+    let t = shift(5.0);
+    assert!(matches!(
+        s.add_frame_ref(id, d0, 0, Some(&t)),
+        Err(StoreError::Invalid(_))
+    ));
+    assert_eq!(s.add_frame_ref(id, d0, 0, None).unwrap(), 0);
     for bad in [no_joints, setup_pt, 9999] {
         assert!(matches!(
-            s.add_frame_ref(id, bad, 0),
+            s.add_frame_ref(id, bad, 0, Some(&t)),
             Err(StoreError::Invalid(_))
         ));
     }
@@ -242,8 +247,14 @@ fn frame_references_number_segments_and_refuse_non_drift_points() {
             "re-registered",
         )
         .unwrap();
-    assert_eq!(s.add_frame_ref(id, d1, 2).unwrap(), 1);
+    assert!(matches!(
+        s.add_frame_ref(id, d1, 2, None),
+        Err(StoreError::Invalid(_))
+    ));
+    assert_eq!(s.add_frame_ref(id, d1, 2, Some(&t)).unwrap(), 1);
     let refs = s.frame_refs(id).unwrap();
+    assert!(refs[0].to_first.is_none());
+    assert_eq!(refs[1].to_first.as_ref().unwrap().points, 6);
     assert_eq!(refs.len(), 2);
     assert_eq!((refs[0].point.x_mm, refs[0].poses_done), (1.0, 0));
     assert_eq!(
@@ -253,4 +264,53 @@ fn frame_references_number_segments_and_refuse_non_drift_points() {
     assert_eq!(refs[1].joints_rad, q.to_vec());
     // append-only
     assert!(s.raw().execute("DELETE FROM frame_refs", []).is_err());
+}
+
+/// A frame transform: a quarter turn about z, then `dx` along x.
+fn shift(dx: f64) -> FrameTransform {
+    FrameTransform {
+        to_first: nalgebra::Isometry3::new(
+            nalgebra::Vector3::new(dx, 0.0, 0.0),
+            nalgebra::Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        ),
+        rms_mm: 0.01,
+        max_mm: 0.02,
+        points: 6,
+    }
+}
+
+#[test]
+fn observations_of_a_re_registered_segment_are_mapped_into_the_first_frame() {
+    let mut s = Store::open_in_memory().unwrap();
+    let id = setup(&mut s);
+    let q = [0.1; 6];
+    let d0 = s
+        .add_point(id, PointKind::Drift, None, Some(&q), &point(1.0), "ref")
+        .unwrap();
+    s.add_frame_ref(id, d0, 0, None).unwrap();
+    s.commit_pose(id, &pose(0)).unwrap();
+    let d1 = s
+        .add_point(id, PointKind::Drift, None, Some(&q), &point(1.0), "ref 1")
+        .unwrap();
+    s.add_frame_ref(id, d1, 1, Some(&shift(5.0))).unwrap();
+    s.commit_pose(id, &pose(1)).unwrap();
+    let raw = s.measured_poses(id).unwrap();
+    let obs = s.observations(id).unwrap();
+    // segment 0 unchanged
+    let p0 = &raw[0].1.p1;
+    assert_eq!(obs[0].p1, nalgebra::Vector3::new(p0.x_mm, p0.y_mm, p0.z_mm));
+    // segment 1: (x, y, z) -> (-y + 5, x, z), P2 too
+    for (got, rec) in [
+        (obs[1].p1, raw[1].1.p1),
+        (obs[1].p2.unwrap(), raw[1].1.p2.unwrap()),
+    ] {
+        let want = nalgebra::Vector3::new(5.0 - rec.y_mm, rec.x_mm, rec.z_mm);
+        assert!((got - want).norm() < 1e-12, "{got} vs {want}");
+    }
+    // the stored rows stay raw
+    assert_eq!(raw[1].1.p1.x_mm, pose(1).p1.x_mm);
+    // candidates of a re-registration: rows with joints at the stage position
+    let pts = s.joint_points(id, 0..d1, 0.0).unwrap();
+    assert!(pts.iter().any(|p| p.row == d0));
+    assert!(pts.iter().all(|p| p.row < d1 && p.kind != "p2"));
 }

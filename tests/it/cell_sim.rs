@@ -161,18 +161,18 @@ async fn tracker_faults_surface_as_their_kind_and_recover() {
 
         faults().beam_break_before_measure = 1;
         assert_eq!(kind(t.measure().await), FaultKind::BeamBroken);
-        t.relock().await.expect("re-lock");
+        t.relock(None).await.expect("re-lock");
         t.measure().await.expect("measure after re-lock");
 
         faults().beam_break_during_measure = 1;
         assert_eq!(kind(t.measure().await), FaultKind::BeamBroken);
-        t.relock().await.expect("re-lock");
+        t.relock(None).await.expect("re-lock");
         t.measure().await.expect("measure after re-lock");
 
         lock_world(&c.world).faults.beam_break_probability = 1.0;
         assert_eq!(kind(t.measure().await), FaultKind::BeamBroken);
         lock_world(&c.world).faults.beam_break_probability = 0.0;
-        t.relock().await.expect("re-lock");
+        t.relock(None).await.expect("re-lock");
         t.measure().await.expect("measure after random break");
 
         // the robot moves during the measurement: no target
@@ -181,7 +181,7 @@ async fn tracker_faults_surface_as_their_kind_and_recover() {
             .expect("slow move starts");
         assert_eq!(kind(t.measure().await), FaultKind::BeamBroken);
         lock_world(&c.world).stop();
-        t.relock().await.expect("re-lock after the move");
+        t.relock(None).await.expect("re-lock after the move");
         t.measure().await.expect("measure at rest");
 
         for (status, expected) in [(39, FaultKind::NotReady), (57, FaultKind::Device)] {

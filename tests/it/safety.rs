@@ -276,19 +276,19 @@ fn resuming_with_a_changed_configuration_is_refused_naming_the_keys() {
     );
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let base = |x: f64| {
-        config_text(&format!("base_translation_mm = [{x}, 0.0, 0.0]"), "", "")
-            .replace("poses = 300", "poses = 40")
-            .replace("ident = 100", "ident = 20")
-    };
-    let store = dir.path().join("c.db");
-    // session 1: measure 10 poses, then abort
-    let text = base(0.0);
-    let cfg_path = write_config(dir.path(), &text);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
+/// config/cell.sim.toml (accelerated, 40 poses) with the simulated tracker frame at `sim`.
+fn frame_config(sim: &str) -> String {
+    config_text(sim, "", "")
+        .replace("poses = 300", "poses = 40")
+        .replace("ident = 100", "ident = 20")
+}
+
+/// Session 1 of a two-session campaign in `dir/c.db`: measure 10 poses of `text`, then abort;
+/// returns the campaign id and the configuration path.
+async fn measure_ten_then_abort(dir: &Path, text: &str) -> (i64, std::path::PathBuf) {
+    let store = dir.join("c.db");
+    let cfg_path = write_config(dir, text);
+    let cfg = parse_cell_config(text, &cfg_path).expect("config");
     let s1 = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
         .await
         .expect("session");
@@ -309,18 +309,37 @@ async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
     let id = ctx.campaign_id;
     drop((ctx, devices, s1.lock));
     s1.sim.expect("sim").stop().await;
+    (id, cfg_path)
+}
 
-    // session 2: the tracker stands 1 mm elsewhere
-    let text = base(1.0);
-    let cfg = parse_cell_config(&text, &cfg_path).expect("config");
-    let s2 = open_session(
+/// Session 2: resume campaign `id` of `store` with the configuration `text` (at `cfg_path`).
+async fn resume_session(
+    text: &str,
+    cfg_path: &Path,
+    store: &Path,
+    id: i64,
+) -> cellcal::campaign::session::Session {
+    let cfg = parse_cell_config(text, cfg_path).expect("config");
+    open_session(
         cfg,
-        &store,
+        store,
         Some(Resume::strict(id)),
         Arc::new(ScriptedPrompter::exact()),
     )
     .await
-    .expect("resume");
+    .expect("resume")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let base = |x: f64| frame_config(&format!("base_translation_mm = [{x}, 0.0, 0.0]"));
+    let store = dir.path().join("c.db");
+    // session 1: measure 10 poses, then abort
+    let (id, cfg_path) = measure_ten_then_abort(dir.path(), &base(0.0)).await;
+
+    // session 2: the tracker stands 1 mm elsewhere
+    let s2 = resume_session(&base(1.0), &cfg_path, &store, id).await;
     let (ctx, mut devices) = (s2.ctx, s2.devices);
     let mut rx = ctx.control.events.subscribe();
     let control = ctx.control.clone();
@@ -587,4 +606,76 @@ async fn a_relock_that_finds_no_reflector_searches_before_measuring_again() {
         .count();
     // one break, one relock (GoLast, not locked → FindReflector): no second failed measurement
     assert_eq!(breaks, 1, "the relock was not checked");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tracker_moved_between_sessions_is_re_registered_and_the_campaign_stays_in_one_frame() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store = dir.path().join("c.db");
+    let (id, cfg_path) = measure_ten_then_abort(dir.path(), &frame_config("")).await;
+
+    // session 2: the tracker stands 1.2 mm elsewhere and turned by 0.1° about z
+    let moved = frame_config(
+        "base_translation_mm = [1.0, -0.6, 0.3]\nbase_rotation_vector_deg = [0.0, 0.0, 0.1]",
+    );
+    let s2 = resume_session(&moved, &cfg_path, &store, id).await;
+    let (ctx, mut devices) = (s2.ctx, s2.devices);
+    // as `run --reregister` does
+    ctx.control.apply(&CampaignCommand::Reregister);
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    let Outcome::Done(report) = outcome else {
+        panic!("{outcome:?}: {:?}", journal_messages(&store, id));
+    };
+    drop((ctx, devices, s2.lock));
+    s2.sim.expect("sim").stop().await;
+
+    let s = Store::open(&store).expect("store");
+    let refs = s.frame_refs(id).expect("refs");
+    assert_eq!(refs.len(), 2, "a second frame segment");
+    let t = refs[1].to_first.as_ref().expect("segment 1's transform");
+    assert!(t.points >= 4 && t.rms_mm < 0.05 && t.max_mm < 0.1, "{t:?}");
+    let turned = t.to_first.rotation.angle().to_degrees();
+    assert!((turned - 0.1).abs() < 0.01, "rotation {turned}°");
+    assert_eq!(refs[1].poses_done, 10);
+    // identification used one frame: the result is as good as an unmoved campaign's
+    let verify = report.metrics.verify.as_ref().expect("verify set");
+    let after = verify.after.position_mean_mm;
+    assert!(after < 0.08, "verify mean after {after} mm (frames mixed?)");
+    let journal = journal_messages(&store, id);
+    assert!(
+        journal
+            .iter()
+            .any(|m| m.contains("re-registered (segment 1)")),
+        "{journal:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_relock_looks_first_where_the_ball_should_be() {
+    let mut armed = false;
+    // setup on: the registered base predicts the ball
+    let (outcome, store, id) = run_steered(&frame_config(""), move |e, cell, _| {
+        if matches!(e, CampaignEvent::Measured { done: 3, .. }) && !armed {
+            armed = true;
+            // the beam breaks; the last point is the previous pose's, and the search misses
+            let mut f = cell.tracker_faults.lock().expect("faults");
+            f.beam_break_before_measure = 1;
+            f.find_reflector_fails = 1;
+        }
+    })
+    .await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let faults: Vec<String> = Store::open(&store)
+        .expect("store")
+        .events(id)
+        .expect("events")
+        .into_iter()
+        .filter(|e| e.kind == "fault")
+        .map(|e| e.message)
+        .collect();
+    // one break, relocked at the predicted position: no failed search, no second attempt
+    assert_eq!(faults.len(), 1, "{faults:?}");
+    assert!(faults[0].contains("BeamBroken"), "{faults:?}");
 }

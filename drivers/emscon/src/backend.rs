@@ -54,6 +54,13 @@ pub trait TrackerBackend: Send + Sync {
     fn measure(&self, meas_time_ms: i32) -> BackendMeasurement;
     /// True if a reflector is physically visible to the tracker.
     fn reflector_found(&self) -> bool;
+    /// True if a visible reflector is within the lock-on (capture) radius of `xyz_mm`
+    /// (tracker frame), where GoPosition / GoLastMeasuredPoint point the beam. The default
+    /// has no geometry: any visible reflector.
+    fn reflector_near(&self, xyz_mm: [f64; 3]) -> bool {
+        let _ = xyz_mm;
+        self.reflector_found()
+    }
     /// Current meteo values.
     fn meteo(&self) -> Meteo;
     /// Initial "initialised" state of the tracker when the server starts.
@@ -91,6 +98,10 @@ pub fn default_reflectors() -> Vec<ReflectorInfo> {
         })
         .collect()
 }
+
+/// How far from the point a GoPosition / GoLastMeasuredPoint aims at the simulated tracker
+/// still locks onto the reflector (mm): the order of an AT960's PowerLock field at a few metres.
+pub const CAPTURE_RADIUS_MM: f64 = 25.0;
 
 /// Mutable state of [`SimpleBackend`].
 #[derive(Debug, Clone, PartialEq)]
@@ -165,6 +176,11 @@ impl TrackerBackend for SimpleBackend {
     }
     fn reflector_found(&self) -> bool {
         self.state().reflector_found
+    }
+    fn reflector_near(&self, xyz_mm: [f64; 3]) -> bool {
+        let s = self.state();
+        let d2: f64 = (0..3).map(|i| (s.xyz_mm[i] - xyz_mm[i]).powi(2)).sum();
+        s.reflector_found && d2.sqrt() <= CAPTURE_RADIUS_MM
     }
     fn meteo(&self) -> Meteo {
         self.state().meteo

@@ -230,6 +230,10 @@ enum Ctx {
 }
 
 /// Async emScon TPI client (one outstanding command at a time; cheap to recreate).
+///
+/// Every request method is cancel-safe: a dropped request never desynchronises the stream
+/// (a half-written command or a measurement in flight closes the connection, so the next call
+/// fails `Disconnected` and the caller reconnects; a sent command's late reply is dropped).
 pub struct Client {
     shared: SharedRef,
     op: tokio::sync::Mutex<OpState>,
@@ -368,10 +372,35 @@ struct Op<'a> {
     shared: &'a SharedRef,
     events: &'a broadcast::Sender<Event>,
     cfg: &'a ClientConfig,
+    /// What a drop right now would leave behind on the wire.
+    wire: Wire,
+}
+
+/// The wire state of an [`Op`]: what dropping it mid-request must repair.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Wire {
+    /// Nothing in flight.
+    Idle,
+    /// Part of a command may have been written: the stream can no longer be framed.
+    Writing,
+    /// Command `id` was sent and its reply has not arrived: drop that reply when it does.
+    Awaiting(i32),
+    /// A measurement is under way: its result could later pass for another one's, so the
+    /// connection is closed.
+    Measuring,
 }
 
 impl Drop for Op<'_> {
+    /// A dropped request never desynchronises the stream: a half-written command closes the
+    /// connection, a sent one has its late reply marked to be dropped.
     fn drop(&mut self) {
+        match self.wire {
+            Wire::Idle => {}
+            Wire::Writing | Wire::Measuring => {
+                close_shared(self.shared, self.events, CloseReason::Io)
+            }
+            Wire::Awaiting(id) => self.st.mark_stale(id),
+        }
         lock_shared(self.shared).route = None;
     }
 }
@@ -379,11 +408,13 @@ impl Drop for Op<'_> {
 impl Op<'_> {
     async fn send(&mut self, command: &Command) -> Result<(), EmsconError> {
         let bytes = command.to_bytes();
+        self.wire = Wire::Writing;
         let res = tokio::time::timeout(self.cfg.command_timeout, async {
             self.st.writer.write_all(&bytes).await?;
             self.st.writer.flush().await
         })
         .await;
+        self.wire = Wire::Awaiting(command.id());
         match res {
             Ok(Ok(())) => Ok(()),
             Ok(Err(e)) => {
@@ -452,6 +483,7 @@ impl Op<'_> {
         self.send(command).await?;
         let deadline = Instant::now() + timeout;
         let res = self.await_reply(id, deadline, ctx, what).await;
+        self.wire = Wire::Idle;
         if res.is_err() {
             self.st.mark_stale(id);
         }
@@ -603,6 +635,7 @@ impl Client {
             shared: &self.shared,
             events: &self.events,
             cfg: &self.config,
+            wire: Wire::Idle,
         })
     }
 
@@ -755,6 +788,7 @@ impl Client {
             {
                 Ok(r) => r,
                 Err(e) => {
+                    op.wire = Wire::Idle;
                     op.st.mark_stale(cmd::GET_REFLECTORS);
                     return Err(e);
                 }
@@ -764,11 +798,11 @@ impl Client {
                 _ => None,
             })?;
             let total = info.total;
-            if total <= 0 {
-                return Ok(out);
+            if total > 0 {
+                out.push(info);
             }
-            out.push(info);
-            if out.len() >= usize::try_from(total).unwrap_or(usize::MAX) {
+            if total <= 0 || out.len() >= usize::try_from(total).unwrap_or(usize::MAX) {
+                op.wire = Wire::Idle;
                 return Ok(out);
             }
         }
@@ -850,6 +884,22 @@ impl Client {
         .map(drop)
     }
 
+    /// GoPosition (55): point the beam at `xyz_mm` (tracker frame, mm as set up by the client),
+    /// measuring the distance with the ADM on arrival when `use_adm`. OK means the tracker
+    /// pointed there, not that it locked on: check GetMeasurementStatusInfo. Cancel-safe (see
+    /// [`Client`]).
+    pub async fn go_position(&self, xyz_mm: [f64; 3], use_adm: bool) -> Result<(), EmsconError> {
+        let [x, y, z] = xyz_mm;
+        self.simple(
+            Command::GoPosition { x, y, z, use_adm },
+            self.config.search_timeout,
+            Ctx::Search,
+            "GoPosition reply",
+        )
+        .await
+        .map(drop)
+    }
+
     /// StopMeasurement (52).
     pub async fn stop_measurement(&self) -> Result<(), EmsconError> {
         self.simple(
@@ -892,11 +942,13 @@ impl Client {
         let meas_time = Duration::from_millis(u64::try_from(meas_time_ms.max(0)).unwrap_or(0));
         let sent_at = SystemTime::now();
         op.send(&Command::StartMeasurement).await?;
+        op.wire = Wire::Measuring;
         let deadline = Instant::now() + meas_time + self.config.measure_margin;
         let mut rt_seen = false;
         let res = self
             .await_measurement(&mut op, deadline, &mut rt_seen, sent_at, meas_time_ms)
             .await;
+        op.wire = Wire::Idle;
         if res.is_err() || !rt_seen {
             // A late StartMeasurement reply must not confuse the next command.
             op.st.mark_stale(cmd::START_MEASUREMENT);

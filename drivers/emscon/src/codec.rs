@@ -125,6 +125,18 @@ pub enum Command {
     ChangeFace,
     /// GoBirdBath (54), CT 12.
     GoBirdBath,
+    /// GoPosition (55), CT 40: point the beam at X, Y, Z (current units and coordinate system;
+    /// the tracker locks on when a reflector is there).
+    GoPosition {
+        /// X (`dVal1`).
+        x: f64,
+        /// Y (`dVal2`).
+        y: f64,
+        /// Z (`dVal3`).
+        z: f64,
+        /// Measure the distance with the ADM on arrival (`bUseADM`).
+        use_adm: bool,
+    },
     /// GoLastMeasuredPoint (62), CT 12.
     GoLastMeasuredPoint,
     /// FindReflector (63), CT 20.
@@ -338,6 +350,7 @@ pub fn command_size(command: i32) -> Option<usize> {
         | cmd::CLEAR_COMMAND_QUEUE => 16,
         cmd::SET_STATIONARY_MODE_PARAMS | cmd::FIND_REFLECTOR | cmd::SET_STATISTIC_MODE => 20,
         cmd::SET_SYSTEM_SETTINGS => 48,
+        cmd::GO_POSITION => 40,
         _ => return None,
     })
 }
@@ -381,6 +394,7 @@ impl Command {
             Command::StopMeasurement => cmd::STOP_MEASUREMENT,
             Command::ChangeFace => cmd::CHANGE_FACE,
             Command::GoBirdBath => cmd::GO_BIRD_BATH,
+            Command::GoPosition { .. } => cmd::GO_POSITION,
             Command::GoLastMeasuredPoint => cmd::GO_LAST_MEASURED_POINT,
             Command::FindReflector { .. } => cmd::FIND_REFLECTOR,
             Command::SetStatisticMode { .. } => cmd::SET_STATISTIC_MODE,
@@ -410,6 +424,12 @@ impl Command {
             }
             Command::SetSystemSettings(s) => w.settings(s),
             Command::FindReflector { approx_distance } => w.f64(*approx_distance),
+            Command::GoPosition { x, y, z, use_adm } => {
+                w.f64(*x);
+                w.f64(*y);
+                w.f64(*z);
+                w.bool(*use_adm);
+            }
             Command::SetStatisticMode {
                 stationary,
                 continuous,
@@ -471,6 +491,12 @@ impl Command {
             cmd::STOP_MEASUREMENT => Command::StopMeasurement,
             cmd::CHANGE_FACE => Command::ChangeFace,
             cmd::GO_BIRD_BATH => Command::GoBirdBath,
+            cmd::GO_POSITION => Command::GoPosition {
+                x: r.f64()?,
+                y: r.f64()?,
+                z: r.f64()?,
+                use_adm: r.bool()?,
+            },
             cmd::GO_LAST_MEASURED_POINT => Command::GoLastMeasuredPoint,
             cmd::FIND_REFLECTOR => Command::FindReflector {
                 approx_distance: r.f64()?,
@@ -1131,6 +1157,15 @@ mod tests {
             (Command::StartMeasurement, 12),
             (Command::StopMeasurement, 12),
             (Command::GoLastMeasuredPoint, 12),
+            (
+                Command::GoPosition {
+                    x: 1500.0,
+                    y: -250.5,
+                    z: 300.25,
+                    use_adm: true,
+                },
+                40,
+            ),
             (
                 Command::FindReflector {
                     approx_distance: 3000.0,

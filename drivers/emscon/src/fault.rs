@@ -62,6 +62,9 @@ pub struct FaultConfig {
     /// Next N GoLastMeasuredPoint commands answer OK without locking on (the last point was
     /// somewhere the reflector no longer is).
     pub go_last_without_lock: u32,
+    /// Next N FindReflector commands fail with `target_not_found_status` (the search pattern
+    /// missed the reflector).
+    pub find_reflector_fails: u32,
     /// Next N commands (see `no_reply_command`) get no reply at all.
     pub no_reply: u32,
     /// Restricts `no_reply` to this command id.
@@ -101,6 +104,7 @@ impl Default for FaultConfig {
             relock_after_ms: None,
             target_not_found_status: status::SYSTEM_NOT_READY_FOR_MEASUREMENT,
             go_last_without_lock: 0,
+            find_reflector_fails: 0,
             no_reply: 0,
             no_reply_command: None,
             rt_without_result: 0,

@@ -63,7 +63,8 @@ struct Tracker {
     initialized: bool,
     /// `None`: locked; `Some(None)`: broken until a search; `Some(Some(t))`: re-locks at `t`.
     broken: Option<Option<Instant>>,
-    has_last_point: bool,
+    /// Where the last measured point was (mm), the target of GoLastMeasuredPoint.
+    last_point_mm: Option<[f64; 3]>,
 }
 
 impl Tracker {
@@ -131,7 +132,7 @@ pub async fn serve_with_options(
         tracker: Mutex::new(Tracker {
             initialized: backend.initialized(),
             broken: None,
-            has_last_point: false,
+            last_point_mm: None,
         }),
         backend,
         faults,
@@ -698,25 +699,9 @@ async fn handle_command(
             status: status::ALL_OK,
             body: ReplyBody::ObjectTemperature(ctx.backend.meteo().temperature_c),
         },
-        Command::FindReflector { .. } | Command::GoLastMeasuredPoint => {
-            let no_lock = id == cmd::GO_LAST_MEASURED_POINT
-                && crate::fault::take(&mut ctx.faults().go_last_without_lock);
-            let mut t = ctx.tracker();
-            if !t.initialized {
-                Reply::failed(id, status::TRACKER_NOT_INITIALIZED)
-            } else if id == cmd::GO_LAST_MEASURED_POINT && !t.has_last_point {
-                Reply::failed(id, status::NO_LAST_MEASURED_POINT)
-            } else if !ctx.backend.reflector_found() {
-                drop(t);
-                Reply::failed(id, ctx.faults().target_not_found_status)
-            } else if no_lock {
-                // pointed at the last point, but the reflector is not there: still unlocked
-                Reply::ok(id)
-            } else {
-                t.broken = None;
-                Reply::ok(id)
-            }
-        }
+        c @ (Command::FindReflector { .. }
+        | Command::GoLastMeasuredPoint
+        | Command::GoPosition { .. }) => search(ctx, conn, &c),
         Command::StartMeasurement => return start_measurement(ctx, conn, out).await,
         Command::StopMeasurement
         | Command::ChangeFace
@@ -724,6 +709,40 @@ async fn handle_command(
         | Command::ClearCommandQueue(_) => Reply::ok(id),
     };
     emit_reply(ctx, conn, out, rep).await
+}
+
+/// FindReflector, GoLastMeasuredPoint, GoPosition: the beam goes to the target and locks when
+/// a reflector is there (FindReflector searches wherever a reflector is visible;
+/// GoLastMeasuredPoint and GoPosition lock only within the backend's capture radius of their
+/// point). A command that points but finds nothing still answers OK (`go_last_without_lock`
+/// for GoLastMeasuredPoint); the lock shows in GetMeasurementStatusInfo.
+fn search(ctx: &Ctx, conn: &Conn, command: &Command) -> Reply {
+    let id = command.id();
+    let find_fails =
+        id == cmd::FIND_REFLECTOR && crate::fault::take(&mut ctx.faults().find_reflector_fails);
+    let no_lock = id == cmd::GO_LAST_MEASURED_POINT
+        && crate::fault::take(&mut ctx.faults().go_last_without_lock);
+    let t = ctx.tracker();
+    if !t.initialized {
+        return Reply::failed(id, status::TRACKER_NOT_INITIALIZED);
+    }
+    let target = match command {
+        Command::GoLastMeasuredPoint => match t.last_point_mm {
+            None => return Reply::failed(id, status::NO_LAST_MEASURED_POINT),
+            Some(p) => Some(p),
+        },
+        Command::GoPosition { x, y, z, .. } => Some([*x, *y, *z].map(|v| v / conn.scale)),
+        _ => None,
+    };
+    drop(t);
+    if find_fails || !ctx.backend.reflector_found() {
+        return Reply::failed(id, ctx.faults().target_not_found_status);
+    }
+    let there = target.is_none_or(|p| ctx.backend.reflector_near(p));
+    if there && !no_lock {
+        ctx.tracker().broken = None;
+    }
+    Reply::ok(id)
 }
 
 /// The last part of a measuring time that is waited on a thread rather than a tokio timer.
@@ -844,7 +863,7 @@ async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std
         }
     };
     let result = result_packet(&point, conn, nan);
-    ctx.tracker().has_last_point = true;
+    ctx.tracker().last_point_mm = Some(point.xyz_mm);
     out.packet(&result).await?;
     if plan.result_before_rt {
         return emit_reply(ctx, conn, out, Reply::ok(id)).await;

@@ -59,6 +59,8 @@ pub mod cmd {
     pub const CHANGE_FACE: i32 = 53;
     /// `ES_C_GoBirdBath`.
     pub const GO_BIRD_BATH: i32 = 54;
+    /// `ES_C_GoPosition`.
+    pub const GO_POSITION: i32 = 55;
     /// `ES_C_GoLastMeasuredPoint`.
     pub const GO_LAST_MEASURED_POINT: i32 = 62;
     /// `ES_C_FindReflector`.

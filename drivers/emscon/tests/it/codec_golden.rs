@@ -47,6 +47,24 @@ fn golden_find_reflector_ct() {
 }
 
 #[test]
+fn golden_go_position_ct() {
+    // packed as the TPI's GoPositionCT: header, command 55, 3 × f64, ES_BOOL bUseADM
+    let b = Command::GoPosition {
+        x: 3000.0,
+        y: 0.0,
+        z: -1.0,
+        use_adm: true,
+    }
+    .to_bytes();
+    let mut want = vec![40, 0, 0, 0, 0, 0, 0, 0, 55, 0, 0, 0];
+    for v in [3000.0f64, 0.0, -1.0] {
+        want.extend_from_slice(&v.to_le_bytes());
+    }
+    want.extend_from_slice(&[1, 0, 0, 0]);
+    assert_eq!(b, want);
+}
+
+#[test]
 fn golden_set_units_ct() {
     let b = Command::SetUnits(Units::MM_DEG).to_bytes();
     let mut want = vec![32, 0, 0, 0, 0, 0, 0, 0, 5, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0];

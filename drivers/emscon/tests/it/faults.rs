@@ -435,3 +435,49 @@ async fn not_warmed_up_backend() {
     sim.backend.state().warmed_up = true;
     c.measure_stationary().await.unwrap();
 }
+
+#[tokio::test]
+async fn go_position_locks_only_where_the_reflector_is() {
+    let sim = Sim::start().await;
+    let c = sim.ready_client().await;
+    let at = sim.backend.state().xyz_mm;
+    sim.faults().beam_break_before_measure = 1;
+    assert!(matches!(
+        c.measure_stationary().await,
+        Err(EmsconError::BeamBroken)
+    ));
+    // pointing 1 m away answers OK but finds nothing there
+    c.go_position([at[0] + 1000.0, at[1], at[2]], true)
+        .await
+        .unwrap();
+    assert!(!c.measurement_status().await.unwrap().reflector_found());
+    // pointing within the capture radius locks on
+    c.go_position([at[0] + 5.0, at[1] - 5.0, at[2]], true)
+        .await
+        .unwrap();
+    assert!(c.measurement_status().await.unwrap().reflector_found());
+    c.measure_stationary().await.unwrap();
+}
+
+#[tokio::test]
+async fn a_dropped_measurement_never_passes_its_result_off_as_the_next_one() {
+    let sim = Sim::start().await;
+    let c = sim.client().await;
+    let slow = emscon::StationarySetup {
+        meas_time_ms: 400,
+        ..crate::common::setup()
+    };
+    c.setup_stationary(&slow).await.unwrap();
+    let first = sim.backend.state().xyz_mm;
+    // the caller gives up mid-measurement (an abort), then the ball moves
+    let dropped = tokio::time::timeout(Duration::from_millis(50), c.measure_stationary()).await;
+    assert!(dropped.is_err(), "the measurement finished within 50 ms");
+    sim.backend.state().xyz_mm = [first[0] + 100.0, first[1], first[2]];
+    match c.measure_stationary().await {
+        Ok(m) => assert!(
+            (m.x_mm - first[0] - 100.0).abs() < 1e-9,
+            "the dropped measurement's point came back as the next one: {m:?}"
+        ),
+        Err(e) => assert!(matches!(e, EmsconError::Disconnected), "{e:?}"),
+    }
+}
