@@ -621,12 +621,25 @@ fn config_file_documents_the_defaults() {
     let text = std::fs::read_to_string(path).expect("config/cell.sim.toml");
     let table: toml::Table = toml::from_str(&text).expect("valid TOML");
     let sim: SimWorldConfig = table["sim"].clone().try_into().expect("valid [sim]");
-    // every key shows its default, but for the one set deliberately: the ball 60 mm above the
-    // flange, slightly off the campaign's design tool (the setup step measures it)
+    // every key shows its default, but for those set deliberately: the ball 60 mm above the
+    // flange, slightly off the campaign's design tool (the setup step measures it); a tracker
+    // frame that is not the robot's (the tracker 2.5 m away, turned); a stage slightly off its
+    // nominal axis
     assert_eq!(sim.tool_mm, Some([0.4, -0.3, 60.0]));
+    assert_eq!(
+        sim.base_translation_mm,
+        Some([2434.177, -693.336, -209.929])
+    );
+    assert_eq!(sim.base_rotation_vector_deg, Some([0.3, -0.2, 155.0]));
+    assert_eq!(sim.stage_misalignment_mrad, [1.5, 0.0, -2.5]);
+    assert_eq!(sim.tracker_position_mm, [0.0; 3]);
     assert_eq!(
         SimWorldConfig {
             tool_mm: None,
+            base_translation_mm: None,
+            base_rotation_vector_deg: None,
+            stage_misalignment_mrad: SimWorldConfig::default().stage_misalignment_mrad,
+            tracker_position_mm: SimWorldConfig::default().tracker_position_mm,
             ..sim
         },
         SimWorldConfig::default()

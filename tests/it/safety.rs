@@ -276,11 +276,29 @@ fn resuming_with_a_changed_configuration_is_refused_naming_the_keys() {
     );
 }
 
-/// config/cell.sim.toml (accelerated, 40 poses) with the simulated tracker frame at `sim`.
-fn frame_config(sim: &str) -> String {
-    config_text(sim, "", "")
+/// config/cell.sim.toml (accelerated, 40 poses) with the robot moved by `shift_mm` in the
+/// tracker frame and turned by `turn_deg` about the tracker's vertical.
+fn frame_config(shift_mm: [f64; 3], turn_deg: f64) -> String {
+    let [x, y, z] = shift_mm;
+    config_text("", "", "")
         .replace("poses = 300", "poses = 40")
         .replace("ident = 100", "ident = 20")
+        .replace(
+            "base_translation_mm = [2434.177, -693.336, -209.929]",
+            &format!(
+                "base_translation_mm = [{}, {}, {}]",
+                2434.177 + x,
+                -693.336 + y,
+                -209.929 + z
+            ),
+        )
+        .replace(
+            "base_rotation_vector_deg = [0.3, -0.2, 155.0]",
+            &format!(
+                "base_rotation_vector_deg = [0.3, -0.2, {}]",
+                155.0 + turn_deg
+            ),
+        )
 }
 
 /// Session 1 of a two-session campaign in `dir/c.db`: measure 10 poses of `text`, then abort;
@@ -333,7 +351,7 @@ async fn resume_session(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let base = |x: f64| frame_config(&format!("base_translation_mm = [{x}, 0.0, 0.0]"));
+    let base = |x: f64| frame_config([x, 0.0, 0.0], 0.0);
     let store = dir.path().join("c.db");
     // session 1: measure 10 poses, then abort
     let (id, cfg_path) = measure_ten_then_abort(dir.path(), &base(0.0)).await;
@@ -612,12 +630,10 @@ async fn a_relock_that_finds_no_reflector_searches_before_measuring_again() {
 async fn a_tracker_moved_between_sessions_is_re_registered_and_the_campaign_stays_in_one_frame() {
     let dir = tempfile::tempdir().expect("tempdir");
     let store = dir.path().join("c.db");
-    let (id, cfg_path) = measure_ten_then_abort(dir.path(), &frame_config("")).await;
+    let (id, cfg_path) = measure_ten_then_abort(dir.path(), &frame_config([0.0; 3], 0.0)).await;
 
     // session 2: the tracker stands 1.2 mm elsewhere and turned by 0.1° about z
-    let moved = frame_config(
-        "base_translation_mm = [1.0, -0.6, 0.3]\nbase_rotation_vector_deg = [0.0, 0.0, 0.1]",
-    );
+    let moved = frame_config([1.0, -0.6, 0.3], 0.1);
     let s2 = resume_session(&moved, &cfg_path, &store, id).await;
     let (ctx, mut devices) = (s2.ctx, s2.devices);
     // as `run --reregister` does
@@ -656,7 +672,7 @@ async fn a_tracker_moved_between_sessions_is_re_registered_and_the_campaign_stay
 async fn a_relock_looks_first_where_the_ball_should_be() {
     let mut armed = false;
     // setup on: the registered base predicts the ball
-    let (outcome, store, id) = run_steered(&frame_config(""), move |e, cell, _| {
+    let (outcome, store, id) = run_steered(&frame_config([0.0; 3], 0.0), move |e, cell, _| {
         if matches!(e, CampaignEvent::Measured { done: 3, .. }) && !armed {
             armed = true;
             // the beam breaks; the last point is the previous pose's, and the search misses

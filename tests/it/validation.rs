@@ -98,7 +98,7 @@ fn non_finite_or_truncated_safety_values_exit_2_naming_file_and_key() {
             "cell.toml: campaign.line_of_sight_max_deg: -inf is not a finite number",
         ),
         (
-            with("\nposition_mm = [2550.0,", "\nposition_mm = [inf,"),
+            with("\nposition_mm = [2500.0,", "\nposition_mm = [inf,"),
             "cell.toml: tracker.position_mm[0]: inf is not a finite number",
         ),
         (
