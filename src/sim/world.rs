@@ -272,6 +272,12 @@ impl World {
         &self.truth
     }
 
+    /// Somebody bumped the tracker (or the robot's base): the robot base now lies `shift_mm`
+    /// farther along in the measurement frame. Nothing reports it; only measurements show it.
+    pub fn bump_base(&mut self, shift_mm: Vector3<f64>) {
+        self.truth.base_translation += shift_mm;
+    }
+
     /// Time since the world started.
     pub fn elapsed(&self) -> Duration {
         self.start.elapsed()

@@ -695,3 +695,66 @@ async fn a_relock_looks_first_where_the_ball_should_be() {
     assert_eq!(faults.len(), 1, "{faults:?}");
     assert!(faults[0].contains("BeamBroken"), "{faults:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_re_registration_refuses_poses_measured_after_an_unnoticed_move() {
+    // session 1: the tracker is bumped 0.5 mm after pose 10; no drift check notices it before
+    // the abort after pose 15
+    let mut bumped = false;
+    let (outcome, store, id) = run_steered(
+        &frame_config([0.0; 3], 0.0),
+        move |e, cell, control| match e {
+            CampaignEvent::Measured { done: 10, .. } if !bumped => {
+                bumped = true;
+                cellcal::sim::lock_world(&cell.world)
+                    .bump_base(nalgebra::Vector3::new(0.5, 0.0, 0.0));
+            }
+            CampaignEvent::Measured { done: 15, .. } => control.apply(&CampaignCommand::Abort),
+            _ => {}
+        },
+    )
+    .await;
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+
+    // session 2: the tracker stays where the bump left it, and re-registration is asked for
+    let dir = store.parent().expect("dir");
+    let s2 = resume_session(
+        &frame_config([0.5, 0.0, 0.0], 0.0),
+        &dir.join("cell.toml"),
+        &store,
+        id,
+    )
+    .await;
+    let (ctx, mut devices) = (s2.ctx, s2.devices);
+    let mut rx = ctx.control.events.subscribe();
+    let control = ctx.control.clone();
+    let watcher = tokio::spawn(async move {
+        while let Ok(e) = rx.recv().await {
+            if let CampaignEvent::State {
+                state: CampaignState::Paused { reason },
+            } = e.event
+            {
+                control.apply(&CampaignCommand::Abort);
+                return Some(reason);
+            }
+        }
+        None
+    });
+    ctx.control.apply(&CampaignCommand::Reregister);
+    ctx.control.apply(&CampaignCommand::Arm);
+    ctx.control.apply(&CampaignCommand::Start);
+    let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
+    assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
+    let reason = watcher.await.expect("watcher").expect("the resume paused");
+    // poses 11-15 sit in the new frame, 1-10 in the old one: no rigid fit joins them
+    assert!(reason.contains("re-registration refused"), "{reason}");
+    drop((ctx, devices, s2.lock));
+    s2.sim.expect("sim").stop().await;
+    let s = Store::open(&store).expect("store");
+    assert_eq!(
+        s.frame_refs(id).expect("refs").len(),
+        1,
+        "no segment stored"
+    );
+    assert_eq!(s.done_poses(id).expect("done").len(), 15);
+}
