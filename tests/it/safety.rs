@@ -330,6 +330,26 @@ async fn measure_ten_then_abort(dir: &Path, text: &str) -> (i64, std::path::Path
     (id, cfg_path)
 }
 
+/// Abort the campaign at its first pause; the task returns the pause's reason.
+fn abort_at_first_pause(
+    control: &cellcal::campaign::Control,
+) -> tokio::task::JoinHandle<Option<String>> {
+    let mut rx = control.events.subscribe();
+    let control = control.clone();
+    tokio::spawn(async move {
+        while let Ok(e) = rx.recv().await {
+            if let CampaignEvent::State {
+                state: CampaignState::Paused { reason },
+            } = e.event
+            {
+                control.apply(&CampaignCommand::Abort);
+                return Some(reason);
+            }
+        }
+        None
+    })
+}
+
 /// Session 2: resume campaign `id` of `store` with the configuration `text` (at `cfg_path`).
 async fn resume_session(
     text: &str,
@@ -359,20 +379,7 @@ async fn a_tracker_moved_1_mm_between_sessions_pauses_the_resumed_campaign() {
     // session 2: the tracker stands 1 mm elsewhere
     let s2 = resume_session(&base(1.0), &cfg_path, &store, id).await;
     let (ctx, mut devices) = (s2.ctx, s2.devices);
-    let mut rx = ctx.control.events.subscribe();
-    let control = ctx.control.clone();
-    let watcher = tokio::spawn(async move {
-        while let Ok(e) = rx.recv().await {
-            if let CampaignEvent::State {
-                state: CampaignState::Paused { reason },
-            } = e.event
-            {
-                control.apply(&CampaignCommand::Abort);
-                return Some(reason);
-            }
-        }
-        None
-    });
+    let watcher = abort_at_first_pause(&ctx.control);
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
     let outcome = run_campaign(&ctx, &mut devices).await.expect("runs");
@@ -726,20 +733,7 @@ async fn a_re_registration_refuses_poses_measured_after_an_unnoticed_move() {
     )
     .await;
     let (ctx, mut devices) = (s2.ctx, s2.devices);
-    let mut rx = ctx.control.events.subscribe();
-    let control = ctx.control.clone();
-    let watcher = tokio::spawn(async move {
-        while let Ok(e) = rx.recv().await {
-            if let CampaignEvent::State {
-                state: CampaignState::Paused { reason },
-            } = e.event
-            {
-                control.apply(&CampaignCommand::Abort);
-                return Some(reason);
-            }
-        }
-        None
-    });
+    let watcher = abort_at_first_pause(&ctx.control);
     ctx.control.apply(&CampaignCommand::Reregister);
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
