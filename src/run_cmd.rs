@@ -1,4 +1,4 @@
-//! `cellcal run`, `cellcal serve`, `cellcal export`, `cellcal import`: thin front ends over the campaign engine
+//! `cellcal run`, `cellcal serve`, `cellcal import`: thin front ends over the campaign engine
 //! and the store.
 
 use std::path::{Path, PathBuf};
@@ -12,7 +12,7 @@ use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
 use cellcal::daemon::Daemon;
-use cellcal::dataset::{parse_csv, write_csv, Required};
+use cellcal::dataset::{parse_csv, Required};
 use cellcal::model::load_robot;
 use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
@@ -233,30 +233,6 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         }
         Ok(())
     })
-}
-
-/// `cellcal export`: a campaign's measurements in the identify CSV format.
-pub fn export(store: &Path, campaign: Option<i64>, out: &Path) -> Result<(), Failure> {
-    let s = Store::open(store).map_err(input)?;
-    let id = match campaign {
-        Some(id) => id,
-        None => s
-            .latest_campaign()
-            .map_err(input)?
-            .ok_or_else(|| input(anyhow!("{}: no campaign", store.display())))?,
-    };
-    let rows = s.observations(id).map_err(input)?;
-    let dof = rows.first().map(|r| r.q.len()).unwrap_or(6);
-    let comment = format!("cellcal export: campaign {id} from {}", store.display());
-    std::fs::write(out, write_csv(&rows, dof, &comment))
-        .with_context(|| format!("{}: cannot write", out.display()))
-        .map_err(other)?;
-    println!(
-        "wrote {} poses of campaign {id} to {}",
-        rows.len(),
-        out.display()
-    );
-    Ok(())
 }
 
 /// `cellcal import`: a CSV data set as a new, fully measured campaign.
