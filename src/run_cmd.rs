@@ -18,6 +18,7 @@ use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
 
 use crate::cli::access;
+use crate::cli::identify::poor_is_exit_3;
 use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
@@ -141,7 +142,7 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
                         .with_context(|| format!("{}: cannot write", path.display()))
                         .map_err(other)?;
                 }
-                Ok(())
+                poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
             }
             Outcome::Aborted => {
                 let (code, by) = match caught.get() {
@@ -170,7 +171,7 @@ fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Resul
         .and_then(|s| s.latest_result(id))
         .map_err(other)?
         .ok_or_else(|| other(anyhow!("campaign {id} is done but has no stored result")))?;
-    let report: IdentifyReport = serde_json::from_str(&text)
+    let report = IdentifyReport::from_json(&text)
         .with_context(|| format!("campaign {id}: the stored result does not parse"))
         .map_err(other)?;
     eprintln!("campaign {id} is done: nothing moves. Its stored result:");
@@ -180,7 +181,7 @@ fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Resul
             .with_context(|| format!("{}: cannot write", path.display()))
             .map_err(other)?;
     }
-    Ok(())
+    poor_is_exit_3(&report, &format!("campaign {id}'s stored result"))
 }
 
 /// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.

@@ -17,7 +17,7 @@ use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
 use cellcal::model::RobotModel;
-use cellcal::report::{calibrate, summary_text};
+use cellcal::report::{calibrate, summary_text, IdentifyReport, Quality};
 use cellcal::simulate::TrackerNoise;
 use cellcal::store::Store;
 
@@ -140,7 +140,27 @@ pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
             .with_context(|| format!("{}: cannot write", path.display()))
             .map_err(other)?;
     }
-    Ok(())
+    poor_is_exit_3(&report, "the result")
+}
+
+/// Exit 3 when the verdict is `poor` (after the result was printed and written).
+pub(crate) fn poor_is_exit_3(report: &IdentifyReport, what: &str) -> Result<(), Failure> {
+    if report.quality != Quality::Poor {
+        return Ok(());
+    }
+    let codes: Vec<&str> = report
+        .warnings
+        .iter()
+        .filter(|w| w.severity == Quality::Poor)
+        .map(|w| w.code.as_str())
+        .collect();
+    Err(Failure(
+        3,
+        anyhow!(
+            "{what} is poor ({}): see the warnings at the top of the summary",
+            codes.join(", ")
+        ),
+    ))
 }
 
 /// A CSV data set and its setup header.

@@ -8,6 +8,7 @@ mod frames;
 mod identifiability;
 mod paper;
 mod paths;
+mod quality;
 mod reproduce;
 mod robust;
 mod safety;
