@@ -157,6 +157,8 @@ pub struct CampaignView {
     pub prompt: Option<PromptView>,
     /// A result is stored.
     pub has_result: bool,
+    /// The stored result's verdict (`ok`, `warning`, `poor`), if any.
+    pub quality: Option<String>,
 }
 
 /// Internal tuning of a daemon (defaults for production; tests shrink them).
@@ -436,6 +438,7 @@ impl Daemon {
             last_outcome: l.and_then(|l| lock(&l.outcome).clone()),
             prompt,
             has_result: v.has_result,
+            quality: v.quality,
         }
     }
 
@@ -827,17 +830,20 @@ struct StoredView {
     done: usize,
     total: usize,
     has_result: bool,
+    quality: Option<String>,
 }
 
-/// Read the stored part of a campaign's view (counts only, no plan or result bodies).
+/// Read the stored part of a campaign's view (counts and the verdict, no plan or result bodies).
 fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
     let (done, total) = s.pose_counts(row.id)?;
     let has_result = s.has_result(row.id)?;
+    let quality = s.result_quality(row.id)?;
     Ok(StoredView {
         row,
         done,
         total,
         has_result,
+        quality,
     })
 }
 

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{anyhow, Context};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand};
 use nalgebra::Vector3;
 
 mod cli;
@@ -15,13 +15,10 @@ mod terminal;
 
 use cellcal::analysis::significance;
 use cellcal::campaign::FaultPolicy;
-use cellcal::dataset::{parse_csv, write_csv, Required};
-use cellcal::identify::solver::Options;
-use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
+use cellcal::dataset::{parse_stage_axis, parse_vec3, write_csv};
 use cellcal::model::checked_toml::parse_checked;
 use cellcal::model::load_robot;
 use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
-use cellcal::report::{calibrate, summary_text};
 use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
 
 #[derive(Parser)]
@@ -35,85 +32,10 @@ struct Cli {
     command: Command,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum ModelArg {
-    Position,
-    Np,
-    Op,
-    Full,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-enum AxisArg {
-    #[value(name = "+x")]
-    PlusX,
-    #[value(name = "-x")]
-    MinusX,
-    #[value(name = "+y")]
-    PlusY,
-    #[value(name = "-y")]
-    MinusY,
-}
-
-impl AxisArg {
-    fn vector(self) -> Vector3<f64> {
-        match self {
-            AxisArg::PlusX => Vector3::x(),
-            AxisArg::MinusX => -Vector3::x(),
-            AxisArg::PlusY => Vector3::y(),
-            AxisArg::MinusY => -Vector3::y(),
-        }
-    }
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-enum RobustArg {
-    Huber,
-    Cauchy,
-}
-
 #[derive(Subcommand)]
 enum Command {
-    /// Identify MDH parameter errors from a measurement CSV.
-    Identify {
-        /// Robot model file (TOML).
-        #[arg(long)]
-        robot: PathBuf,
-        /// Measurement CSV.
-        #[arg(long)]
-        data: PathBuf,
-        /// Observation model.
-        #[arg(long, value_enum)]
-        model: ModelArg,
-        /// Stage axis in the flange frame (default +x for np, +y for op).
-        #[arg(long, value_enum, allow_hyphen_values = true)]
-        stage_axis: Option<AxisArg>,
-        /// Stage travel between P1 and P2 (mm).
-        #[arg(long, default_value_t = 10.0)]
-        stage_travel_mm: f64,
-        /// Ball position in the flange frame, X,Y,Z (mm).
-        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-        tool_mm: Option<Vector3<f64>>,
-        /// Identify the base transform (data in the tracker frame).
-        #[arg(long)]
-        identify_base: bool,
-        /// Identify the ball position in the flange frame.
-        #[arg(long)]
-        identify_tool: bool,
-        /// Down-weight gross outliers (default loss: Huber).
-        #[arg(long, num_args = 0..=1, default_missing_value = "huber", value_enum)]
-        robust: Option<RobustArg>,
-        /// Weight each pose by the AT960 uncertainty model σ = (15 µm + 6 µm/m·range)/2, range
-        /// from the tracker at X,Y,Z (mm, measurement frame; 0,0,0 when the data is in the tracker frame).
-        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-        tracker_weights: Option<Vector3<f64>>,
-        /// Weight of direction rows (mm); default stage travel/√2.
-        #[arg(long)]
-        direction_weight_mm: Option<f64>,
-        /// Write the JSON result here.
-        #[arg(long)]
-        json: Option<PathBuf>,
-    },
+    /// Identify MDH parameter errors from a measurement CSV, or re-identify a stored campaign.
+    Identify(Box<cli::identify::IdentifyArgs>),
     /// Significance indices of the MDH parameters (paper §2.2).
     Significance {
         /// Robot model file (TOML).
@@ -197,18 +119,8 @@ enum Command {
         #[arg(long, value_parser = ["viewer", "technician", "operator"])]
         role: String,
     },
-    /// Write a stored campaign's measurements as an identify CSV.
-    Export {
-        /// Store file.
-        #[arg(long)]
-        store: PathBuf,
-        /// Campaign id (default: the latest).
-        #[arg(long)]
-        campaign: Option<i64>,
-        /// Output CSV.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    /// Write a stored campaign's measurements as an identify CSV (with its setup header).
+    Export(cli::export::ExportArgs),
     /// Import an identify CSV as a new, fully measured campaign.
     Import {
         /// Store file.
@@ -252,9 +164,9 @@ struct SimArgs {
     /// Seed of `--errors random`.
     #[arg(long, default_value_t = 1)]
     error_seed: u64,
-    /// Stage axis in the flange frame.
-    #[arg(long, value_enum, default_value = "+y", allow_hyphen_values = true)]
-    stage_axis: AxisArg,
+    /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a vector X,Y,Z (normalised).
+    #[arg(long, value_parser = parse_stage_axis, default_value = "+y", allow_hyphen_values = true)]
+    stage_axis: Vector3<f64>,
     /// Stage travel (mm).
     #[arg(long, default_value_t = 10.0)]
     stage_travel_mm: f64,
@@ -299,21 +211,6 @@ struct SimArgs {
     box_size_mm: f64,
 }
 
-fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| {
-            x.trim()
-                .parse::<f64>()
-                .map_err(|_| format!("`{x}` is not a number"))
-        })
-        .collect::<Result<_, _>>()?;
-    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("`{s}`: expected three finite numbers X,Y,Z"));
-    }
-    Ok(Vector3::new(v[0], v[1], v[2]))
-}
-
 /// A failure and its exit code.
 struct Failure(u8, anyhow::Error);
 
@@ -332,33 +229,7 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Identify {
-            robot,
-            data,
-            model,
-            stage_axis,
-            stage_travel_mm,
-            tool_mm,
-            identify_base,
-            identify_tool,
-            robust,
-            tracker_weights,
-            direction_weight_mm,
-            json,
-        } => run_identify(
-            &robot,
-            &data,
-            model,
-            stage_axis,
-            stage_travel_mm,
-            tool_mm,
-            identify_base,
-            identify_tool,
-            robust,
-            tracker_weights,
-            direction_weight_mm,
-            json.as_deref(),
-        ),
+        Command::Identify(args) => cli::identify::run(*args),
         Command::Significance {
             robot,
             samples,
@@ -399,11 +270,7 @@ fn main() -> ExitCode {
             store,
         } => run_cmd::serve(&config, &listen, store),
         Command::Token { name, role } => cli::token::run(&name, &role),
-        Command::Export {
-            store,
-            campaign,
-            out,
-        } => run_cmd::export(&store, campaign, &out),
+        Command::Export(args) => cli::export::run(args),
         Command::Import {
             store,
             robot,
@@ -418,80 +285,6 @@ fn main() -> ExitCode {
             ExitCode::from(code)
         }
     }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn run_identify(
-    robot: &Path,
-    data: &Path,
-    model: ModelArg,
-    stage_axis: Option<AxisArg>,
-    stage_travel_mm: f64,
-    tool_mm: Option<Vector3<f64>>,
-    identify_base: bool,
-    identify_tool: bool,
-    robust: Option<RobustArg>,
-    tracker_weights: Option<Vector3<f64>>,
-    direction_weight_mm: Option<f64>,
-    json: Option<&Path>,
-) -> Result<(), Failure> {
-    let model = match model {
-        ModelArg::Position => ObsModel::Position,
-        ModelArg::Np => ObsModel::Np,
-        ModelArg::Op => ObsModel::Op,
-        ModelArg::Full => ObsModel::Full,
-    };
-    if !(stage_travel_mm.is_finite() && stage_travel_mm > 0.0) {
-        return Err(input(anyhow!(
-            "--stage-travel-mm must be a positive number"
-        )));
-    }
-    let mut robot_model = load_robot(robot).map_err(input)?;
-    if let Some(t) = tool_mm {
-        robot_model.tool = t;
-    }
-    let text = std::fs::read_to_string(data)
-        .with_context(|| format!("{}: cannot read", data.display()))
-        .map_err(input)?;
-    let required = Required {
-        p2: matches!(model, ObsModel::Np | ObsModel::Op),
-        rotation: model == ObsModel::Full,
-    };
-    let rows = parse_csv(&text, robot_model.dof(), required)
-        .with_context(|| data.display().to_string())
-        .map_err(input)?;
-    let mut obs = ObsConfig::new(model, stage_travel_mm);
-    if let Some(a) = stage_axis {
-        obs.stage_axis = a.vector();
-    }
-    if let Some(w) = direction_weight_mm {
-        if !(w.is_finite() && w >= 0.0) {
-            return Err(input(anyhow!("--direction-weight-mm must be ≥ 0")));
-        }
-        obs.direction_weight_mm = w;
-    }
-    let opts = IdentifyOptions {
-        obs,
-        identify_base,
-        identify_tool,
-        robust: robust.map(|r| match r {
-            RobustArg::Huber => RobustLoss::Huber,
-            RobustArg::Cauchy => RobustLoss::Cauchy,
-        }),
-        point_weights: tracker_weights.map(TrackerNoise::at960),
-        solver: Options::default(),
-    };
-    let (report, _) = calibrate(&robot_model, &rows, &opts, stage_travel_mm)
-        .with_context(|| data.display().to_string())
-        .map_err(input)?;
-    print!("{}", summary_text(&report));
-    if let Some(path) = json {
-        let text = serde_json::to_string_pretty(&report).map_err(other)?;
-        std::fs::write(path, text)
-            .with_context(|| format!("{}: cannot write", path.display()))
-            .map_err(other)?;
-    }
-    Ok(())
 }
 
 fn run_significance(robot: &Path, samples: usize, seed: u64, json: &Path) -> Result<(), Failure> {
@@ -575,7 +368,7 @@ fn run_simulate(a: &SimArgs) -> Result<(), Failure> {
         tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
         joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
         stage_travel_mm: a.stage_travel_mm,
-        stage_axis: a.stage_axis.vector(),
+        stage_axis: a.stage_axis,
         stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
         stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
         stage_repeatability_mm: a.stage_repeatability_mm,

@@ -1,4 +1,4 @@
-//! `cellcal run`, `cellcal serve`, `cellcal export`, `cellcal import`: thin front ends over the campaign engine
+//! `cellcal run`, `cellcal serve`, `cellcal import`: thin front ends over the campaign engine
 //! and the store.
 
 use std::path::{Path, PathBuf};
@@ -12,12 +12,13 @@ use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
 use cellcal::daemon::Daemon;
-use cellcal::dataset::{parse_csv, write_csv, Required};
+use cellcal::dataset::{parse_csv, Required};
 use cellcal::model::load_robot;
 use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
 
 use crate::cli::access;
+use crate::cli::identify::poor_is_exit_3;
 use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
@@ -146,7 +147,7 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
                         .with_context(|| format!("{}: cannot write", path.display()))
                         .map_err(other)?;
                 }
-                Ok(())
+                poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
             }
             Outcome::Aborted => {
                 let (code, by) = match caught.get() {
@@ -175,7 +176,7 @@ fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Resul
         .and_then(|s| s.latest_result(id))
         .map_err(other)?
         .ok_or_else(|| other(anyhow!("campaign {id} is done but has no stored result")))?;
-    let report: IdentifyReport = serde_json::from_str(&text)
+    let report = IdentifyReport::from_json(&text)
         .with_context(|| format!("campaign {id}: the stored result does not parse"))
         .map_err(other)?;
     eprintln!("campaign {id} is done: nothing moves. Its stored result:");
@@ -185,7 +186,7 @@ fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Resul
             .with_context(|| format!("{}: cannot write", path.display()))
             .map_err(other)?;
     }
-    Ok(())
+    poor_is_exit_3(&report, &format!("campaign {id}'s stored result"))
 }
 
 /// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
@@ -238,30 +239,6 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         }
         Ok(())
     })
-}
-
-/// `cellcal export`: a campaign's measurements in the identify CSV format.
-pub fn export(store: &Path, campaign: Option<i64>, out: &Path) -> Result<(), Failure> {
-    let s = Store::open(store).map_err(input)?;
-    let id = match campaign {
-        Some(id) => id,
-        None => s
-            .latest_campaign()
-            .map_err(input)?
-            .ok_or_else(|| input(anyhow!("{}: no campaign", store.display())))?,
-    };
-    let rows = s.observations(id).map_err(input)?;
-    let dof = rows.first().map(|r| r.q.len()).unwrap_or(6);
-    let comment = format!("cellcal export: campaign {id} from {}", store.display());
-    std::fs::write(out, write_csv(&rows, dof, &comment))
-        .with_context(|| format!("{}: cannot write", out.display()))
-        .map_err(other)?;
-    println!(
-        "wrote {} poses of campaign {id} to {}",
-        rows.len(),
-        out.display()
-    );
-    Ok(())
 }
 
 /// `cellcal import`: a CSV data set as a new, fully measured campaign.

@@ -830,17 +830,29 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
     }
 }
 
+/// What a campaign identifies with: the nominal model (configured tool) with the setup
+/// applied (measured tool and stage axis; the registered base when the base is not
+/// identified), the identification options and the stage travel (mm). The one recipe of the
+/// campaign and of `cellcal identify --store`.
+pub fn campaign_identification(
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+    setup: Option<&SetupResult>,
+) -> (RobotModel, IdentifyOptions, f64) {
+    let mut opts = identify_options(cfg);
+    let mut nominal = nominal.clone();
+    if let Some(setup) = setup {
+        setup.apply(&mut nominal, &mut opts.obs.stage_axis, opts.identify_base);
+    }
+    (nominal, opts, cfg.stage.travel_mm)
+}
+
 /// Identify from the stored measurements and store the result.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
     let rows = with_store(&ctx.store, move |s| s.observations(id)).await?;
-    let mut opts = identify_options(&ctx.cfg);
-    let mut nominal = ctx.nominal.clone();
     let setup = with_store(&ctx.store, move |s| SetupResult::load(s, id)).await?;
-    if let Some(setup) = setup {
-        setup.apply(&mut nominal, &mut opts.obs.stage_axis, opts.identify_base);
-    }
-    let travel = ctx.cfg.stage.travel_mm;
+    let (nominal, opts, travel) = campaign_identification(&ctx.cfg, &ctx.nominal, setup.as_ref());
     let (report, _) =
         tokio::task::spawn_blocking(move || calibrate(&nominal, &rows, &opts, travel))
             .await

@@ -11,6 +11,7 @@ pub mod events;
 pub mod feasibility;
 pub mod lock;
 pub mod session;
+pub mod stored;
 
 pub use engine::{
     journal_event, run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome,

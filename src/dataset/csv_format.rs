@@ -5,6 +5,14 @@
 //! `q1`…`qn` (rad), `p1_x,p1_y,p1_z` (mm, measurement frame), optional `p2_x,p2_y,p2_z` (mm,
 //! ball after the stage moved by +travel along `u`), optional `n_x … a_z` (measured flange
 //! rotation columns). Unknown columns are ignored.
+//!
+//! The measurement setup travels with the data in comment lines before the header row, one
+//! `# key = value` each, exact spelling ([`CsvSetup`], [`parse_setup_header`]):
+//! `# stage_axis = X,Y,Z` (unit vector in the flange frame), `# tool_mm = X,Y,Z` (ball in the
+//! flange frame), `# stage_travel_mm = V`, and, for data whose base is given rather than
+//! identified, `# base_translation_mm = X,Y,Z` and `# base_rotation_vector_rad = X,Y,Z`. Any other
+//! `#` line is a plain comment. Values are written with Rust's shortest round-trip formatting,
+//! so a value read back is the value written, bit for bit.
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -89,6 +97,24 @@ pub enum CsvError {
         /// The cell.
         value: String,
     },
+    /// A setup header line (`# key = value`) has a bad value.
+    #[error("line {line}, header `{key}`: {message}")]
+    BadSetup {
+        /// Line number.
+        line: usize,
+        /// Header key.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A setup header key appears twice.
+    #[error("line {line}: header `{key}` given twice")]
+    DuplicateSetup {
+        /// Line number of the second one.
+        line: usize,
+        /// Header key.
+        key: String,
+    },
     /// Structural CSV problem (e.g. wrong number of fields).
     #[error("line {line}: {message}")]
     Malformed {
@@ -102,6 +128,156 @@ pub enum CsvError {
 const ROT_COLS: [&str; 9] = [
     "n_x", "n_y", "n_z", "o_x", "o_y", "o_z", "a_x", "a_y", "a_z",
 ];
+
+/// Header keys of [`CsvSetup`], in writing order.
+const SETUP_KEYS: [&str; 5] = [
+    "stage_axis",
+    "tool_mm",
+    "stage_travel_mm",
+    "base_translation_mm",
+    "base_rotation_vector_rad",
+];
+
+/// The measurement setup a data set carries in its header comment lines (each `None` when
+/// absent); what `identify` takes as its defaults.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CsvSetup {
+    /// Unit stage axis `u` in the flange frame.
+    pub stage_axis: Option<Vector3<f64>>,
+    /// Ball position in the flange frame (mm).
+    pub tool_mm: Option<Vector3<f64>>,
+    /// Stage travel P1 → P2 (mm).
+    pub stage_travel_mm: Option<f64>,
+    /// Given base translation, robot base → measurement frame (mm).
+    pub base_translation_mm: Option<Vector3<f64>>,
+    /// Given base rotation, robot base → measurement frame (rotation vector, rad).
+    pub base_rotation_vector_rad: Option<Vector3<f64>>,
+}
+
+fn vec3_text(v: &Vector3<f64>) -> String {
+    format!("{:?},{:?},{:?}", v.x, v.y, v.z)
+}
+
+impl CsvSetup {
+    /// The `key = value` lines of the present fields (for [`write_csv`]'s comment, which
+    /// prefixes `# `), values in shortest round-trip form.
+    pub fn comment_lines(&self) -> String {
+        let vec = |v: &Option<Vector3<f64>>| v.as_ref().map(vec3_text);
+        let values = [
+            vec(&self.stage_axis),
+            vec(&self.tool_mm),
+            self.stage_travel_mm.map(|v| format!("{v:?}")),
+            vec(&self.base_translation_mm),
+            vec(&self.base_rotation_vector_rad),
+        ];
+        SETUP_KEYS
+            .iter()
+            .zip(values)
+            .filter_map(|(k, v)| v.map(|v| format!("{k} = {v}\n")))
+            .collect()
+    }
+}
+
+/// Three finite numbers `X,Y,Z`.
+pub fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{}` is not a number", x.trim()))
+        })
+        .collect::<Result<_, _>>()?;
+    if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("`{s}`: expected three finite numbers X,Y,Z"));
+    }
+    Ok(Vector3::new(v[0], v[1], v[2]))
+}
+
+/// A stage axis: `+x`, `-x`, `+y`, `-y`, `+z`, `-z`, or a measured vector `X,Y,Z`, normalised
+/// (a vector already unit to 1e-12 is kept bit for bit, so a stored axis reads back exactly);
+/// a zero or non-finite vector is an error.
+pub fn parse_stage_axis(s: &str) -> Result<Vector3<f64>, String> {
+    let named = match s.trim() {
+        "+x" => Some(Vector3::x()),
+        "-x" => Some(-Vector3::x()),
+        "+y" => Some(Vector3::y()),
+        "-y" => Some(-Vector3::y()),
+        "+z" => Some(Vector3::z()),
+        "-z" => Some(-Vector3::z()),
+        _ => None,
+    };
+    if let Some(v) = named {
+        return Ok(v);
+    }
+    let v = parse_vec3(s).map_err(|e| format!("{e} (or one of +x, -x, +y, -y, +z, -z)"))?;
+    let n = v.norm();
+    if !(n.is_finite() && n > 1e-9) {
+        return Err(format!("`{s}`: the stage axis must be a non-zero vector"));
+    }
+    Ok(if (n - 1.0).abs() <= 1e-12 { v } else { v / n })
+}
+
+/// The setup header of a data set: the `# key = value` lines among the comment lines before
+/// the header row (other comment lines are ignored; nothing after the header row is read).
+pub fn parse_setup_header(text: &str) -> Result<CsvSetup, CsvError> {
+    let mut setup = CsvSetup::default();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let Some(comment) = line.strip_prefix('#') else {
+            break;
+        };
+        let Some((key, value)) = comment.split_once('=') else {
+            continue;
+        };
+        let key = key.trim();
+        if !SETUP_KEYS.contains(&key) {
+            continue;
+        }
+        let bad = |message: String| CsvError::BadSetup {
+            line: i + 1,
+            key: key.to_owned(),
+            message,
+        };
+        let value = value.trim();
+        let taken = match key {
+            "stage_axis" => setup
+                .stage_axis
+                .replace(parse_stage_axis(value).map_err(bad)?)
+                .is_some(),
+            "tool_mm" => setup
+                .tool_mm
+                .replace(parse_vec3(value).map_err(bad)?)
+                .is_some(),
+            "stage_travel_mm" => {
+                let v = value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite() && *v > 0.0)
+                    .ok_or_else(|| bad(format!("`{value}` is not a positive number")))?;
+                setup.stage_travel_mm.replace(v).is_some()
+            }
+            "base_translation_mm" => setup
+                .base_translation_mm
+                .replace(parse_vec3(value).map_err(bad)?)
+                .is_some(),
+            _ => setup
+                .base_rotation_vector_rad
+                .replace(parse_vec3(value).map_err(bad)?)
+                .is_some(),
+        };
+        if taken {
+            return Err(CsvError::DuplicateSetup {
+                line: i + 1,
+                key: key.to_owned(),
+            });
+        }
+    }
+    Ok(setup)
+}
 
 /// Which optional groups a caller requires.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -323,5 +499,58 @@ mod tests {
         );
         let e = parse_csv("set,q1,q2,p1_x,p1_y,p1_z\n", 2, Required::default()).unwrap_err();
         assert_eq!(e, CsvError::NoRows);
+    }
+
+    #[test]
+    fn setup_header_round_trips_bit_for_bit() {
+        let axis = Vector3::new(0.1, 0.7, -0.3).normalize();
+        let setup = CsvSetup {
+            stage_axis: Some(axis),
+            tool_mm: Some(Vector3::new(0.4123456789012345, -0.3, 60.000000000000014)),
+            stage_travel_mm: Some(10.0),
+            base_translation_mm: None,
+            base_rotation_vector_rad: Some(Vector3::new(1e-7, -2.5, 3.0)),
+        };
+        let v = parse_csv(OK, 2, Required::default()).unwrap();
+        let text = write_csv(&v, 2, &format!("exported\n{}", setup.comment_lines()));
+        assert!(text.starts_with("# exported\n# stage_axis = "), "{text}");
+        assert_eq!(parse_setup_header(&text).unwrap(), setup);
+        // the data still parses; a header-less file has no setup
+        assert_eq!(parse_csv(&text, 2, Required::default()).unwrap().len(), 2);
+        assert_eq!(parse_setup_header(OK).unwrap(), CsvSetup::default());
+    }
+
+    #[test]
+    fn setup_header_rules() {
+        let h = |lines: &str| parse_setup_header(&format!("{lines}set,q1\nident,0\n"));
+        // other comments stay comments; spelling is exact; only before the header row
+        let s = h("# stage_axis: +y\n# Stage_Axis = +x\n#stage_axis=-y\n").unwrap();
+        assert_eq!(s.stage_axis, Some(-Vector3::y()));
+        let late = parse_setup_header("set,q1\n# stage_axis = +x\nident,0\n").unwrap();
+        assert_eq!(late, CsvSetup::default());
+        // a measured axis is normalised
+        let s = h("# stage_axis = 0,2,0\n").unwrap();
+        assert_eq!(s.stage_axis, Some(Vector3::y()));
+        for (line, want) in [
+            ("# stage_axis = 0,0,0", "line 1, header `stage_axis`: `0,0,0`: the stage axis must be a non-zero vector"),
+            ("# stage_axis = NaN,1,0", "line 1, header `stage_axis`: `NaN,1,0`: expected three finite numbers X,Y,Z (or one of +x, -x, +y, -y, +z, -z)"),
+            ("# tool_mm = 1,2", "line 1, header `tool_mm`: `1,2`: expected three finite numbers X,Y,Z"),
+            ("# stage_travel_mm = -1", "line 1, header `stage_travel_mm`: `-1` is not a positive number"),
+            ("# stage_travel_mm = inf", "line 1, header `stage_travel_mm`: `inf` is not a positive number"),
+        ] {
+            assert_eq!(h(&format!("{line}\n")).unwrap_err().to_string(), want);
+        }
+        let e = h("# tool_mm = 0,0,60\n# tool_mm = 0,0,61\n").unwrap_err();
+        assert_eq!(e.to_string(), "line 2: header `tool_mm` given twice");
+    }
+
+    #[test]
+    fn stage_axis_names_and_vectors() {
+        assert_eq!(parse_stage_axis("+z"), Ok(Vector3::z()));
+        assert_eq!(parse_stage_axis("-x"), Ok(-Vector3::x()));
+        let u = parse_stage_axis("3,0,4").unwrap();
+        assert_eq!(u, Vector3::new(0.6, 0.0, 0.8));
+        assert!(parse_stage_axis("y").is_err());
+        assert!(parse_stage_axis("1,inf,0").is_err());
     }
 }

@@ -6,10 +6,14 @@
 //! `tool` (`{translation_mm}`), `solver` (`{iterations, converged, final_cost}`), `metrics`
 //! (`{ident: {before, after}, verify: {before, after}}`). Extensions: `stage_axis`,
 //! `direction_weight_mm`, `condition_number`, `sigma0_mm`, `rejected_poses`, `correlation`,
-//! `solver.termination`, metric fields `position_p95_mm`, `attitude_rms_rad`.
+//! `solver.termination`, metric fields `position_p95_mm`, `attitude_rms_rad`,
+//! `stage_axis_measured` and `stage_axis_angle_rad` (null without direction data), and the
+//! verdict: `quality` (`ok`|`warning`|`poor`) and `warnings` (`{code, severity, message}`), see
+//! [`super::quality`].
 
 use serde::{Deserialize, Serialize};
 
+use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWarning};
 use crate::analysis::metrics::{evaluate, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
 use crate::identify::{identify, Identification, IdentifyError, IdentifyOptions};
@@ -28,6 +32,24 @@ pub enum CalibrateError {
     /// No identification rows.
     #[error("no rows with set = ident")]
     NoIdentRows,
+    /// The measured P2 − P1 directions contradict the stage axis (or the model) in use.
+    #[error("the stage axis in use ({}) contradicts the data: the measured P2 − P1 directions in the flange frame average ({}), {:.1}° away, scattering {:.1}° (limit {:.0}°). Give the stage axis the stage is mounted along (`--stage-axis X,Y,Z`; the np model assumes +x, op +y)", show3(used), show3(measured), angle_deg, scatter_deg, limit_deg)]
+    StageAxisContradiction {
+        /// Stage axis in use (flange frame).
+        used: [f64; 3],
+        /// Mean measured direction (flange frame of the initial model).
+        measured: [f64; 3],
+        /// Angle between them (deg).
+        angle_deg: f64,
+        /// RMS scatter of the single directions (deg).
+        scatter_deg: f64,
+        /// The refusal limit (deg).
+        limit_deg: f64,
+    },
+}
+
+fn show3(v: &[f64; 3]) -> String {
+    format!("{:.3}, {:.3}, {:.3}", v[0], v[1], v[2])
 }
 
 /// `{name, reason}` of a dropped parameter.
@@ -147,6 +169,39 @@ pub struct IdentifyReport {
     pub rejected_poses: Vec<String>,
     /// Correlations of the identified parameters.
     pub correlation: CorrelationJson,
+    /// Mean measured P2 − P1 direction in the flange frame of the initial model (null without
+    /// direction data).
+    #[serde(default)]
+    pub stage_axis_measured: Option<[f64; 3]>,
+    /// Angle between `stage_axis_measured` and `stage_axis` (rad).
+    #[serde(default)]
+    pub stage_axis_angle_rad: Option<f64>,
+    /// The verdict: `ok`, `warning` or `poor` (the worst of `warnings`).
+    #[serde(default)]
+    pub quality: Quality,
+    /// What the verdict found.
+    #[serde(default)]
+    pub warnings: Vec<QualityWarning>,
+}
+
+impl IdentifyReport {
+    /// A stored report; one stored before the verdict existed is assessed now.
+    pub fn from_json(text: &str) -> Result<IdentifyReport, serde_json::Error> {
+        let value: serde_json::Value = serde_json::from_str(text)?;
+        let assessed = value.get("quality").is_some();
+        let mut report: IdentifyReport = serde_json::from_value(value)?;
+        if !assessed {
+            report.judge(&QualityBounds::default());
+        }
+        Ok(report)
+    }
+
+    /// Set `quality` and `warnings` from the rest of the report.
+    pub fn judge(&mut self, bounds: &QualityBounds) {
+        let v = assess(self, bounds);
+        self.quality = v.quality;
+        self.warnings = v.warnings;
+    }
 }
 
 /// Run the identify pipeline on data-set rows.
@@ -164,6 +219,19 @@ pub fn calibrate(
     let ident = to_measured(&ident_rows, model, stage_travel_mm)?;
     let verify = to_measured(&verify_rows, model, stage_travel_mm)?;
     let id = identify(robot, &ident, opts)?;
+    let bounds = QualityBounds::default();
+    let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
+    if let Some(c) = axis.filter(|c| {
+        c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad
+    }) {
+        return Err(CalibrateError::StageAxisContradiction {
+            used: opts.obs.stage_axis.into(),
+            measured: c.measured.into(),
+            angle_deg: c.angle_rad.to_degrees(),
+            scatter_deg: c.scatter_rad.to_degrees(),
+            limit_deg: bounds.stage_axis_error_rad.to_degrees(),
+        });
+    }
     let m = |model: &RobotModel, set: &[_]| evaluate(model, set, &opts.obs);
     let metrics = MetricsJson {
         ident: BeforeAfter {
@@ -182,7 +250,7 @@ pub fn calibrate(
         .map(|p| p.name())
         .collect();
     let k = names.len();
-    let report = IdentifyReport {
+    let mut report = IdentifyReport {
         model: model.name().to_owned(),
         identified: names.clone(),
         not_identifiable: id
@@ -237,6 +305,11 @@ pub fn calibrate(
                 .map(|i| (0..k).map(|j| id.correlation[(i, j)]).collect())
                 .collect(),
         },
+        stage_axis_measured: axis.map(|c| c.measured.into()),
+        stage_axis_angle_rad: axis.map(|c| c.angle_rad),
+        quality: Quality::Ok,
+        warnings: Vec::new(),
     };
+    report.judge(&bounds);
     Ok((report, id))
 }

@@ -1,7 +1,10 @@
-//! Reports: the `cellcal identify` pipeline, its JSON contract and its printed summary.
+//! Reports: the `cellcal identify` pipeline, its JSON contract, its verdict and its printed
+//! summary.
 
 pub mod identify_json;
+pub mod quality;
 pub mod summary;
 
 pub use identify_json::{calibrate, CalibrateError, IdentifyReport};
+pub use quality::{Quality, QualityWarning};
 pub use summary::summary_text;

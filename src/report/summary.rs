@@ -1,9 +1,10 @@
-//! The printed summary of an identification: the parameter-error table (like the paper's
-//! Tables 3–5) and the before/after accuracy table.
+//! The printed summary of an identification: the verdict and its warnings first, then the
+//! parameter-error table (like the paper's Tables 3–5) and the before/after accuracy table.
 
 use std::fmt::Write;
 
 use super::identify_json::IdentifyReport;
+use super::quality::Quality;
 use crate::analysis::metrics::Metrics;
 
 fn cell(r: &IdentifyReport, name: &str) -> String {
@@ -32,9 +33,29 @@ fn metric_line(out: &mut String, set: &str, state: &str, m: &Metrics) {
     );
 }
 
+/// The verdict line and one line per warning.
+fn verdict_lines(out: &mut String, r: &IdentifyReport) {
+    let what = match r.quality {
+        Quality::Ok => "ok",
+        Quality::Warning => "WARNING (usable; read the warnings)",
+        Quality::Poor => "POOR (do not load these parameters; see why below)",
+    };
+    let _ = writeln!(out, "quality: {what}");
+    for w in &r.warnings {
+        let _ = writeln!(
+            out,
+            "  {:<7} {}: {}",
+            w.severity.as_str(),
+            w.code,
+            w.message
+        );
+    }
+}
+
 /// Human summary of an identify report.
 pub fn summary_text(r: &IdentifyReport) -> String {
     let mut out = String::new();
+    verdict_lines(&mut out, r);
     let _ = writeln!(
         out,
         "model {}: {} parameters identified, condition number {:.1}, σ0 = {:.4} mm",
@@ -101,6 +122,13 @@ pub fn summary_text(r: &IdentifyReport) -> String {
         for d in &r.not_identifiable {
             let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
         }
+    }
+    if let (Some(m), Some(a)) = (r.stage_axis_measured, r.stage_axis_angle_rad) {
+        let _ = writeln!(
+            out,
+            "stage axis in use ({:.4}, {:.4}, {:.4}); measured P2 − P1 in the flange frame ({:.4}, {:.4}, {:.4}), {:.2}° apart",
+            r.stage_axis[0], r.stage_axis[1], r.stage_axis[2], m[0], m[1], m[2], a.to_degrees()
+        );
     }
     if !r.rejected_poses.is_empty() {
         let _ = writeln!(

@@ -265,6 +265,23 @@ impl Store {
             .ctx("look up a result")
     }
 
+    /// The verdict (`quality`: `ok`, `warning`, `poor`) of the campaign's latest result, if it
+    /// has a result that carries one (without reading the rest of it).
+    pub fn result_quality(&self, id: i64) -> Result<Option<String>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let q: Option<Option<String>> = self
+            .conn
+            .query_row(
+                "SELECT json_extract(json, '$.quality') FROM results WHERE campaign_id = ?1 \
+                 ORDER BY id DESC LIMIT 1",
+                [id],
+                |r| r.get(0),
+            )
+            .optional()
+            .ctx("read the result quality")?;
+        Ok(q.flatten())
+    }
+
     /// The campaign's events in the order they were added.
     pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
         let all = self.events_after(id, 0, usize::MAX)?;

@@ -6,22 +6,27 @@ use std::path::{Path, PathBuf};
 use assert_cmd::Command;
 use serde_json::Value;
 
-fn robot() -> PathBuf {
+pub(crate) fn robot() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("config/robots/staubli_tx60.toml")
 }
 
-fn cellcal() -> Command {
+pub(crate) fn cellcal() -> Command {
     Command::cargo_bin("cellcal").expect("binary built")
 }
 
 fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
+    simulate_poses(dir, 60, 40, extra)
+}
+
+/// `simulate-data` into `dir/d.csv`: `poses` poses, `ident` of them for identification.
+pub(crate) fn simulate_poses(dir: &Path, poses: usize, ident: usize, extra: &[&str]) -> PathBuf {
     let out = dir.join("d.csv");
     cellcal()
         .args(["simulate-data", "--robot"])
         .arg(robot())
         .arg("--out")
         .arg(&out)
-        .args(["--poses", "60", "--ident", "40"])
+        .args(["--poses", &poses.to_string(), "--ident", &ident.to_string()])
         .args(extra)
         .assert()
         .success();

@@ -8,6 +8,8 @@ mod frames;
 mod identifiability;
 mod paper;
 mod paths;
+mod quality;
+mod reproduce;
 mod robust;
 mod safety;
 mod serve;

@@ -304,6 +304,12 @@ fn the_daemon_runs_a_campaign_over_rest_with_live_events() {
     let (code, result) = get(&s, &format!("/api/campaigns/{id}/result"));
     assert_eq!(code, 200);
     assert_eq!(result["model"], "op");
+    // the verdict is in the result and in the campaign view
+    assert!(
+        matches!(result["quality"].as_str(), Some("ok" | "warning" | "poor")),
+        "{result}"
+    );
+    assert_eq!(v["quality"], result["quality"], "{v}");
     let after = result["metrics"]["verify"]["after"]["position_mean_mm"]
         .as_f64()
         .expect("verify after");

@@ -1,0 +1,102 @@
+//! A stored campaign's identification, rebuilt from the store alone (its configuration and
+//! robot file as stored when it was created, its setup result and its measurements): what
+//! `cellcal identify --store` runs and what `cellcal export` writes into the CSV header, by the
+//! same recipe as the campaign ([`campaign_identification`]).
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::Vector3;
+
+use super::engine::{campaign_identification, SetupResult};
+use crate::config::{parse_cell_config, ConfigError};
+use crate::dataset::{CsvSetup, Observation};
+use crate::identify::IdentifyOptions;
+use crate::model::{parse_robot, RobotFileError, RobotModel};
+use crate::store::{Store, StoreError};
+
+/// Why a stored campaign cannot be identified.
+#[derive(Debug, thiserror::Error)]
+pub enum StoredError {
+    /// The store could not be read, or the campaign does not exist.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The stored configuration no longer parses.
+    #[error("campaign {id}: its stored configuration: {source}")]
+    Config {
+        /// Campaign id.
+        id: i64,
+        /// The parse error.
+        source: ConfigError,
+    },
+    /// The stored robot model no longer parses.
+    #[error("campaign {id}: its stored robot model: {source}")]
+    Robot {
+        /// Campaign id.
+        id: i64,
+        /// The parse error.
+        source: RobotFileError,
+    },
+    /// An imported campaign without a stored robot model.
+    #[error("campaign {0} has no stored robot model: give one")]
+    NoRobot(i64),
+}
+
+/// Everything the identification of a stored campaign takes.
+#[derive(Debug, Clone)]
+pub struct StoredCampaign {
+    /// Campaign id.
+    pub id: i64,
+    /// Nominal model with the campaign's setup applied.
+    pub nominal: RobotModel,
+    /// The campaign's identification options.
+    pub opts: IdentifyOptions,
+    /// Stage travel (mm).
+    pub travel_mm: f64,
+    /// The measured poses (ident and verify), in plan order.
+    pub rows: Vec<Observation>,
+    /// The setup the identification uses, as the CSV header carries it.
+    pub setup: CsvSetup,
+}
+
+/// Rebuild campaign `id`'s identification from `store`; `robot` replaces the stored robot model
+/// when given (an imported campaign may have none). An imported campaign (no stored
+/// configuration) takes the default configuration with its recorded observation model.
+pub fn load_stored(
+    store: &Store,
+    id: i64,
+    robot: Option<RobotModel>,
+) -> Result<StoredCampaign, StoredError> {
+    let row = store.campaign(id)?;
+    let label = PathBuf::from(format!("campaign {id}.toml"));
+    let mut cfg = parse_cell_config(&row.config_toml, &label)
+        .map_err(|source| StoredError::Config { id, source })?;
+    if row.config_toml.trim().is_empty() {
+        cfg.campaign.model = row.model.clone();
+    }
+    let mut nominal = match robot {
+        Some(r) => r,
+        None if row.robot_toml.trim().is_empty() => return Err(StoredError::NoRobot(id)),
+        None => parse_robot(&row.robot_toml, Path::new("robot.toml"))
+            .map_err(|source| StoredError::Robot { id, source })?,
+    };
+    nominal.tool = Vector3::from(cfg.campaign.tool_mm);
+    let setup = SetupResult::load(store, id)?;
+    let (nominal, opts, travel_mm) = campaign_identification(&cfg, &nominal, setup.as_ref());
+    // the registered base, exactly as stored, when the identification takes it as given
+    let base = setup.and_then(|s| s.base).filter(|_| !opts.identify_base);
+    let csv_setup = CsvSetup {
+        stage_axis: Some(opts.obs.stage_axis),
+        tool_mm: Some(nominal.tool),
+        stage_travel_mm: Some(travel_mm),
+        base_translation_mm: base.as_ref().map(|b| Vector3::from(b.translation_mm)),
+        base_rotation_vector_rad: base.as_ref().map(|b| Vector3::from(b.rotation_vector_rad)),
+    };
+    Ok(StoredCampaign {
+        id,
+        nominal,
+        opts,
+        travel_mm,
+        rows: store.observations(id)?,
+        setup: csv_setup,
+    })
+}

@@ -1,0 +1,56 @@
+//! `cellcal export`: a stored campaign's measurements as an identify CSV whose header carries
+//! the setup the campaign identified with (stage axis, tool, travel; the base when it was
+//! given), so that `identify` on the file reproduces the campaign's own result.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use cellcal::campaign::stored::load_stored;
+use cellcal::dataset::write_csv;
+
+use super::identify::{campaign_id, open_store};
+use crate::{input, other, Failure};
+
+/// Arguments of `cellcal export`.
+#[derive(clap::Args)]
+pub struct ExportArgs {
+    /// Store file.
+    #[arg(long)]
+    store: PathBuf,
+    /// Campaign id (default: the latest).
+    #[arg(long)]
+    campaign: Option<i64>,
+    /// Output CSV.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Run `cellcal export`.
+pub fn run(a: ExportArgs) -> Result<(), Failure> {
+    let s = open_store(&a.store)?;
+    let id = campaign_id(&s, &a.store, a.campaign)?;
+    let c = load_stored(&s, id, None)
+        .with_context(|| a.store.display().to_string())
+        .map_err(input)?;
+    let dof = c.nominal.dof();
+    let o = &c.opts;
+    let comment =
+        format!(
+        "cellcal export: campaign {id} from {}\nidentified by the campaign as: --model {}{}{}\n{}",
+        a.store.display(),
+        o.obs.model.name(),
+        if o.identify_base { " --identify-base" } else { "" },
+        if o.identify_tool { " --identify-tool" } else { "" },
+        c.setup.comment_lines()
+    );
+    std::fs::write(&a.out, write_csv(&c.rows, dof, &comment))
+        .with_context(|| format!("{}: cannot write", a.out.display()))
+        .map_err(other)?;
+    println!(
+        "wrote {} poses of campaign {id} to {}",
+        c.rows.len(),
+        a.out.display()
+    );
+    Ok(())
+}

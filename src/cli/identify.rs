@@ -1,0 +1,350 @@
+//! `cellcal identify`: identify the MDH errors from a measurement CSV (`--data`, its setup
+//! header as defaults) or re-identify a stored campaign (`--store`, exactly as the campaign
+//! did); print the summary, write the JSON contract.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Context};
+use clap::ValueEnum;
+use nalgebra::Vector3;
+
+use cellcal::campaign::stored::load_stored;
+use cellcal::dataset::{
+    parse_csv, parse_setup_header, parse_stage_axis, parse_vec3, CsvSetup, Observation, Required,
+};
+use cellcal::identify::solver::Options;
+use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
+use cellcal::model::load_robot;
+use cellcal::model::rotation::from_rotation_vector;
+use cellcal::model::RobotModel;
+use cellcal::report::{calibrate, summary_text, IdentifyReport, Quality};
+use cellcal::simulate::TrackerNoise;
+use cellcal::store::Store;
+
+use crate::{input, other, Failure};
+
+/// Stage travel when neither the data nor a flag gives one (mm).
+const DEFAULT_TRAVEL_MM: f64 = 10.0;
+
+/// Observation model names on the command line.
+#[derive(Clone, Copy, ValueEnum)]
+enum ModelArg {
+    Position,
+    Np,
+    Op,
+    Full,
+}
+
+impl ModelArg {
+    fn model(self) -> ObsModel {
+        match self {
+            ModelArg::Position => ObsModel::Position,
+            ModelArg::Np => ObsModel::Np,
+            ModelArg::Op => ObsModel::Op,
+            ModelArg::Full => ObsModel::Full,
+        }
+    }
+}
+
+/// Robust loss names on the command line.
+#[derive(Clone, Copy, ValueEnum)]
+enum RobustArg {
+    Huber,
+    Cauchy,
+}
+
+/// Arguments of `cellcal identify`.
+#[derive(clap::Args)]
+pub struct IdentifyArgs {
+    /// Robot model file (TOML); with --store it replaces the campaign's stored model.
+    #[arg(long, required_unless_present = "store")]
+    robot: Option<PathBuf>,
+    /// Measurement CSV (its `# stage_axis`, `# tool_mm`, `# stage_travel_mm` header lines are
+    /// the defaults; a flag that contradicts one is an error).
+    #[arg(long, required_unless_present = "store", conflicts_with = "store")]
+    data: Option<PathBuf>,
+    /// Campaign store: re-identify a stored campaign with its stored configuration, robot
+    /// model and setup (a flag that contradicts its setup is an error).
+    #[arg(long)]
+    store: Option<PathBuf>,
+    /// Campaign id in --store (default: the latest).
+    #[arg(long, requires = "store")]
+    campaign: Option<i64>,
+    /// Observation model (with --store default: the campaign's).
+    #[arg(long, value_enum, required_unless_present = "store")]
+    model: Option<ModelArg>,
+    /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a measured vector X,Y,Z
+    /// (normalised). Default: the data's setup, else +x for np and +y otherwise.
+    #[arg(long, value_parser = parse_stage_axis, allow_hyphen_values = true)]
+    stage_axis: Option<Vector3<f64>>,
+    /// Stage travel between P1 and P2 (mm). Default: the data's setup, else 10.
+    #[arg(long)]
+    stage_travel_mm: Option<f64>,
+    /// Ball position in the flange frame, X,Y,Z (mm). Default: the data's setup, else the
+    /// robot file's tool.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tool_mm: Option<Vector3<f64>>,
+    /// Identify the base transform (data in the tracker frame).
+    #[arg(long)]
+    identify_base: bool,
+    /// Identify the ball position in the flange frame.
+    #[arg(long)]
+    identify_tool: bool,
+    /// Down-weight gross outliers (default loss: Huber).
+    #[arg(long, num_args = 0..=1, default_missing_value = "huber", value_enum)]
+    robust: Option<RobustArg>,
+    /// Weight each pose by the AT960 uncertainty model σ = (15 µm + 6 µm/m·range)/2, range
+    /// from the tracker at X,Y,Z (mm, measurement frame; 0,0,0 when the data is in the tracker frame).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tracker_weights: Option<Vector3<f64>>,
+    /// Weight of direction rows (mm); default stage travel/√2.
+    #[arg(long)]
+    direction_weight_mm: Option<f64>,
+    /// Write the JSON result here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// What the data source gives before the flags apply.
+struct Source {
+    /// Nominal model (robot file, or the stored campaign's with its setup applied).
+    robot: RobotModel,
+    /// Data-set rows.
+    rows: Vec<Observation>,
+    /// Setup values the flags must agree with.
+    setup: CsvSetup,
+    /// The source's own options (a stored campaign's), if any.
+    campaign: Option<IdentifyOptions>,
+    /// Names the setup's origin in messages (`the header of d.csv`, `campaign 3 in c.db`).
+    origin: String,
+    /// Names the rows in error messages.
+    label: String,
+}
+
+/// Run `cellcal identify`.
+pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
+    let source = match (&a.data, &a.store) {
+        (Some(data), _) => csv_source(&a, data)?,
+        (None, Some(store)) => store_source(&a, store)?,
+        (None, None) => return Err(input(anyhow!("give --data CSV or --store FILE"))),
+    };
+    let label = source.label.clone();
+    let (robot, opts, travel, rows) = resolve(&a, source)?;
+    let (report, _) = calibrate(&robot, &rows, &opts, travel)
+        .with_context(|| label.clone())
+        .map_err(input)?;
+    print!("{}", summary_text(&report));
+    if let Some(path) = &a.json {
+        let text = serde_json::to_string_pretty(&report).map_err(other)?;
+        std::fs::write(path, text)
+            .with_context(|| format!("{}: cannot write", path.display()))
+            .map_err(other)?;
+    }
+    poor_is_exit_3(&report, "the result")
+}
+
+/// Exit 3 when the verdict is `poor` (after the result was printed and written).
+pub(crate) fn poor_is_exit_3(report: &IdentifyReport, what: &str) -> Result<(), Failure> {
+    if report.quality != Quality::Poor {
+        return Ok(());
+    }
+    let codes: Vec<&str> = report
+        .warnings
+        .iter()
+        .filter(|w| w.severity == Quality::Poor)
+        .map(|w| w.code.as_str())
+        .collect();
+    Err(Failure(
+        3,
+        anyhow!(
+            "{what} is poor ({}): see the warnings at the top of the summary",
+            codes.join(", ")
+        ),
+    ))
+}
+
+/// A CSV data set and its setup header.
+fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
+    let robot_path = a
+        .robot
+        .as_deref()
+        .ok_or_else(|| input(anyhow!("--data needs --robot")))?;
+    let robot = load_robot(robot_path).map_err(input)?;
+    let model = a
+        .model
+        .ok_or_else(|| input(anyhow!("--data needs --model")))?
+        .model();
+    let text = std::fs::read_to_string(data)
+        .with_context(|| format!("{}: cannot read", data.display()))
+        .map_err(input)?;
+    let label = data.display().to_string();
+    let setup = parse_setup_header(&text)
+        .with_context(|| label.clone())
+        .map_err(input)?;
+    let required = Required {
+        p2: matches!(model, ObsModel::Np | ObsModel::Op),
+        rotation: model == ObsModel::Full,
+    };
+    let rows = parse_csv(&text, robot.dof(), required)
+        .with_context(|| label.clone())
+        .map_err(input)?;
+    Ok(Source {
+        robot,
+        rows,
+        setup,
+        campaign: None,
+        origin: format!("the header of {label}"),
+        label,
+    })
+}
+
+/// A stored campaign, rebuilt as the campaign identified it.
+fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
+    let s = open_store(store)?;
+    let id = campaign_id(&s, store, a.campaign)?;
+    let robot = a
+        .robot
+        .as_deref()
+        .map(load_robot)
+        .transpose()
+        .map_err(input)?;
+    let c = load_stored(&s, id, robot)
+        .with_context(|| store.display().to_string())
+        .map_err(input)?;
+    let origin = format!("campaign {id} in {}", store.display());
+    Ok(Source {
+        robot: c.nominal,
+        rows: c.rows,
+        setup: c.setup,
+        campaign: Some(c.opts),
+        label: origin.clone(),
+        origin,
+    })
+}
+
+/// Open an existing store (a missing file is an error, not a new store).
+pub(crate) fn open_store(path: &Path) -> Result<Store, Failure> {
+    if !path.is_file() {
+        return Err(input(anyhow!("{}: no such store file", path.display())));
+    }
+    Store::open(path).map_err(input)
+}
+
+/// The given campaign id, or the store's latest.
+pub(crate) fn campaign_id(s: &Store, path: &Path, given: Option<i64>) -> Result<i64, Failure> {
+    match given {
+        Some(id) => Ok(id),
+        None => s
+            .latest_campaign()
+            .map_err(input)?
+            .ok_or_else(|| input(anyhow!("{}: no campaign", path.display()))),
+    }
+}
+
+/// A flag and the source's setup value must agree; the agreed (or only) value. Equal within
+/// 1e-9 (relative) counts as agreement, and then the source's value is kept bit for bit.
+fn agree<T: Copy>(
+    flag: (&str, Option<T>),
+    setup: (&str, Option<T>),
+    origin: &str,
+    differ: impl Fn(&T, &T) -> bool,
+    show: impl Fn(&T) -> String,
+) -> Result<Option<T>, Failure> {
+    match (flag.1, setup.1) {
+        (Some(f), Some(s)) if differ(&f, &s) => Err(input(anyhow!(
+            "{} {} contradicts `{} = {}` in {origin}: drop the flag (or change the source)",
+            flag.0,
+            show(&f),
+            setup.0,
+            show(&s)
+        ))),
+        (f, s) => Ok(s.or(f)),
+    }
+}
+
+fn vectors_differ(a: &Vector3<f64>, b: &Vector3<f64>) -> bool {
+    (a - b).norm() > 1e-9 * b.norm().max(1.0)
+}
+
+fn show_vector(v: &Vector3<f64>) -> String {
+    format!("{},{},{}", v.x, v.y, v.z)
+}
+
+/// The model, options and travel from the source and the flags.
+fn resolve(
+    a: &IdentifyArgs,
+    source: Source,
+) -> Result<(RobotModel, IdentifyOptions, f64, Vec<Observation>), Failure> {
+    let Source {
+        mut robot,
+        rows,
+        setup,
+        campaign,
+        origin,
+        ..
+    } = source;
+    let model = match (a.model, &campaign) {
+        (Some(m), _) => m.model(),
+        (None, Some(c)) => c.obs.model,
+        (None, None) => return Err(input(anyhow!("--model is required"))),
+    };
+    if let Some(t) = a.stage_travel_mm {
+        if !(t.is_finite() && t > 0.0) {
+            return Err(input(anyhow!(
+                "--stage-travel-mm must be a positive number"
+            )));
+        }
+    }
+    let travel = agree(
+        ("--stage-travel-mm", a.stage_travel_mm),
+        ("stage_travel_mm", setup.stage_travel_mm),
+        &origin,
+        |f, s| (f - s).abs() > 1e-9 * s.abs().max(1.0),
+        |v| v.to_string(),
+    )?
+    .unwrap_or(DEFAULT_TRAVEL_MM);
+    let tool = agree(
+        ("--tool-mm", a.tool_mm),
+        ("tool_mm", setup.tool_mm),
+        &origin,
+        vectors_differ,
+        show_vector,
+    )?;
+    if let Some(t) = tool {
+        robot.tool = t;
+    }
+    if let Some(t) = setup.base_translation_mm {
+        robot.base_translation = t;
+    }
+    if let Some(r) = setup.base_rotation_vector_rad {
+        robot.base_rotation = from_rotation_vector(&r);
+    }
+    let mut obs = ObsConfig::new(model, travel);
+    if let Some(u) = agree(
+        ("--stage-axis", a.stage_axis),
+        ("stage_axis", setup.stage_axis),
+        &origin,
+        vectors_differ,
+        show_vector,
+    )? {
+        obs.stage_axis = u;
+    }
+    if let Some(w) = a.direction_weight_mm {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(input(anyhow!("--direction-weight-mm must be ≥ 0")));
+        }
+        obs.direction_weight_mm = w;
+    }
+    let opts = IdentifyOptions {
+        obs,
+        identify_base: a.identify_base || campaign.is_some_and(|c| c.identify_base),
+        identify_tool: a.identify_tool || campaign.is_some_and(|c| c.identify_tool),
+        robust: a.robust.map(|r| match r {
+            RobustArg::Huber => RobustLoss::Huber,
+            RobustArg::Cauchy => RobustLoss::Cauchy,
+        }),
+        point_weights: a.tracker_weights.map(TrackerNoise::at960),
+        solver: Options::default(),
+    };
+    Ok((robot, opts, travel, rows))
+}
