@@ -56,7 +56,7 @@ pub enum DaemonError {
 }
 
 /// Campaign settings a client may change from the configuration's `[campaign]` defaults.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CampaignOverrides {
     /// Total poses.
@@ -86,7 +86,7 @@ impl CampaignOverrides {
 }
 
 /// A command from a client.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, utoipa::ToSchema)]
 #[serde(tag = "command", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ClientCommand {
     /// Allow motion.
@@ -117,7 +117,7 @@ pub enum ClientCommand {
 }
 
 /// A question waiting for the technician, as clients see it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct PromptView {
     /// Answer with this sequence number.
     pub seq: u64,
@@ -130,7 +130,7 @@ pub struct PromptView {
 }
 
 /// A campaign as clients see it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct CampaignView {
     /// Campaign id.
     pub id: i64,

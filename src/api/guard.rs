@@ -1,6 +1,7 @@
 //! The API's door, run before any route: the `Host` header must name this daemon (421: stops
 //! DNS rebinding), a browser's `Origin` must be this daemon's own (403), every route but
-//! `GET /api/health` needs a known bearer token (401), and a request body must be declared
+//! `GET /api/health`, `GET /api/openapi.json` and the web page's assets ([`super::web::PUBLIC_PATHS`]) needs a known
+//! bearer token (401), and a request body must be declared
 //! `application/json` (415: a cross-origin `text/plain` form post never reaches a route). The
 //! authenticated [`Principal`] is left in the request's extensions for the routes' role checks.
 //! [`json_errors`] turns every error response that is not yet JSON (axum's own 405, 413, …)
@@ -141,7 +142,7 @@ impl Gate {
                 ));
             }
         }
-        if req.method() == Method::GET && req.uri().path() == "/api/health" {
+        if req.method() == Method::GET && is_public(req.uri().path()) {
             return Ok(());
         }
         let principal = self.authenticate(req.headers())?;
@@ -177,6 +178,11 @@ impl Gate {
             .cloned()
             .ok_or_else(|| unauthorized("unknown token", true))
     }
+}
+
+/// Whether a GET of `path` needs no token: the health check and the web page's assets.
+fn is_public(path: &str) -> bool {
+    path == "/api/health" || path == "/api/openapi.json" || super::web::PUBLIC_PATHS.contains(&path)
 }
 
 /// `name:port` stays; a bare `name` gets `port`.

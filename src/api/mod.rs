@@ -6,17 +6,23 @@
 //!
 //! | method and path | what |
 //! |---|---|
+//! | `GET /`, `/index.html`, `/app.js`, `/app.css` | the cockpit web page ([`web`]; no token needed) |
 //! | `GET /api/health` | `{"ok": true, "version"}` |
+//! | `GET /api/openapi.json` | the OpenAPI 3.1 description of these routes ([`openapi`]; no token needed) |
+//! | `GET /api/whoami` | the caller: `{name, role, may: [action…]}` |
 //! | `GET /api/campaigns` | every stored campaign (`CampaignView`) |
 //! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
 //! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
 //! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
 //! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
+//! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
 
 pub mod guard;
+pub mod openapi;
 pub mod tls;
+pub mod web;
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -37,7 +43,9 @@ use tokio_stream::{Stream, StreamExt};
 pub use guard::{Gate, Scheme};
 
 use crate::auth::{Action, Principal};
-use crate::daemon::{CampaignOverrides, ClientCommand, Daemon, DaemonError, Followed};
+use crate::daemon::{
+    CampaignOverrides, CampaignView, ClientCommand, Daemon, DaemonError, Followed, PromptView,
+};
 
 /// Largest accepted request body (bytes); larger ones get 413.
 pub const MAX_BODY_BYTES: usize = 64 * 1024;
@@ -67,9 +75,16 @@ fn parse_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError
         .map_err(|e| ApiError(StatusCode::BAD_REQUEST, format!("request body: {e}")))
 }
 
+/// The body of every error response.
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+pub struct ErrorBody {
+    /// What went wrong, for a person to read.
+    pub error: String,
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(serde_json::json!({ "error": self.1 }))).into_response()
+        (self.0, Json(ErrorBody { error: self.1 })).into_response()
     }
 }
 
@@ -135,13 +150,17 @@ type Shared = Arc<Daemon>;
 /// The API's routes over `daemon`, behind `gate` (see [`guard`]), errors as JSON.
 pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
     Router::new()
+        .merge(web::routes())
         .route("/api/health", get(health))
+        .route("/api/openapi.json", get(openapi::serve_document))
+        .route("/api/whoami", get(whoami))
         .route("/api/campaigns", get(list).post(create))
         .route("/api/campaigns/{id}", get(one))
         .route("/api/campaigns/{id}/commands", post(command))
         .route("/api/campaigns/{id}/events", get(journal))
         .route("/api/campaigns/{id}/stream", get(stream))
         .route("/api/campaigns/{id}/result", get(result))
+        .route("/api/campaigns/{id}/prompt", get(prompt))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .layer(axum::middleware::from_fn_with_state(gate, guard::guard))
@@ -175,14 +194,87 @@ pub async fn serve(
     }
 }
 
-async fn health() -> Json<serde_json::Value> {
-    Json(serde_json::json!({ "ok": true, "version": env!("CARGO_PKG_VERSION") }))
+/// The answer of the health check.
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+pub struct Health {
+    /// Always `true` when the daemon answers.
+    pub ok: bool,
+    /// The daemon's version.
+    pub version: &'static str,
 }
 
+/// Whether the daemon answers (no token needed).
+#[utoipa::path(get, path = "/api/health", tag = "daemon", security(()),
+    responses((status = 200, description = "the daemon answers", body = Health)))]
+async fn health() -> Json<Health> {
+    Json(Health {
+        ok: true,
+        version: env!("CARGO_PKG_VERSION"),
+    })
+}
+
+/// The actions a client may ask for, by the names the web page uses.
+const ACTIONS: [(&str, Action); 9] = [
+    ("read", Action::Read),
+    ("create", Action::Create),
+    ("arm", Action::Arm),
+    ("disarm", Action::Disarm),
+    ("start", Action::Start),
+    ("pause", Action::Pause),
+    ("resume", Action::Resume),
+    ("abort", Action::Abort),
+    ("answer", Action::Answer),
+];
+
+/// Who the caller is and what its role may do (the page offers only those actions).
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
+pub struct WhoAmI {
+    /// The token's configured name.
+    pub name: String,
+    /// `viewer`, `technician` or `operator`.
+    #[schema(value_type = String, example = "operator")]
+    pub role: crate::auth::Role,
+    /// The actions this role may ask for: `read`, `create`, `arm`, `disarm`, `start`, `pause`,
+    /// `resume`, `abort`, `answer`.
+    pub may: Vec<&'static str>,
+}
+
+/// The caller's name, role and allowed actions.
+#[utoipa::path(get, path = "/api/whoami", tag = "daemon",
+    responses((status = 200, description = "the caller", body = WhoAmI),
+        (status = 401, description = "no or unknown token", body = ErrorBody)))]
+async fn whoami(caller: Caller) -> Json<WhoAmI> {
+    let may = ACTIONS
+        .iter()
+        .filter(|(_, a)| caller.0.role.may(*a))
+        .map(|(n, _)| *n)
+        .collect();
+    Json(WhoAmI {
+        name: caller.0.name.clone(),
+        role: caller.0.role,
+        may,
+    })
+}
+
+/// Every stored campaign.
+#[utoipa::path(get, path = "/api/campaigns", tag = "campaigns",
+    responses((status = 200, description = "every stored campaign", body = Vec<CampaignView>),
+        (status = 401, description = "no or unknown token", body = ErrorBody)))]
 async fn list(State(d): State<Shared>) -> Result<Response, ApiError> {
     Ok(Json(d.list().await?).into_response())
 }
 
+/// Plan and store a new campaign and load it (nothing moves yet).
+#[utoipa::path(post, path = "/api/campaigns", tag = "campaigns",
+    request_body(content = Option<CampaignOverrides>, content_type = "application/json",
+        description = "overrides of the configuration's `[campaign]`; may be empty"),
+    responses((status = 201, description = "created and loaded", body = CampaignView),
+        (status = 400, description = "a bad override, or a campaign that cannot run", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 403, description = "the role may not create", body = ErrorBody),
+        (status = 409, description = "a campaign is loaded", body = ErrorBody),
+        (status = 413, description = "body over 64 KiB", body = ErrorBody),
+        (status = 415, description = "body not declared application/json", body = ErrorBody)))]
 async fn create(
     State(d): State<Shared>,
     caller: Caller,
@@ -199,10 +291,29 @@ async fn create(
     Ok((StatusCode::CREATED, Json(view)).into_response())
 }
 
+/// One campaign: state, progress, open question.
+#[utoipa::path(get, path = "/api/campaigns/{id}", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the campaign", body = CampaignView),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody)))]
 async fn one(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     Ok(Json(d.get(id).await?).into_response())
 }
 
+/// A command to a campaign; answers with the campaign after it.
+#[utoipa::path(post, path = "/api/campaigns/{id}/commands", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    request_body(content = ClientCommand, content_type = "application/json"),
+    responses((status = 200, description = "the campaign after the command", body = CampaignView),
+        (status = 400, description = "a bad command or value", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 403, description = "the role may not do that", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody),
+        (status = 409, description = "conflicts with the cell's current use (not armed, a stale question number, …)", body = ErrorBody),
+        (status = 413, description = "body over 64 KiB", body = ErrorBody),
+        (status = 415, description = "body not declared application/json", body = ErrorBody)))]
 async fn command(
     State(d): State<Shared>,
     CampaignId(id): CampaignId,
@@ -214,6 +325,13 @@ async fn command(
     Ok(Json(d.command(id, cmd).await?).into_response())
 }
 
+/// The stored event journal.
+#[utoipa::path(get, path = "/api/campaigns/{id}/events", tag = "events",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "`[{seq, at_ms, kind, event}]` in sequence order", body = Vec<serde_json::Value>),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody)))]
 async fn journal(
     State(d): State<Shared>,
     CampaignId(id): CampaignId,
@@ -221,6 +339,13 @@ async fn journal(
     Ok(Json(d.journal(id).await?).into_response())
 }
 
+/// The `cellcal identify` JSON of a campaign.
+#[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the `cellcal identify` JSON contract (see README)", body = serde_json::Value),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),
@@ -229,6 +354,21 @@ async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<R
             format!("campaign {id} has no result yet"),
         )),
     }
+}
+
+/// The question waiting for the technician; 204 when none.
+#[utoipa::path(get, path = "/api/campaigns/{id}/prompt", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the open question", body = PromptView),
+        (status = 204, description = "no question is open"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody)))]
+async fn prompt(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    Ok(match d.get(id).await?.prompt {
+        Some(p) => Json(p).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
+    })
 }
 
 /// The `?last_event_id=` of a stream request.
@@ -268,6 +408,16 @@ fn sse_event(item: Followed) -> Event {
     }
 }
 
+/// Live events as Server-Sent Events.
+#[utoipa::path(get, path = "/api/campaigns/{id}/stream", tag = "events",
+    params(("id" = i64, Path, description = "campaign id"),
+        ("Last-Event-ID" = Option<i64>, Header, description = "resume after this journal sequence number"),
+        ("last_event_id" = Option<i64>, Query, description = "the same, for clients that cannot set headers")),
+    responses((status = 200, description = "`id:` = journal seq, `event:` = kind (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `note`, `result`), `data:` = the event JSON; ends after the run's final state",
+            body = String, content_type = "text/event-stream"),
+        (status = 400, description = "a bad id or last event id", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody)))]
 async fn stream(
     State(d): State<Shared>,
     CampaignId(id): CampaignId,

@@ -1,8 +1,10 @@
 //! The one integration-test binary: modules per capability.
 
+mod browser;
 mod campaign;
 mod cell_sim;
 mod cli;
+mod cockpit;
 mod common;
 mod frames;
 mod identifiability;

@@ -13,10 +13,10 @@ use super::campaign::{config_text, write_config};
 use cellcal::auth::TokenDigest;
 use cellcal::store::Store;
 
-struct Server {
+pub(crate) struct Server {
     child: Child,
-    base: String,
-    token: String,
+    pub(crate) base: String,
+    pub(crate) token: String,
     /// The daemon's stdout, kept open so that its prints never hit a closed pipe.
     _stdout: BufReader<ChildStdout>,
 }
@@ -34,7 +34,7 @@ enum Token<'a> {
     Configured(&'a str),
 }
 
-fn start(cfg: &Path, store: &Path) -> Server {
+pub(crate) fn start(cfg: &Path, store: &Path) -> Server {
     start_with(
         cfg,
         store,
@@ -92,7 +92,7 @@ fn start_with(
     }
 }
 
-fn agent() -> ureq::Agent {
+pub(crate) fn agent() -> ureq::Agent {
     ureq::Agent::config_builder()
         .http_status_as_error(false)
         .timeout_global(Some(Duration::from_secs(30)))
@@ -104,7 +104,7 @@ fn bearer(token: &str) -> String {
     format!("Bearer {token}")
 }
 
-fn get(s: &Server, path: &str) -> (u16, Value) {
+pub(crate) fn get(s: &Server, path: &str) -> (u16, Value) {
     get_as(s, &s.token, path)
 }
 
@@ -118,7 +118,7 @@ fn get_as(s: &Server, token: &str, path: &str) -> (u16, Value) {
     (status, r.body_mut().read_json().expect("JSON body"))
 }
 
-fn post(s: &Server, path: &str, body: &str) -> (u16, Value) {
+pub(crate) fn post(s: &Server, path: &str, body: &str) -> (u16, Value) {
     post_as(s, &s.token, path, body)
 }
 
@@ -197,7 +197,12 @@ fn wait_for_state(s: &Server, id: i64, want: &str) -> Value {
     }
 }
 
-fn fast_config(dir: &Path, stage_kind: &str, poses: usize, ident: usize) -> std::path::PathBuf {
+pub(crate) fn fast_config(
+    dir: &Path,
+    stage_kind: &str,
+    poses: usize,
+    ident: usize,
+) -> std::path::PathBuf {
     let text = config_text("", "", "")
         .replace("kind = \"serial\"", &format!("kind = \"{stage_kind}\""))
         .replace("poses = 300", &format!("poses = {poses}"))
