@@ -110,6 +110,8 @@ enum Command {
         /// Weight of direction rows (mm); default stage travel/√2.
         #[arg(long)]
         direction_weight_mm: Option<f64>,
+        #[command(flatten)]
+        practical: cli::practical::PracticalArgs,
         /// Write the JSON result here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -339,6 +341,7 @@ fn main() -> ExitCode {
             robust,
             tracker_weights,
             direction_weight_mm,
+            practical,
             json,
         } => run_identify(
             &robot,
@@ -352,6 +355,7 @@ fn main() -> ExitCode {
             robust,
             tracker_weights,
             direction_weight_mm,
+            practical,
             json.as_deref(),
         ),
         Command::Significance {
@@ -426,6 +430,7 @@ fn run_identify(
     robust: Option<RobustArg>,
     tracker_weights: Option<Vector3<f64>>,
     direction_weight_mm: Option<f64>,
+    practical: cli::practical::PracticalArgs,
     json: Option<&Path>,
 ) -> Result<(), Failure> {
     let model = match model {
@@ -473,6 +478,7 @@ fn run_identify(
         }),
         point_weights: tracker_weights.map(TrackerNoise::at960),
         solver: Options::default(),
+        practical: practical.bounds(tracker_weights.is_some()).map_err(input)?,
     };
     let (report, _) = calibrate(&robot_model, &rows, &opts, stage_travel_mm)
         .with_context(|| data.display().to_string())

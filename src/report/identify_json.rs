@@ -1,7 +1,8 @@
 //! The `cellcal identify` pipeline (rows → identification → metrics) and its JSON contract.
 //!
 //! JSON fields (contract, extend only): `model`, `identified`, `not_identifiable`
-//! (`{name, reason}`), `parameters` (`{name, joint, kind, unit, nominal, error, std,
+//! (`{name, reason}`; extended by `kind`: `structural` | `dependent` | `poorly_determined` and
+//! `predicted_sigma`, mm or rad, null when unbounded), `parameters` (`{name, joint, kind, unit, nominal, error, std,
 //! identified}`, error = identified − nominal), `base` (`{translation_mm, rotation_vector_rad}`),
 //! `tool` (`{translation_mm}`), `solver` (`{iterations, converged, final_cost}`), `metrics`
 //! (`{ident: {before, after}, verify: {before, after}}`). Extensions: `stage_axis`,
@@ -12,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::analysis::metrics::{evaluate, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
-use crate::identify::{identify, Identification, IdentifyError, IdentifyOptions};
+use crate::identify::{identify, DropKind, Identification, IdentifyError, IdentifyOptions};
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
 
@@ -30,13 +31,25 @@ pub enum CalibrateError {
     NoIdentRows,
 }
 
-/// `{name, reason}` of a dropped parameter.
+/// `{name, reason, kind, predicted_sigma}` of a parameter held at nominal.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NotIdentifiable {
     /// Parameter name.
     pub name: String,
     /// Why it cannot be identified.
     pub reason: String,
+    /// `structural`, `dependent` or `poorly_determined` ([`DropKind::name`]); results stored
+    /// before the practical test read as `structural`.
+    #[serde(default = "structural")]
+    pub kind: String,
+    /// Its predicted σ had it been identified (mm or rad, the parameter's unit); null when
+    /// unbounded (structural).
+    #[serde(default)]
+    pub predicted_sigma: Option<f64>,
+}
+
+fn structural() -> String {
+    DropKind::Structural.name().to_owned()
 }
 
 /// One parameter row.
@@ -192,6 +205,8 @@ pub fn calibrate(
             .map(|d| NotIdentifiable {
                 name: d.param.name(),
                 reason: d.reason.clone(),
+                kind: d.kind.name().to_owned(),
+                predicted_sigma: d.predicted_sigma,
             })
             .collect(),
         parameters: id

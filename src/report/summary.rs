@@ -5,6 +5,7 @@ use std::fmt::Write;
 
 use super::identify_json::IdentifyReport;
 use crate::analysis::metrics::Metrics;
+use crate::identify::DropKind;
 
 fn cell(r: &IdentifyReport, name: &str) -> String {
     match r.parameters.iter().find(|p| p.name == name) {
@@ -30,6 +31,27 @@ fn metric_line(out: &mut String, set: &str, state: &str, m: &Metrics) {
         att(m.attitude_mean_rad),
         att(m.attitude_max_rad),
     );
+}
+
+/// The parameters held at nominal: structurally not identifiable, then those these poses do not
+/// determine (with their predicted σ in the reason).
+fn not_identified_lines(out: &mut String, r: &IdentifyReport) {
+    let (structural, practical): (Vec<_>, Vec<_>) = r
+        .not_identifiable
+        .iter()
+        .partition(|d| d.kind == DropKind::Structural.name());
+    for (title, list) in [
+        ("Not identifiable", structural),
+        ("Held at nominal: not determined by these poses", practical),
+    ] {
+        if list.is_empty() {
+            continue;
+        }
+        let _ = writeln!(out, "\n{title}:");
+        for d in list {
+            let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
+        }
+    }
 }
 
 /// Human summary of an identify report.
@@ -96,12 +118,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
             p.std.unwrap_or(f64::NAN)
         );
     }
-    if !r.not_identifiable.is_empty() {
-        let _ = writeln!(out, "\nNot identifiable:");
-        for d in &r.not_identifiable {
-            let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
-        }
-    }
+    not_identified_lines(&mut out, r);
     if !r.rejected_poses.is_empty() {
         let _ = writeln!(
             out,

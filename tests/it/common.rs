@@ -5,7 +5,7 @@ use std::path::Path;
 use cellcal::analysis::evaluate;
 use cellcal::dataset::{split, to_measured, Observation};
 use cellcal::identify::solver::Options;
-use cellcal::identify::{IdentifyOptions, Measured, ObsConfig, ObsModel};
+use cellcal::identify::{IdentifyOptions, Measured, ObsConfig, ObsModel, PracticalBounds};
 use cellcal::model::{parse_robot, RobotModel};
 use cellcal::simulate::{self, truth, SimConfig, SimData};
 use nalgebra::Vector3;
@@ -34,6 +34,7 @@ pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
         robust: None,
         point_weights: None,
         solver: Options::default(),
+        practical: PracticalBounds::default(),
     }
 }
 
