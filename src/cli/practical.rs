@@ -10,15 +10,16 @@ use clap::Args;
 /// these poses) would exceed its bound is held at nominal and listed with its reason.
 #[derive(Args, Clone, Copy)]
 pub struct PracticalArgs {
-    /// A-priori σ of one measured coordinate (mm; default: an AT960 at ~2.5 m). Not with
-    /// --tracker-weights, whose model gives the noise (σ at 1 m).
-    #[arg(long)]
+    /// A-priori σ of one measured coordinate (mm) for the predicted parameter σ [default: 0.015,
+    /// an AT960 at ~2.5 m]. Not with --tracker-weights, whose model gives it (σ at 1 m).
+    #[arg(long, allow_negative_numbers = true)]
     noise_mm: Option<f64>,
-    /// Largest predicted σ of an identified length (mm).
-    #[arg(long, default_value_t = identifiability::DEFAULT_MAX_SIGMA_MM)]
+    /// Largest predicted σ (noise × √diag (JᵀJ)⁻¹ on these poses) of an identified length (mm);
+    /// a parameter over its bound is held at nominal and listed with the reason.
+    #[arg(long, allow_negative_numbers = true, default_value_t = identifiability::DEFAULT_MAX_SIGMA_MM)]
     max_sigma_mm: f64,
     /// Largest predicted σ of an identified angle (mrad).
-    #[arg(long, default_value_t = identifiability::DEFAULT_MAX_SIGMA_RAD * 1e3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = identifiability::DEFAULT_MAX_SIGMA_RAD * 1e3)]
     max_sigma_mrad: f64,
 }
 

@@ -358,15 +358,17 @@ impl KeptFactor {
     }
 }
 
-/// The practical test's state: the weighted Gram matrix the solver uses, its kept factor, and
-/// the bounds.
+/// The practical test's state: the weighted Gram matrix the solver uses, its kept factor, the
+/// bounds, and the parameters held back after the fact (column → why).
 struct Practical<'a> {
     bounds: &'a PracticalBounds,
     gram: NormalisedGram,
     kept: KeptFactor,
+    excluded: Vec<(usize, HeldBack)>,
 }
 
 /// A candidate the practical test holds back.
+#[derive(Clone)]
 struct HeldBack {
     kind: DropKind,
     sigma: f64,
@@ -405,72 +407,77 @@ fn partners(coef: &[f64], kept: &[usize], order: &[ParamId]) -> Vec<String> {
     parts.iter().map(|(_, p)| p.name()).collect()
 }
 
-impl Practical<'_> {
+/// "predicted σ 3.10 mm (bound 0.0500 mm)".
+fn sigma_text(bounds: &PracticalBounds, p: &ParamId, sigma: f64) -> String {
+    format!(
+        "predicted σ {} (bound {})",
+        figure(p, sigma),
+        figure(p, bounds.bound(p))
+    )
+}
+
+/// `p` held back as indistinguishable from the `kept` columns on which its normalised
+/// coefficients are `coef`.
+fn held_dependent(
+    bounds: &PracticalBounds,
+    p: &ParamId,
+    sigma: f64,
+    (coef, kept): (&[f64], &[usize]),
+    order: &[ParamId],
+) -> HeldBack {
+    let names = partners(coef, kept, order);
+    let names = if names.is_empty() {
+        "the identified parameters".to_owned()
+    } else {
+        names.join(", ")
+    };
+    HeldBack {
+        kind: DropKind::Dependent,
+        sigma,
+        reason: format!(
+            "indistinguishable from {names} given these poses: {}",
+            sigma_text(bounds, p, sigma)
+        ),
+    }
+}
+
+impl<'a> Practical<'a> {
+    fn new(bounds: &'a PracticalBounds, gram: NormalisedGram) -> Practical<'a> {
+        Practical {
+            bounds,
+            gram,
+            kept: KeptFactor::default(),
+            excluded: Vec::new(),
+        }
+    }
+
     /// Predicted σ (unit of the parameter) of column `c` from `diag(C⁻¹)` entry `inv_diag`.
     fn sigma(&self, c: usize, inv_diag: f64) -> f64 {
         self.bounds.noise_mm * inv_diag.sqrt() / self.gram.norm[c]
     }
 
-    /// `None` when candidate `c` may join the kept set, else why it is held back.
+    /// `None` when candidate `c` may join the kept set (its predicted σ with the kept columns
+    /// is within its bound), else why it is held back.
     fn judge(&self, c: usize, order: &[ParamId]) -> Option<HeldBack> {
+        if let Some((_, h)) = self.excluded.iter().find(|(x, _)| *x == c) {
+            return Some(h.clone());
+        }
         let param = &order[c];
         let bound = self.bounds.bound(param);
         let p = self.kept.project(&self.gram, c);
-        let d = self.kept.inv_diag_with(&p);
-        let sigma = self.sigma(c, d[d.len() - 1]);
-        let bound_text = |q: &ParamId, v: f64| {
-            format!(
-                "{} (bound {})",
-                figure(q, v),
-                figure(q, self.bounds.bound(q))
-            )
-        };
+        let sigma = self.sigma(c, 1.0 / p.sin2.max(0.0));
         if self.gram.norm[c] == 0.0 || self.bounds.noise_mm / self.gram.norm[c] > bound {
             return Some(HeldBack {
                 kind: DropKind::PoorlyDetermined,
                 sigma,
                 reason: format!(
-                    "poorly determined by these poses: predicted σ {}",
-                    bound_text(param, sigma)
+                    "poorly determined by these poses: {}",
+                    sigma_text(self.bounds, param, sigma)
                 ),
             });
         }
-        let cols = &self.kept.cols;
-        if sigma > bound || !sigma.is_finite() {
-            let names = partners(&p.coef, cols, order);
-            return Some(HeldBack {
-                kind: DropKind::Dependent,
-                sigma,
-                reason: format!(
-                    "indistinguishable from {} given these poses: predicted σ {}",
-                    if names.is_empty() {
-                        "the identified parameters".to_owned()
-                    } else {
-                        names.join(", ")
-                    },
-                    bound_text(param, sigma)
-                ),
-            });
-        }
-        // adding the candidate also inflates the σ of the kept parameters it resembles
-        let (worst, ratio) = cols
-            .iter()
-            .enumerate()
-            .map(|(i, &j)| (j, self.sigma(j, d[i]) / self.bounds.bound(&order[j])))
-            .max_by(|a, b| a.1.total_cmp(&b.1))?;
-        (ratio > 1.0).then(|| {
-            let q = &order[worst];
-            HeldBack {
-                kind: DropKind::Dependent,
-                sigma,
-                reason: format!(
-                    "indistinguishable from {} given these poses: σ({}) would be {}",
-                    q.name(),
-                    q.name(),
-                    bound_text(q, ratio * self.bounds.bound(q))
-                ),
-            }
-        })
+        (sigma > bound || !sigma.is_finite())
+            .then(|| held_dependent(self.bounds, param, sigma, (&p.coef, &self.kept.cols), order))
     }
 
     fn keep(&mut self, c: usize) {
@@ -487,6 +494,31 @@ impl Practical<'_> {
             .map(|(&c, &d)| (c, self.sigma(c, d)))
             .collect()
     }
+
+    /// The kept column furthest over its bound (a later column made it so), held back now as
+    /// indistinguishable from the others; `false` when every kept σ is within its bound.
+    fn exclude_worst(&mut self, order: &[ParamId]) -> bool {
+        let worst = self
+            .sigmas()
+            .into_iter()
+            .map(|(c, s)| (c, s, s / self.bounds.bound(&order[c])))
+            .filter(|(_, _, ratio)| *ratio > 1.0)
+            .max_by(|a, b| a.2.total_cmp(&b.2));
+        let Some((j, sigma, _)) = worst else {
+            return false;
+        };
+        // the others, refactored without it, to name what it cannot be told apart from
+        let mut others = KeptFactor::default();
+        for &c in self.kept.cols.iter().filter(|&&c| c != j) {
+            let p = others.project(&self.gram, c);
+            others.push(c, p);
+        }
+        let coef = others.project(&self.gram, j).coef;
+        let held = held_dependent(self.bounds, &order[j], sigma, (&coef, &others.cols), order);
+        self.excluded.push((j, held));
+        self.kept = KeptFactor::default();
+        true
+    }
 }
 
 /// The decision on one candidate column.
@@ -498,13 +530,13 @@ enum Decision {
     Held(HeldBack),
 }
 
-/// The greedy pass over `order`: the rank test on `rank`, then the practical test if any.
-/// Returns one decision per column and the practical state at the end.
-fn greedy<'a>(
+/// The greedy pass over `order`: the rank test on `rank`, then the practical test if any
+/// (whose kept factor it fills). Returns one decision per column and the kept factor.
+fn greedy(
     order: &[ParamId],
     rank: &NormalisedGram,
-    mut practical: Option<Practical<'a>>,
-) -> (Vec<Decision>, KeptFactor, Option<Practical<'a>>) {
+    mut practical: Option<&mut Practical>,
+) -> (Vec<Decision>, KeptFactor) {
     let n = order.len();
     let max_diag = (0..n).map(|c| rank.g[(c, c)]).fold(0.0, f64::max);
     let mut kept = KeptFactor::default();
@@ -520,17 +552,34 @@ fn greedy<'a>(
             decisions.push(Decision::RankDependent);
             continue;
         }
-        if let Some(held) = practical.as_ref().and_then(|pr| pr.judge(c, order)) {
+        if let Some(held) = practical.as_deref().and_then(|pr| pr.judge(c, order)) {
             decisions.push(Decision::Held(held));
             continue;
         }
         kept.push(c, p);
-        if let Some(pr) = practical.as_mut() {
+        if let Some(pr) = practical.as_deref_mut() {
             pr.keep(c);
         }
         decisions.push(Decision::Keep);
     }
-    (decisions, kept, practical)
+    (decisions, kept)
+}
+
+/// [`greedy`] with the practical test, repeated while a kept parameter ends over its bound
+/// (adding a column never lowers another's σ, so a later one can push an earlier one over):
+/// that parameter is held back and the pass runs again without it, so that every identified
+/// parameter's predicted σ is within its bound.
+fn greedy_practical<'a>(
+    order: &[ParamId],
+    rank: &NormalisedGram,
+    mut practical: Practical<'a>,
+) -> (Vec<Decision>, KeptFactor, Practical<'a>) {
+    loop {
+        let (decisions, kept) = greedy(order, rank, Some(&mut practical));
+        if !practical.exclude_worst(order) {
+            return (decisions, kept, practical);
+        }
+    }
 }
 
 /// Reason for a column that is an exact combination of the `kept` columns of `rank`.
@@ -563,14 +612,9 @@ fn select(
     let rank = NormalisedGram::new(rank_gram);
     // the structural verdict on these poses, apart: a practical hold-back may let a later
     // parameter in (tool_y for a held-back θ6), which must not hide a structural loss
-    let (structural, structural_kept, _) = greedy(order, &rank, None);
+    let (structural, structural_kept) = greedy(order, &rank, None);
     let practical = weighted.map(|(bounds, g)| {
-        let state = Practical {
-            bounds,
-            gram: NormalisedGram::new(g),
-            kept: KeptFactor::default(),
-        };
-        greedy(order, &rank, Some(state))
+        greedy_practical(order, &rank, Practical::new(bounds, NormalisedGram::new(g)))
     });
     let (decisions, kept, practical) = match practical {
         None => (
@@ -578,7 +622,7 @@ fn select(
             structural_kept.cols.clone(),
             None,
         ),
-        Some((d, k, p)) => (d.into_iter().map(Some).collect::<Vec<_>>(), k.cols, p),
+        Some((d, k, p)) => (d.into_iter().map(Some).collect::<Vec<_>>(), k.cols, Some(p)),
     };
     let mut dropped: Vec<Dropped> = Vec::new();
     for (c, (first, second)) in structural.into_iter().zip(decisions).enumerate() {
@@ -802,23 +846,48 @@ mod tests {
     }
 
     #[test]
-    fn a_candidate_that_would_inflate_a_kept_sigma_is_held_back() {
+    fn a_kept_parameter_a_later_one_pushes_over_its_bound_is_held_back() {
         let (u, w, _) = basis();
         let p = lengths(2);
-        // d1 alone: σ 0.044 mm; d2 well excited (own σ ≈ 0.00019 mm) but at cos 0.6 to d1, it
-        // would raise σ(d1) to 0.044/0.8 = 0.055 mm
+        // d1 alone: σ 0.044 mm; d2 well excited (own σ 0.015/(100·0.4) = 0.000375 mm) but at
+        // cos √0.84 to d1: with both, σ(d1) = 0.044/0.4 = 0.11 mm. d2 alone carries the shared
+        // direction best (keeping d1 instead would blow d2's effect up into it)
         let cols = [
             col(0.015 / 0.044, 0.0, &u, &w),
+            col(100.0, 0.4_f64.asin(), &u, &w),
+        ];
+        let r = decide(&p, &cols, true);
+        assert_eq!(r.identified, [p[1]]);
+        let d = &r.dropped[0];
+        assert_eq!(d.param, p[0]);
+        assert_eq!(d.kind, DropKind::Dependent);
+        assert!(close(d.predicted_sigma.expect("σ"), 0.11));
+        assert_eq!(
+            d.reason,
+            "indistinguishable from d2 given these poses: predicted σ 0.110 mm (bound 0.0500 mm)"
+        );
+        assert!(
+            close(r.predicted_sigma[0], 0.00015),
+            "{:?}",
+            r.predicted_sigma
+        );
+    }
+
+    #[test]
+    fn a_rise_of_a_kept_sigma_within_its_bound_keeps_both() {
+        let (u, w, _) = basis();
+        let p = lengths(2);
+        // σ(d1) 0.03 → 0.03/0.8 = 0.0375 mm with d2 at cos 0.6
+        let cols = [
+            col(0.015 / 0.03, 0.0, &u, &w),
             col(100.0, 0.6_f64.acos(), &u, &w),
         ];
         let r = decide(&p, &cols, true);
-        assert_eq!(r.identified, [p[0]]);
-        let d = &r.dropped[0];
-        assert_eq!(d.kind, DropKind::Dependent);
-        assert!(close(d.predicted_sigma.expect("σ"), 0.015 / 80.0));
-        assert_eq!(
-            d.reason,
-            "indistinguishable from d1 given these poses: σ(d1) would be 0.0550 mm (bound 0.0500 mm)"
+        assert_eq!(r.identified, p);
+        assert!(
+            close(r.predicted_sigma[0], 0.0375),
+            "{:?}",
+            r.predicted_sigma
         );
     }
 
