@@ -16,18 +16,21 @@
 //! **Practical.** A formally identifiable parameter can still be undetermined by the data (the
 //! README's campaign: a stage axis measured 4 mrad off +y makes β6 formally identifiable, and
 //! β6, a6, d6 then cancel inside the sampled box). With [`PracticalBounds`], the same greedy
-//! pass also asks of each candidate what its identification would cost: with the candidate
-//! added to the set kept so far, the predicted standard deviations `σ_noise·√diag((JᵀJ)⁻¹)` of
-//! the weighted Jacobian the solver uses (direction rows × the direction weight, pose weights
-//! applied; `σ_noise` = the a-priori σ of a unit-weight row) must all stay within the bounds
-//! (lengths in mm, angles in rad). A candidate that breaks one is held at nominal, with its
-//! predicted σ: *poorly determined* when the data barely moves it at all
-//! (`σ_noise/‖column‖` alone is over its bound), *dependent* ("indistinguishable from a6 given
-//! these poses") when it is the near-cancellation with kept parameters that inflates σ. Adding
-//! a column never lowers another's σ, so every kept parameter stays within its bound, and a
-//! later parameter (e.g. `tool_y` after a held-back θ6) may take the held-back one's place when
-//! the data determines it. The diagonal of `(JᵀJ)⁻¹` is carried along the incremental Cholesky
-//! factor (rank-one Schur updates), so the pass costs O(k²) per candidate.
+//! pass also predicts each candidate's standard deviation with the set kept so far,
+//! `σ_noise·√diag((JᵀJ)⁻¹)` of the weighted Jacobian the solver uses (direction rows × the
+//! direction weight, pose weights applied; `σ_noise` = the a-priori σ of a unit-weight row). A
+//! candidate over its bound (lengths in mm, angles in rad) is held at nominal with that figure:
+//! *poorly determined* when the data barely moves it at all (`σ_noise/‖column‖` alone is over
+//! the bound), *dependent* ("indistinguishable from a6 given these poses") when the
+//! near-cancellation with kept parameters inflates it. A later column can also push an earlier
+//! kept one over its bound (a well-excited parameter that shares a weak one's direction): the
+//! kept parameter furthest over is then held back as dependent and the pass runs again without
+//! it, until every kept σ is within its bound — holding back the weak one, not the strong one,
+//! keeps the bias small. A later parameter may take a held-back one's place when the data
+//! determines it (α6 for θ6 on the UR5 grid). The structural verdict comes from a pass without
+//! the practical test, so a hold-back never hides a structural loss, nor looks like one. The
+//! diagonal of `(JᵀJ)⁻¹` is carried along the incremental Cholesky factor (rank-one Schur
+//! updates), so a pass costs O(k²) per candidate.
 //!
 //! Each dropped parameter carries its kind ([`DropKind`]), reason and figure.
 
@@ -611,7 +614,7 @@ fn select(
 ) -> Identifiability {
     let rank = NormalisedGram::new(rank_gram);
     // the structural verdict on these poses, apart: a practical hold-back may let a later
-    // parameter in (tool_y for a held-back θ6), which must not hide a structural loss
+    // parameter in (α6 for a held-back θ6 on the UR5 grid), which must not hide a structural loss
     let (structural, structural_kept) = greedy(order, &rank, None);
     let practical = weighted.map(|(bounds, g)| {
         greedy_practical(order, &rank, Practical::new(bounds, NormalisedGram::new(g)))
@@ -894,7 +897,8 @@ mod tests {
     #[test]
     fn a_held_back_parameter_leaves_room_for_a_later_one_the_data_determines() {
         let (u, w, z) = basis();
-        // θ-like angle d1 barely moves the point; the later length d3 does the same job well
+        // θ1 barely moves the point; the later tool_y, structurally a copy of it, does the
+        // same job well
         let p = [
             ParamId::Mdh {
                 joint: 0,
@@ -906,7 +910,7 @@ mod tests {
             },
             ParamId::Tool(1),
         ];
-        // θ1: 0.09 mm per rad along z (σ 0.17 rad); d2 along u; tool_y along z (exactly θ1's column × 11)
+        // θ1: 0.09 mm per rad along z (σ 0.17 rad); d2 along u; tool_y along z (θ1's column × 11)
         let cols = [
             col(0.09, 0.0, &z, &u),
             col(10.0, 0.0, &u, &w),
