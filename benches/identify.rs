@@ -7,7 +7,9 @@ use std::path::Path;
 use cellcal::dataset::to_measured;
 use cellcal::identify::observation::residual_jacobian;
 use cellcal::identify::solver::Options;
-use cellcal::identify::{all_params, identify, IdentifyOptions, ObsConfig, ObsModel};
+use cellcal::identify::{
+    all_params, identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds,
+};
 use cellcal::model::parse_robot;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -62,6 +64,7 @@ fn bench_identify(c: &mut Criterion) {
                 robust: None,
                 point_weights: None,
                 solver: Options::default(),
+                practical: PracticalBounds::default(),
             };
             let meas = to_measured(&rows[..n], model, 10.0).expect("convert");
             g.bench_with_input(BenchmarkId::new(model.name(), n), &meas, |b, m| {

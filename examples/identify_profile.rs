@@ -10,7 +10,7 @@ use std::path::Path;
 
 use cellcal::dataset::to_measured;
 use cellcal::identify::solver::Options;
-use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel};
+use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
 use cellcal::model::parse_robot;
 use cellcal::simulate::{self, truth, SimConfig};
 use nalgebra::Vector3;
@@ -51,6 +51,7 @@ fn main() {
         robust: None,
         point_weights: None,
         solver: Options::default(),
+        practical: PracticalBounds::default(),
     };
     // best batch of 10 calls: least disturbed by other load on the machine
     let mut last = None;

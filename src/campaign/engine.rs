@@ -29,7 +29,7 @@ use super::events::{CampaignEvent, CampaignState, Control, Journalled};
 use crate::cell::{CellError, DeviceKind, FaultKind, Robot, Stage, Tracker, TrackerPoint};
 use crate::config::CellConfig;
 use crate::identify::solver::Options;
-use crate::identify::{IdentifyOptions, ObsConfig};
+use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
 use crate::model::RobotModel;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
@@ -827,6 +827,7 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
         robust: None,
         point_weights: None,
         solver: Options::default(),
+        practical: PracticalBounds::default(),
     }
 }
 

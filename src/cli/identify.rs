@@ -100,6 +100,8 @@ pub struct IdentifyArgs {
     /// Weight of direction rows (mm); default stage travel/√2.
     #[arg(long)]
     direction_weight_mm: Option<f64>,
+    #[command(flatten)]
+    practical: super::practical::PracticalArgs,
     /// Write the JSON result here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -345,6 +347,10 @@ fn resolve(
         }),
         point_weights: a.tracker_weights.map(TrackerNoise::at960),
         solver: Options::default(),
+        practical: a
+            .practical
+            .bounds(a.tracker_weights.is_some())
+            .map_err(input)?,
     };
     Ok((robot, opts, travel, rows))
 }

@@ -3,7 +3,8 @@
 //! Pure code. Flow: [`identify`] → initial state (given base/tool, or a rigid registration of
 //! the nominal model to the data when the base is identified) → [`identifiability::analyze`]
 //! on the actual poses, checked against generic poses so that too few or too similar poses are
-//! an error rather than a silently smaller model → Levenberg–Marquardt ([`solver`]), started
+//! an error rather than a silently smaller model (a parameter the practical test holds back as
+//! undetermined by the data is a result, listed with its predicted σ, not an error) → Levenberg–Marquardt ([`solver`]), started
 //! from the linearisation the analysis computed at the initial state ([`normal::SplitSums`]) →
 //! optional iteratively reweighted robust refit ([`robust`]) → standard deviations and
 //! correlations from `σ̂²·(JᵀJ)⁻¹`.
@@ -20,7 +21,7 @@ pub mod solver;
 use nalgebra::{DMatrix, Vector3};
 use rand::{Rng, SeedableRng};
 
-pub use identifiability::{Dropped, Identifiability};
+pub use identifiability::{DropKind, Dropped, Identifiability, PracticalBounds};
 pub use observation::{predict, Measured, ObsConfig, ObsModel};
 pub use params::{all_params, retract, ParamId};
 pub use robust::RobustLoss;
@@ -49,6 +50,9 @@ pub struct IdentifyOptions {
     pub point_weights: Option<crate::simulate::TrackerNoise>,
     /// Solver options.
     pub solver: solver::Options,
+    /// Practical identifiability: a-priori noise and the σ bounds over which a parameter is held
+    /// at nominal (with `point_weights`, the noise is the tracker model's σ at 1 m instead).
+    pub practical: PracticalBounds,
 }
 
 /// Why an identification could not be run.
@@ -72,6 +76,9 @@ pub enum IdentifyError {
         /// Parameter names identifiable in general but not from these poses.
         missing: Vec<String>,
     },
+    /// The practical identifiability bounds are unusable (not finite, or not positive).
+    #[error("identifiability bounds: {0}")]
+    BadBounds(String),
     /// The base registration failed.
     #[error("base registration failed: {0}")]
     Registration(String),
@@ -216,17 +223,35 @@ pub fn initial_model(
     Ok(m)
 }
 
+/// The practical bounds of `opts`, with the noise of a unit-weight row: with tracker weights,
+/// the model's σ at 1 m (the weights scale every row to it), else `opts.practical.noise_mm`.
+fn practical_bounds(opts: &IdentifyOptions) -> PracticalBounds {
+    match &opts.point_weights {
+        None => opts.practical,
+        Some(t) => PracticalBounds {
+            noise_mm: unit_weight_sigma_mm(t),
+            ..opts.practical
+        },
+    }
+}
+
+/// σ (mm) of a unit-weight row under tracker weights: the model's σ at 1 m range.
+fn unit_weight_sigma_mm(t: &crate::simulate::TrackerNoise) -> f64 {
+    (t.a_um + t.b_um_per_m) / 1000.0 / t.k
+}
+
 /// Identify the parameter errors of `nominal` from identification poses.
 pub fn identify(
     nominal: &RobotModel,
     poses: &[Measured],
     opts: &IdentifyOptions,
 ) -> Result<Identification, IdentifyError> {
+    opts.practical.check().map_err(IdentifyError::BadBounds)?;
     let weighted: Vec<Measured>;
     let poses = match &opts.point_weights {
         None => poses,
         Some(t) => {
-            let reference = (t.a_um + t.b_um_per_m) / 1000.0 / t.k;
+            let reference = unit_weight_sigma_mm(t);
             weighted = poses
                 .iter()
                 .map(|m| Measured {
@@ -252,12 +277,18 @@ pub fn identify(
         });
     }
     let initial = initial_model(nominal, poses, opts)?;
-    let (ident, sums) =
-        identifiability::analyze_linearized(&initial, poses, &opts.obs, &candidates);
+    let (ident, sums) = identifiability::analyze_linearized(
+        &initial,
+        poses,
+        &opts.obs,
+        &candidates,
+        Some(&practical_bounds(opts)),
+    );
+    // lost structurally on these poses is an error; held back as undetermined is a result
     let missing: Vec<String> = structural
         .identified
         .iter()
-        .filter(|p| !ident.identified.contains(p))
+        .filter(|p| ident.structurally_dropped(p))
         .map(|p| p.name())
         .collect();
     if !missing.is_empty() {

@@ -1,7 +1,8 @@
 //! The `cellcal identify` pipeline (rows → identification → metrics) and its JSON contract.
 //!
 //! JSON fields (contract, extend only): `model`, `identified`, `not_identifiable`
-//! (`{name, reason}`), `parameters` (`{name, joint, kind, unit, nominal, error, std,
+//! (`{name, reason}`; extended by `kind`: `structural` | `dependent` | `poorly_determined` and
+//! `predicted_sigma`, mm or rad, null when unbounded), `parameters` (`{name, joint, kind, unit, nominal, error, std,
 //! identified}`, error = identified − nominal), `base` (`{translation_mm, rotation_vector_rad}`),
 //! `tool` (`{translation_mm}`), `solver` (`{iterations, converged, final_cost}`), `metrics`
 //! (`{ident: {before, after}, verify: {before, after}}`). Extensions: `stage_axis`,
@@ -16,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWarning};
 use crate::analysis::metrics::{evaluate, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
-use crate::identify::{identify, Identification, IdentifyError, IdentifyOptions};
+use crate::identify::{identify, DropKind, Identification, IdentifyError, IdentifyOptions};
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
 
@@ -52,13 +53,25 @@ fn show3(v: &[f64; 3]) -> String {
     format!("{:.3}, {:.3}, {:.3}", v[0], v[1], v[2])
 }
 
-/// `{name, reason}` of a dropped parameter.
+/// `{name, reason, kind, predicted_sigma}` of a parameter held at nominal.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NotIdentifiable {
     /// Parameter name.
     pub name: String,
     /// Why it cannot be identified.
     pub reason: String,
+    /// `structural`, `dependent` or `poorly_determined` ([`DropKind::name`]); results stored
+    /// before the practical test read as `structural`.
+    #[serde(default = "structural")]
+    pub kind: String,
+    /// Its predicted σ had it been identified (mm or rad, the parameter's unit); null when
+    /// unbounded (structural).
+    #[serde(default)]
+    pub predicted_sigma: Option<f64>,
+}
+
+fn structural() -> String {
+    DropKind::Structural.name().to_owned()
 }
 
 /// One parameter row.
@@ -260,6 +273,8 @@ pub fn calibrate(
             .map(|d| NotIdentifiable {
                 name: d.param.name(),
                 reason: d.reason.clone(),
+                kind: d.kind.name().to_owned(),
+                predicted_sigma: d.predicted_sigma,
             })
             .collect(),
         parameters: id

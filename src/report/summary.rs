@@ -6,6 +6,7 @@ use std::fmt::Write;
 use super::identify_json::IdentifyReport;
 use super::quality::Quality;
 use crate::analysis::metrics::Metrics;
+use crate::identify::DropKind;
 
 fn cell(r: &IdentifyReport, name: &str) -> String {
     match r.parameters.iter().find(|p| p.name == name) {
@@ -49,6 +50,27 @@ fn verdict_lines(out: &mut String, r: &IdentifyReport) {
             w.code,
             w.message
         );
+    }
+}
+
+/// The parameters held at nominal: structurally not identifiable, then those these poses do not
+/// determine (with their predicted σ in the reason).
+fn not_identified_lines(out: &mut String, r: &IdentifyReport) {
+    let (structural, practical): (Vec<_>, Vec<_>) = r
+        .not_identifiable
+        .iter()
+        .partition(|d| d.kind == DropKind::Structural.name());
+    for (title, list) in [
+        ("Not identifiable", structural),
+        ("Held at nominal: not determined by these poses", practical),
+    ] {
+        if list.is_empty() {
+            continue;
+        }
+        let _ = writeln!(out, "\n{title}:");
+        for d in list {
+            let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
+        }
     }
 }
 
@@ -117,12 +139,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
             p.std.unwrap_or(f64::NAN)
         );
     }
-    if !r.not_identifiable.is_empty() {
-        let _ = writeln!(out, "\nNot identifiable:");
-        for d in &r.not_identifiable {
-            let _ = writeln!(out, "  {:<10} {}", d.name, d.reason);
-        }
-    }
+    not_identified_lines(&mut out, r);
     if let (Some(m), Some(a)) = (r.stage_axis_measured, r.stage_axis_angle_rad) {
         let _ = writeln!(
             out,

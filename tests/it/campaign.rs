@@ -64,14 +64,22 @@ pub(crate) fn write_config(dir: &Path, text: &str) -> PathBuf {
     p
 }
 
-struct Finished {
-    report_after_mm: f64,
-    floor_mm: f64,
-    store: PathBuf,
-    id: i64,
+pub(crate) struct Finished {
+    pub(crate) report_after_mm: f64,
+    pub(crate) floor_mm: f64,
+    pub(crate) store: PathBuf,
+    pub(crate) id: i64,
+    /// The stored result.
+    pub(crate) report: cellcal::report::IdentifyReport,
+    /// The simulated world's true robot (errors, base, tool) and stage axis in the flange.
+    pub(crate) truth: cellcal::model::RobotModel,
+    pub(crate) true_axis: nalgebra::Vector3<f64>,
+    /// The campaign's configuration and nominal robot.
+    pub(crate) cfg: cellcal::config::CellConfig,
+    pub(crate) nominal: cellcal::model::RobotModel,
 }
 
-async fn run_in_process(text: &str) -> Finished {
+pub(crate) async fn run_in_process(text: &str) -> Finished {
     let dir = tempfile::tempdir().expect("tempdir").keep();
     let cfg_path = write_config(&dir, text);
     let cfg = parse_cell_config(text, &cfg_path).expect("config");
@@ -93,7 +101,10 @@ async fn run_in_process(text: &str) -> Finished {
         panic!("campaign did not finish: {outcome:?}");
     };
     let sim = session.sim.expect("simulated cell");
-    let truth = lock_world(&sim.world).true_model().clone();
+    let (truth, true_axis) = {
+        let w = lock_world(&sim.world);
+        (w.true_model().clone(), w.stage_axis_actual())
+    };
     // the noise floor: the true robot against the stored verification measurements
     let rows = ctx
         .store
@@ -118,6 +129,11 @@ async fn run_in_process(text: &str) -> Finished {
         floor_mm,
         store,
         id: ctx.campaign_id,
+        report: *report,
+        truth,
+        true_axis,
+        cfg: ctx.cfg.clone(),
+        nominal: ctx.nominal.clone(),
     }
 }
 
@@ -412,7 +428,7 @@ async fn drift_above_the_threshold_pauses_for_the_operator() {
     assert_eq!(states.last().expect("states")["state"], "aborted");
 }
 
-fn setup_of(store: &Path, id: i64) -> cellcal::campaign::SetupResult {
+pub(crate) fn setup_of(store: &Path, id: i64) -> cellcal::campaign::SetupResult {
     let s = Store::open(store).expect("store");
     cellcal::campaign::SetupResult::load(&s, id)
         .expect("setup row")

@@ -14,7 +14,7 @@ pub(crate) fn cellcal() -> Command {
     Command::cargo_bin("cellcal").expect("binary built")
 }
 
-fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
+pub(crate) fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
     simulate_poses(dir, 60, 40, extra)
 }
 
@@ -31,6 +31,18 @@ pub(crate) fn simulate_poses(dir: &Path, poses: usize, ident: usize, extra: &[&s
         .assert()
         .success();
     out
+}
+
+/// `cellcal identify` of the TX60 on `data` with `--model model --json json`.
+pub(crate) fn identify_json(data: &Path, model: &str, json: &Path) -> Command {
+    let mut c = cellcal();
+    c.args(["identify", "--robot"])
+        .arg(robot())
+        .arg("--data")
+        .arg(data)
+        .args(["--model", model, "--json"])
+        .arg(json);
+    c
 }
 
 fn identify_err(data: &str, model: &str) -> (i32, String) {
@@ -148,15 +160,7 @@ fn position_model_has_null_attitude() {
     let dir = tempfile::tempdir().expect("tempdir");
     let data = simulate(dir.path(), &[]);
     let json = dir.path().join("r.json");
-    cellcal()
-        .args(["identify", "--robot"])
-        .arg(robot())
-        .arg("--data")
-        .arg(&data)
-        .args(["--model", "position", "--json"])
-        .arg(&json)
-        .assert()
-        .success();
+    identify_json(&data, "position", &json).assert().success();
     let v: Value =
         serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
     assert!(v["metrics"]["ident"]["after"]["attitude_mean_rad"].is_null());

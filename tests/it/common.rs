@@ -5,7 +5,10 @@ use std::path::Path;
 use cellcal::analysis::evaluate;
 use cellcal::dataset::{split, to_measured, Observation};
 use cellcal::identify::solver::Options;
-use cellcal::identify::{IdentifyOptions, Measured, ObsConfig, ObsModel};
+use cellcal::identify::{
+    all_params, structural_set, DropKind, Identification, IdentifyOptions, Measured, ObsConfig,
+    ObsModel, PracticalBounds,
+};
 use cellcal::model::{parse_robot, RobotModel};
 use cellcal::simulate::{self, truth, SimConfig, SimData};
 use nalgebra::Vector3;
@@ -34,6 +37,7 @@ pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
         robust: None,
         point_weights: None,
         solver: Options::default(),
+        practical: PracticalBounds::default(),
     }
 }
 
@@ -48,4 +52,67 @@ pub fn measured(rows: &[Observation], opts: &IdentifyOptions) -> (Vec<Measured>,
 /// Mean verification position error of the true model: the noise floor (mm).
 pub fn floor(truth: &RobotModel, verify: &[Measured], opts: &IdentifyOptions) -> f64 {
     evaluate(truth, verify, &opts.obs).position_mean_mm
+}
+
+/// The practical test held nothing back where the data determines every parameter: the
+/// identified set is the structural one of `nominal` for these options.
+pub fn assert_structural_set(id: &Identification, nominal: &RobotModel, opts: &IdentifyOptions) {
+    assert_structural_set_but(id, nominal, opts, &[], &[]);
+}
+
+/// The identified set is the structural one of `nominal` for these options except the
+/// parameters the practical test held back: all of `held`, and of the others at most those in
+/// `borderline` (predicted σ within a few % of its bound).
+pub fn assert_structural_set_but(
+    id: &Identification,
+    nominal: &RobotModel,
+    opts: &IdentifyOptions,
+    held: &[&str],
+    borderline: &[&str],
+) {
+    let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
+    let structural = structural_set(nominal, &opts.obs, &candidates);
+    let practical: Vec<String> = id
+        .identifiability
+        .dropped
+        .iter()
+        .filter(|d| d.kind != DropKind::Structural)
+        .map(|d| d.param.name())
+        .collect();
+    let model = opts.obs.model;
+    let dropped = &id.identifiability.dropped;
+    assert!(
+        held.iter().all(|h| practical.iter().any(|p| p == h)),
+        "{model:?}: {held:?} not held back: {dropped:?}"
+    );
+    assert!(
+        practical
+            .iter()
+            .all(|p| held.contains(&p.as_str()) || borderline.contains(&p.as_str())),
+        "{model:?}: held back {practical:?}: {dropped:?}"
+    );
+    let expected: Vec<_> = structural
+        .identified
+        .iter()
+        .filter(|p| !practical.contains(&p.name()))
+        .copied()
+        .collect();
+    // a held-back parameter may let a structurally dependent one in (α6 for θ6)
+    let substitutes: Vec<_> = id
+        .identifiability
+        .identified
+        .iter()
+        .filter(|p| !structural.identified.contains(p))
+        .collect();
+    assert!(
+        substitutes.is_empty() || !practical.is_empty(),
+        "{model:?}: {substitutes:?}"
+    );
+    assert!(
+        expected
+            .iter()
+            .all(|p| id.identifiability.identified.contains(p)),
+        "{model:?}: {:?} vs {expected:?}",
+        id.identifiability.identified
+    );
 }

@@ -38,6 +38,7 @@ fn base_and_tool_from_tracker_frame() {
         opts.identify_tool = true;
         let (ident, verify) = measured(&data.observations, &opts);
         let id = identify(&tx60(), &ident, &opts).expect("identification runs");
+        assert_structural_set(&id, &tx60(), &opts);
         let after = evaluate(&id.corrected, &verify, &opts.obs).position_mean_mm;
         let fl = floor(&truth, &verify, &opts);
         eprintln!(

@@ -10,6 +10,7 @@ mod frames;
 mod identifiability;
 mod paper;
 mod paths;
+mod practical;
 mod quality;
 mod reproduce;
 mod robust;

@@ -34,6 +34,7 @@ fn check(loss: RobustLoss) {
     );
     opts.robust = Some(loss);
     let id = identify(&tx60(), &ident, &opts).expect("robust fit");
+    assert_structural_set(&id, &tx60(), &opts);
     let after = evaluate(&id.corrected, &clean_verify, &opts.obs).position_mean_mm;
     assert!(
         after <= 1.10 * fl,
