@@ -16,7 +16,7 @@ mod terminal;
 use cellcal::analysis::significance;
 use cellcal::campaign::FaultPolicy;
 use cellcal::dataset::{parse_csv, write_csv, Required};
-use cellcal::identify::solver::Options;
+use cellcal::identify::solver::{Options, DEFAULT_MAX_ITERATIONS};
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::checked_toml::parse_checked;
 use cellcal::model::load_robot;
@@ -110,6 +110,9 @@ enum Command {
         /// Weight of direction rows (mm); default stage travel/√2.
         #[arg(long)]
         direction_weight_mm: Option<f64>,
+        /// Levenberg–Marquardt iteration limit (a result that hits it is reported NOT converged).
+        #[arg(long, default_value_t = DEFAULT_MAX_ITERATIONS)]
+        max_iterations: usize,
         /// Write the JSON result here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -339,6 +342,7 @@ fn main() -> ExitCode {
             robust,
             tracker_weights,
             direction_weight_mm,
+            max_iterations,
             json,
         } => run_identify(
             &robot,
@@ -352,6 +356,7 @@ fn main() -> ExitCode {
             robust,
             tracker_weights,
             direction_weight_mm,
+            max_iterations,
             json.as_deref(),
         ),
         Command::Significance {
@@ -426,8 +431,12 @@ fn run_identify(
     robust: Option<RobustArg>,
     tracker_weights: Option<Vector3<f64>>,
     direction_weight_mm: Option<f64>,
+    max_iterations: usize,
     json: Option<&Path>,
 ) -> Result<(), Failure> {
+    if max_iterations == 0 {
+        return Err(input(anyhow!("--max-iterations must be at least 1")));
+    }
     let model = match model {
         ModelArg::Position => ObsModel::Position,
         ModelArg::Np => ObsModel::Np,
@@ -472,7 +481,10 @@ fn run_identify(
             RobustArg::Cauchy => RobustLoss::Cauchy,
         }),
         point_weights: tracker_weights.map(TrackerNoise::at960),
-        solver: Options::default(),
+        solver: Options {
+            max_iterations,
+            ..Options::default()
+        },
     };
     let (report, _) = calibrate(&robot_model, &rows, &opts, stage_travel_mm)
         .with_context(|| data.display().to_string())

@@ -185,10 +185,10 @@ pub trait JacobianSink {
     fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]);
 }
 
-/// The row-major Jacobian of [`residual_jacobian`].
-struct RowMajor<'a> {
-    jac: &'a mut [f64],
-    np: usize,
+/// The row-major Jacobian of [`residual_jacobian`] (`rows × np`; an empty `jac` wants none).
+pub(crate) struct RowMajor<'a> {
+    pub(crate) jac: &'a mut [f64],
+    pub(crate) np: usize,
 }
 
 impl JacobianSink for RowMajor<'_> {
