@@ -8,6 +8,7 @@ mod frames;
 mod identifiability;
 mod paper;
 mod paths;
+mod realdata;
 mod robust;
 mod safety;
 mod serve;
