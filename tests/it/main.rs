@@ -13,6 +13,7 @@ mod robust;
 mod safety;
 mod serve;
 mod setup;
+mod sigma0;
 mod significance;
 mod store;
 mod terminal;
