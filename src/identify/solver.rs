@@ -14,6 +14,9 @@
 //! - **Geodesic acceleration** (Transtrum & Sethna 2012): the second-order correction `a` of the
 //!   step along the curved valley of a sloppy model, from a finite-difference second directional
 //!   derivative of the residuals; the step is `v + a/2`, rejected when `2‖Da‖/‖Dv‖ > 0.75`.
+//!   It costs a pass over the data per trial, so it starts only once a step's actual cost
+//!   reduction is off the predicted one by more than 25 % (never on well-posed simulated cases,
+//!   which converge in 2–6 Gauss–Newton steps).
 //!   On ill-conditioned real data the optimum lies far along a curved, nearly flat valley, where
 //!   plain LM crawls: 2 456 iterations on the UR5 grid set, 167 with acceleration (288 and 39
 //!   on the UR5 set with all grid poses).
@@ -109,7 +112,8 @@ pub struct Options {
     pub xtol: f64,
     /// Gradient tolerance: the largest cosine between the residual and a Jacobian column.
     pub gtol: f64,
-    /// Use geodesic acceleration when the problem provides second directional derivatives.
+    /// Use geodesic acceleration when the problem provides second directional derivatives,
+    /// from the first step whose actual cost reduction is off the predicted one by > 25 %.
     pub geodesic_acceleration: bool,
 }
 
@@ -240,6 +244,8 @@ struct Lm<'p, P: Problem> {
     evaluations: usize,
     /// Whether a trial step of this iteration gave a non-finite cost.
     non_finite: bool,
+    /// Whether steps are geodesically accelerated (see [`Lm::note_model_fit`]).
+    curved: bool,
 }
 
 /// What one trial step gave.
@@ -262,6 +268,16 @@ impl<P: Problem> Lm<'_, P> {
     fn reject(&mut self) {
         self.lambda *= self.nu;
         self.nu *= 2.0;
+        self.note_model_fit(0.0);
+    }
+
+    /// Switch geodesic acceleration on (when enabled) once a step shows that the quadratic
+    /// model is off by more than a quarter (`rho` = actual / predicted reduction): a problem
+    /// that converges in a few Gauss–Newton steps never pays for the extra pass over the data.
+    fn note_model_fit(&mut self, rho: f64) {
+        if (rho - 1.0).abs() > 0.25 {
+            self.curved |= self.opts.geodesic_acceleration;
+        }
     }
 
     /// The step at the current damping, with geodesic acceleration when enabled; `None` when
@@ -274,7 +290,7 @@ impl<P: Problem> Lm<'_, P> {
         };
         let velocity = damped.solve_neg(&self.g);
         let v_norm = scaled_norm(&self.diag, velocity.as_slice());
-        let rvv = if self.opts.geodesic_acceleration && v_norm > 0.0 {
+        let rvv = if self.curved && v_norm > 0.0 {
             let v = velocity.as_slice();
             self.problem
                 .second_directional(&self.state, v, ACCEL_FD_STEP)
@@ -316,6 +332,7 @@ impl<P: Problem> Lm<'_, P> {
         let no_reduction = pred <= f64::EPSILON * self.cost;
         if new_cost.is_finite() && actual > 0.0 {
             let rho = if pred > 0.0 { actual / pred } else { 1.0 };
+            self.note_model_fit(rho);
             self.lambda *= (1.0_f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
             self.nu = 2.0;
             let old = self.cost;
@@ -390,6 +407,7 @@ pub fn solve_from<P: Problem>(
         iterations: 0,
         evaluations: 1,
         non_finite: false,
+        curved: false,
     };
     let termination = loop {
         lm.update_scaling();
