@@ -82,9 +82,7 @@ fn bench_pipeline(c: &mut Criterion) {
         b.iter(|| identify(&robot, black_box(&ident), &opts).expect("identify"))
     });
     g.bench_function("metrics", |b| {
-        b.iter(|| {
-            [&id.initial, &id.corrected].map(|m| evaluate(m, black_box(&ident), &opts.obs))
-        })
+        b.iter(|| [&id.initial, &id.corrected].map(|m| evaluate(m, black_box(&ident), &opts.obs)))
     });
     g.bench_function("whole_from_file", |b| {
         b.iter(|| {
