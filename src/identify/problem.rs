@@ -36,10 +36,13 @@ impl<'a> CalibProblem<'a> {
         for p in poses {
             q_start.push(q_start[q_start.len() - 1] + p.q.len());
         }
-        let q_sin_cos = poses
-            .iter()
-            .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
-            .collect();
+        let q_sin_cos = split_map(poses.len(), |r| {
+            poses[r]
+                .iter()
+                .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
+                .collect::<Vec<_>>()
+        })
+        .concat();
         let turning: Vec<usize> = (0..params.len())
             .filter(|&c| turns_directions(&params[c]))
             .collect();

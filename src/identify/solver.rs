@@ -18,7 +18,7 @@
 //!   reduction is off the predicted one by more than 25 % (never on well-posed simulated cases,
 //!   which converge in 2–6 Gauss–Newton steps).
 //!   On ill-conditioned real data the optimum lies far along a curved, nearly flat valley, where
-//!   plain LM crawls: 2 456 iterations on the UR5 grid set, 167 with acceleration (288 and 39
+//!   plain LM crawls: 2 456 iterations on the UR5 grid set, 166 with acceleration (288 and 38
 //!   on the UR5 set with all grid poses).
 //! - **Termination** (MINPACK `lmder`): `ftol` on the actual and predicted relative cost
 //!   reduction, `xtol` on the scaled step relative to the scaled parameter norm, `gtol` on the
