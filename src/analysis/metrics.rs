@@ -5,10 +5,12 @@
 //! vector of `R_meas · R_modelᵀ`; NP/OP — the angle between the measured and the modelled
 //! stage axis; position model — not measured (`None`).
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::identify::observation::{predict, Measured, ObsConfig, ObsModel};
+use crate::identify::observation::{Measured, ObsConfig, ObsModel};
+use crate::identify::problem::split_map;
+use crate::model::kinematics::{forward_from, Frames, Pose};
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
 
@@ -49,29 +51,48 @@ fn percentile(sorted: &[f64], pct: f64) -> f64 {
 }
 
 /// Position and attitude errors per pose.
+///
+/// The chain is computed in the measurement frame into reused frames (no allocation per pose,
+/// the twists' sines once per model), over two fixed halves of the poses on two threads
+/// ([`split_map`]), so the errors are the same bit for bit on any machine.
 pub fn pose_errors(
     model: &RobotModel,
     poses: &[Measured],
     cfg: &ObsConfig,
 ) -> Vec<(Vector3<f64>, Option<f64>)> {
-    poses
-        .iter()
-        .map(|m| {
-            let pr = predict(model, &m.q);
-            let e = m.p1 - pr.p;
-            let att = match cfg.model {
-                ObsModel::Position => None,
-                ObsModel::Np | ObsModel::Op => m.direction.map(|d| {
-                    let l = pr.r * cfg.stage_axis;
-                    d.cross(&l).norm().atan2(d.dot(&l))
-                }),
-                ObsModel::Full => m
-                    .rotation
-                    .map(|r| to_rotation_vector(&(r * pr.r.transpose())).norm()),
-            };
-            (e, att)
-        })
-        .collect()
+    let base = Pose {
+        r: model.base_rotation,
+        p: model.base_translation,
+    };
+    let parts = split_map(poses.len(), |range| {
+        let mut f = Frames::new();
+        poses[range]
+            .iter()
+            .map(|m| {
+                forward_from(&base, &model.joints, &m.q, None, &mut f);
+                let fl = f.flange();
+                (
+                    m.p1 - fl.transform_point(&model.tool),
+                    attitude(m, &fl.r, cfg),
+                )
+            })
+            .collect::<Vec<_>>()
+    });
+    parts.concat()
+}
+
+/// The attitude error of one pose given the modelled flange rotation `r` (measurement frame).
+fn attitude(m: &Measured, r: &Matrix3<f64>, cfg: &ObsConfig) -> Option<f64> {
+    match cfg.model {
+        ObsModel::Position => None,
+        ObsModel::Np | ObsModel::Op => m.direction.map(|d| {
+            let l = r * cfg.stage_axis;
+            d.cross(&l).norm().atan2(d.dot(&l))
+        }),
+        ObsModel::Full => m
+            .rotation
+            .map(|meas| to_rotation_vector(&(meas * r.transpose())).norm()),
+    }
 }
 
 /// Metrics of `model` on `poses`.

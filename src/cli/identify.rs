@@ -12,7 +12,7 @@ use cellcal::campaign::stored::load_stored;
 use cellcal::dataset::{
     parse_csv, parse_setup_header, parse_stage_axis, parse_vec3, CsvSetup, Observation, Required,
 };
-use cellcal::identify::solver::Options;
+use cellcal::identify::solver::{Options, DEFAULT_MAX_ITERATIONS};
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
@@ -100,6 +100,9 @@ pub struct IdentifyArgs {
     /// Weight of direction rows (mm); default stage travel/√2.
     #[arg(long)]
     direction_weight_mm: Option<f64>,
+    /// Levenberg–Marquardt iteration limit (a result that hits it is reported NOT converged).
+    #[arg(long, default_value_t = DEFAULT_MAX_ITERATIONS)]
+    max_iterations: usize,
     #[command(flatten)]
     practical: super::practical::PracticalArgs,
     /// Write the JSON result here.
@@ -346,7 +349,10 @@ fn resolve(
             RobustArg::Cauchy => RobustLoss::Cauchy,
         }),
         point_weights: a.tracker_weights.map(TrackerNoise::at960),
-        solver: Options::default(),
+        solver: Options {
+            max_iterations: a.max_iterations,
+            ..Options::default()
+        },
         practical: a
             .practical
             .bounds(a.tracker_weights.is_some())

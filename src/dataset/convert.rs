@@ -75,9 +75,10 @@ pub fn to_measured(
                     m.direction = Some(d / n);
                 }
             }
-            if let Some(r) = o.rotation {
+            // only the full model uses the rotation: spare the others its projection (an SVD)
+            if let Some(r) = o.rotation.filter(|_| model == ObsModel::Full) {
                 let dev = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
-                if model == ObsModel::Full && dev > 0.1 {
+                if dev > 0.1 {
                     return Err(ConvertError::NotRotation {
                         line: o.line,
                         pose: o.id.clone(),

@@ -16,6 +16,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::identify::problem::split_map;
+
 /// Identification or verification set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum PoseSet {
@@ -288,122 +290,247 @@ pub struct Required {
     pub rotation: bool,
 }
 
-/// Parse a data set for a robot with `dof` joints.
-pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Observation>, CsvError> {
-    let mut rdr = csv::ReaderBuilder::new()
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .has_headers(true)
-        .from_reader(text.as_bytes());
-    let headers = rdr
-        .headers()
-        .map_err(|e| CsvError::Malformed {
-            line: 1,
-            message: e.to_string(),
-        })?
-        .clone();
-    if headers.is_empty() || (headers.len() == 1 && headers[0].is_empty()) {
-        return Err(CsvError::Empty);
-    }
-    let names: Vec<String> = headers.iter().map(|h| h.to_ascii_lowercase()).collect();
-    for (i, n) in names.iter().enumerate() {
-        if names[..i].contains(n) {
-            return Err(CsvError::DuplicateColumn(n.clone()));
+/// The columns of the fields a data set needs, found by name in its header.
+struct Columns {
+    /// Lower-case, trimmed column names (for error messages).
+    names: Vec<String>,
+    set: usize,
+    pose: Option<usize>,
+    q: Vec<usize>,
+    p1: [usize; 3],
+    p2: Option<Vec<usize>>,
+    rotation: Option<Vec<usize>>,
+}
+
+impl Columns {
+    /// Find the columns of a robot with `dof` joints in the header `names`.
+    fn find(names: Vec<String>, dof: usize, required: Required) -> Result<Columns, CsvError> {
+        for (i, n) in names.iter().enumerate() {
+            if names[..i].contains(n) {
+                return Err(CsvError::DuplicateColumn(n.clone()));
+            }
         }
-    }
-    let find = |n: &str| names.iter().position(|h| h == n);
-    let need = |n: &str| find(n).ok_or_else(|| CsvError::MissingColumn(n.to_owned()));
-    let set_col = need("set")?;
-    let pose_col = find("pose");
-    let q_cols = (1..=dof)
-        .map(|i| need(&format!("q{i}")))
-        .collect::<Result<Vec<_>, _>>()?;
-    let p1_cols = ["p1_x", "p1_y", "p1_z"].map(need);
-    let p1_cols = [
-        p1_cols[0].clone()?,
-        p1_cols[1].clone()?,
-        p1_cols[2].clone()?,
-    ];
-    let group = |cols: &[&str], req: bool| -> Result<Option<Vec<usize>>, CsvError> {
-        let found: Vec<Option<usize>> = cols.iter().map(|c| find(c)).collect();
-        if found.iter().all(Option::is_some) {
-            Ok(Some(found.into_iter().flatten().collect()))
-        } else if req || found.iter().any(Option::is_some) {
-            let missing = cols[found.iter().position(Option::is_none).unwrap_or(0)];
-            Err(CsvError::MissingColumn(missing.to_owned()))
-        } else {
-            Ok(None)
-        }
-    };
-    let p2_cols = group(&["p2_x", "p2_y", "p2_z"], required.p2)?;
-    let rot_cols = group(&ROT_COLS, required.rotation)?;
-    let mut out = Vec::new();
-    for (row, rec) in rdr.records().enumerate() {
-        let rec = rec.map_err(|e| CsvError::Malformed {
-            line: e.position().map(|p| p.line() as usize).unwrap_or(row + 2),
-            message: e.to_string(),
-        })?;
-        let line = rec.position().map(|p| p.line() as usize).unwrap_or(row + 2);
-        let num = |c: usize| -> Result<f64, CsvError> {
-            let raw = rec.get(c).unwrap_or("");
-            let v: f64 = raw.parse().map_err(|_| CsvError::NotNumeric {
-                line,
-                column: names[c].clone(),
-                value: raw.to_owned(),
-            })?;
-            if v.is_finite() {
-                Ok(v)
+        let find = |n: &str| names.iter().position(|h| h == n);
+        let need = |n: &str| find(n).ok_or_else(|| CsvError::MissingColumn(n.to_owned()));
+        let group = |cols: &[&str], req: bool| -> Result<Option<Vec<usize>>, CsvError> {
+            let found: Vec<Option<usize>> = cols.iter().map(|c| find(c)).collect();
+            if found.iter().all(Option::is_some) {
+                Ok(Some(found.into_iter().flatten().collect()))
+            } else if req || found.iter().any(Option::is_some) {
+                let missing = cols[found.iter().position(Option::is_none).unwrap_or(0)];
+                Err(CsvError::MissingColumn(missing.to_owned()))
             } else {
-                Err(CsvError::NotFinite {
+                Ok(None)
+            }
+        };
+        let set = need("set")?;
+        let pose = find("pose");
+        let q = (1..=dof)
+            .map(|i| need(&format!("q{i}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        let p1 = [need("p1_x")?, need("p1_y")?, need("p1_z")?];
+        let p2 = group(&["p2_x", "p2_y", "p2_z"], required.p2)?;
+        let rotation = group(&ROT_COLS, required.rotation)?;
+        Ok(Columns {
+            set,
+            pose,
+            q,
+            p1,
+            p2,
+            rotation,
+            names,
+        })
+    }
+
+    /// The observations of the data rows `text` (whole lines, no header) that follow
+    /// `lines_before` lines of the file; ids of rows without a `pose` column are left empty.
+    fn rows(&self, text: &str, lines_before: usize) -> Result<Vec<Observation>, CsvError> {
+        let mut rdr = csv::ReaderBuilder::new()
+            .comment(Some(b'#'))
+            .flexible(true)
+            .has_headers(false)
+            .from_reader(text.as_bytes());
+        let mut out = Vec::with_capacity(text.len() / 64);
+        let mut rec = csv::StringRecord::new();
+        loop {
+            let more = rdr.read_record(&mut rec).map_err(|e| CsvError::Malformed {
+                line: lines_before + e.position().map_or(1, |p| p.line() as usize),
+                message: e.to_string(),
+            })?;
+            if !more {
+                return Ok(out);
+            }
+            let line = lines_before + rec.position().map_or(1, |p| record_line(text, p));
+            if rec.len() != self.names.len() {
+                return Err(CsvError::Malformed {
                     line,
-                    column: names[c].clone(),
-                    value: raw.to_owned(),
-                })
+                    message: format!(
+                        "{} fields, but the header has {}",
+                        rec.len(),
+                        self.names.len()
+                    ),
+                });
+            }
+            out.push(self.observation(&rec, line)?);
+        }
+    }
+
+    /// The observation in one record (line `line`).
+    fn observation(&self, rec: &csv::StringRecord, line: usize) -> Result<Observation, CsvError> {
+        let field = |c: usize| rec.get(c).unwrap_or("").trim();
+        let num = |c: usize| -> Result<f64, CsvError> {
+            let raw = field(c);
+            let bad = |v: &str| (line, self.names[c].clone(), v.to_owned());
+            match raw.parse::<f64>() {
+                Ok(v) if v.is_finite() => Ok(v),
+                Ok(_) => {
+                    let (line, column, value) = bad(raw);
+                    Err(CsvError::NotFinite {
+                        line,
+                        column,
+                        value,
+                    })
+                }
+                Err(_) => {
+                    let (line, column, value) = bad(raw);
+                    Err(CsvError::NotNumeric {
+                        line,
+                        column,
+                        value,
+                    })
+                }
             }
         };
         let vec3 = |cols: &[usize]| -> Result<Vector3<f64>, CsvError> {
             Ok(Vector3::new(num(cols[0])?, num(cols[1])?, num(cols[2])?))
         };
-        let set_raw = rec.get(set_col).unwrap_or("");
-        let set = match set_raw.to_ascii_lowercase().as_str() {
-            "ident" => PoseSet::Ident,
-            "verify" => PoseSet::Verify,
-            _ => {
-                return Err(CsvError::BadSet {
-                    line,
-                    value: set_raw.to_owned(),
-                })
-            }
+        let set_raw = field(self.set);
+        let set = if set_raw.eq_ignore_ascii_case("ident") {
+            PoseSet::Ident
+        } else if set_raw.eq_ignore_ascii_case("verify") {
+            PoseSet::Verify
+        } else {
+            return Err(CsvError::BadSet {
+                line,
+                value: set_raw.to_owned(),
+            });
         };
-        let q = q_cols
+        let q = self
+            .q
             .iter()
             .map(|&c| num(c))
             .collect::<Result<Vec<_>, _>>()?;
-        let p2 = p2_cols.as_deref().map(vec3).transpose()?;
-        let rotation = match &rot_cols {
-            Some(c) => {
-                let v = c.iter().map(|&k| num(k)).collect::<Result<Vec<_>, _>>()?;
-                Some(Matrix3::from_column_slice(&v))
+        let p2 = self.p2.as_deref().map(vec3).transpose()?;
+        let rotation = match &self.rotation {
+            Some(cols) => {
+                let mut m = [0.0; 9];
+                for (v, &c) in m.iter_mut().zip(cols) {
+                    *v = num(c)?;
+                }
+                Some(Matrix3::from_column_slice(&m))
             }
             None => None,
         };
-        out.push(Observation {
+        Ok(Observation {
             line,
-            id: pose_col
-                .and_then(|c| rec.get(c))
-                .map(str::to_owned)
-                .unwrap_or_else(|| row.to_string()),
+            id: self.pose.map(|c| field(c).to_owned()).unwrap_or_default(),
             set,
             q,
-            p1: vec3(&p1_cols)?,
+            p1: vec3(&self.p1)?,
             p2,
             rotation,
-        });
+        })
+    }
+}
+
+/// Parse a data set for a robot with `dof` joints.
+///
+/// One reused record per reader, fields trimmed in place: no allocation per row beyond the
+/// row's own `Observation` (the `csv` crate's trimming copies every record). When no field is
+/// quoted every line end ends a record, and the rows are parsed in two halves on two threads
+/// ([`split_map`]; same rows, line numbers and first error as one pass).
+pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Observation>, CsvError> {
+    let mut rdr = reader(text);
+    let headers = rdr.headers().map_err(|e| CsvError::Malformed {
+        line: 1,
+        message: e.to_string(),
+    })?;
+    if headers.is_empty() || (headers.len() == 1 && headers[0].trim().is_empty()) {
+        return Err(CsvError::Empty);
+    }
+    let names = headers
+        .iter()
+        .map(|h| h.trim().to_ascii_lowercase())
+        .collect();
+    let cols = Columns::find(names, dof, required)?;
+    let body_start = usize::try_from(rdr.position().byte()).unwrap_or(text.len());
+    let body = text.get(body_start..).unwrap_or("");
+    let lines_before = text.as_bytes()[..text.len() - body.len()]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count();
+    let parts = if body.contains('"') {
+        vec![cols.rows(body, lines_before)]
+    } else {
+        split_map(body.len(), |r| {
+            let (start, end) = (line_start(body, r.start), line_start(body, r.end));
+            let before = lines_before
+                + body.as_bytes()[..start]
+                    .iter()
+                    .filter(|&&b| b == b'\n')
+                    .count();
+            cols.rows(&body[start..end], before)
+        })
+    };
+    let mut out = Vec::new();
+    for part in parts {
+        out.extend(part?);
     }
     if out.is_empty() {
         return Err(CsvError::NoRows);
     }
+    if cols.pose.is_none() {
+        for (row, o) in out.iter_mut().enumerate() {
+            o.id = row.to_string();
+        }
+    }
     Ok(out)
+}
+
+/// A CSV reader of `text` with `#` comments, records of any length (checked by
+/// [`Columns::rows`]).
+fn reader(text: &str) -> csv::Reader<&[u8]> {
+    csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .flexible(true)
+        .has_headers(true)
+        .from_reader(text.as_bytes())
+}
+
+/// The line (1-based, in `text`) of the record read from position `p`: the reader positions a
+/// record where it began to read, at the comment or blank lines before it, so these are skipped.
+fn record_line(text: &str, p: &csv::Position) -> usize {
+    let mut line = p.line() as usize;
+    let mut rest = text.get(p.byte() as usize..).unwrap_or("");
+    while let Some((first, after)) = rest.split_once('\n') {
+        if !(first.starts_with('#') || first.trim_end_matches('\r').is_empty()) {
+            break;
+        }
+        line += 1;
+        rest = after;
+    }
+    line
+}
+
+/// The first line start at or after byte `i` of `text` (its length when none follows).
+fn line_start(text: &str, i: usize) -> usize {
+    if i == 0 || i >= text.len() {
+        return i.min(text.len());
+    }
+    text.as_bytes()[i - 1..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map_or(text.len(), |p| i + p)
 }
 
 /// Write a data set; p2 and rotation columns are written when every row has them.
@@ -468,6 +595,73 @@ mod tests {
         assert_eq!(
             v.iter().map(|o| (&o.q, o.p1)).collect::<Vec<_>>(),
             w.iter().map(|o| (&o.q, o.p1)).collect::<Vec<_>>()
+        );
+    }
+
+    /// `n` rows without a `pose` column, a comment every 7th line; row `bad` (if any) has a
+    /// non-numeric q2.
+    fn many_rows(n: usize, bad: &[usize]) -> String {
+        let mut s = String::from("# many\nset, q1,q2,p1_x,p1_y,p1_z\n");
+        for i in 0..n {
+            if i % 7 == 3 {
+                s.push_str("# a comment\n");
+            }
+            let q2 = if bad.contains(&i) {
+                "x".to_owned()
+            } else {
+                format!("{}", i as f64 * 0.001)
+            };
+            s.push_str(&format!("ident, {i}.5,{q2},1,2,{}\n", 3 * i));
+        }
+        s
+    }
+
+    #[test]
+    fn two_halves_give_the_rows_of_one_pass() {
+        let text = many_rows(2000, &[]);
+        // a quoted field makes the parser read the file in one pass
+        let quoted = text.replacen("ident,", "\"ident\",", 1);
+        let halves = parse_csv(&text, 2, Required::default()).unwrap();
+        let one = parse_csv(&quoted, 2, Required::default()).unwrap();
+        assert_eq!(halves.len(), one.len());
+        if let Some(i) = (0..one.len()).find(|&i| halves[i] != one[i]) {
+            panic!("row {i}: {:?} vs {:?}", halves[i], one[i]);
+        }
+        assert_eq!(halves.len(), 2000);
+        assert_eq!(halves[1999].id, "1999");
+        // a row after a comment is on its own line, not the comment's
+        assert_eq!((halves[2].line, halves[3].line), (5, 7));
+        assert_eq!(halves[1999].q[0], 1999.5);
+        // 2 header lines, 286 comments before the last row
+        assert_eq!(halves[1999].line, 2 + 286 + 2000);
+        let blank = "set,q1,q2,p1_x,p1_y,p1_z\n\n# c\n\nident,0,0,1,2,x\n";
+        let e = parse_csv(blank, 2, Required::default()).unwrap_err();
+        assert!(matches!(e, CsvError::NotNumeric { line: 5, .. }), "{e:?}");
+    }
+
+    #[test]
+    fn the_first_bad_row_is_reported_wherever_it_is() {
+        for bad in [vec![1500], vec![20, 1500]] {
+            let text = many_rows(2000, &bad);
+            let e = parse_csv(&text, 2, Required::default()).unwrap_err();
+            let one = parse_csv(
+                &text.replacen("ident,", "\"ident\",", 1),
+                2,
+                Required::default(),
+            )
+            .unwrap_err();
+            assert_eq!(e, one);
+            let line = 3 + bad[0] + (bad[0] + 3) / 7;
+            assert!(
+                matches!(&e, CsvError::NotNumeric { line: l, value, .. } if *l == line && value == "x"),
+                "{e:?}"
+            );
+        }
+        let short = many_rows(2000, &[]).replace("ident, 1500.5,", "ident,");
+        let e = parse_csv(&short, 2, Required::default()).unwrap_err();
+        assert!(
+            matches!(&e, CsvError::Malformed { message, .. } if message.contains("5 fields, but the header has 6")),
+            "{e:?}"
         );
     }
 

@@ -1,10 +1,21 @@
-//! Covariance of the estimates `σ̂²·(JᵀJ)⁻¹`: standard deviations and correlations.
+//! Covariance of the estimates `σ̂²·(JᵀJ)⁻¹`: the variance of unit weight from the fit's
+//! redundancy, standard deviations and correlations.
 //!
 //! The inverse comes from the Cholesky factor `L` of `JᵀJ`: `L⁻¹` by forward substitution,
 //! then `(JᵀJ)⁻¹ = L⁻ᵀL⁻¹`, each using only the triangles (a third of the work of solving
 //! against the identity).
 
 use nalgebra::DMatrix;
+
+use super::observation::ObsModel;
+
+/// The a-posteriori variance of unit weight `σ̂² = rᵀr / (n − u)` of a fit with final cost
+/// `½rᵀr` over `poses` poses of `model` and `params` parameters: the redundancy `n − u` counts
+/// independent observations ([`ObsModel::observations`]), not residual rows (at least 1).
+pub fn unit_variance(final_cost: f64, poses: usize, model: ObsModel, params: usize) -> f64 {
+    let redundancy = (poses * model.observations()).saturating_sub(params).max(1);
+    2.0 * final_cost / redundancy as f64
+}
 
 /// Standard deviations and correlation matrix of the estimates.
 #[derive(Debug, Clone, PartialEq)]

@@ -30,7 +30,7 @@ use crate::measure::fit_rigid;
 use crate::model::kinematics::forward;
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
-use covariance::{covariance, Covariance};
+use covariance::{covariance, unit_variance, Covariance};
 use problem::CalibProblem;
 use solver::Problem;
 
@@ -316,8 +316,7 @@ pub fn identify(
         )?,
     };
     let used = poses.len() - rejected.len();
-    let dof = (used * rows).saturating_sub(params.len()).max(1);
-    let sigma0_sq = 2.0 * fit.final_cost / dof as f64;
+    let sigma0_sq = unit_variance(fit.final_cost, used, opts.obs.model, params.len());
     let Covariance { std, correlation } = covariance(fit.normal_matrix, sigma0_sq);
     let corrected = fit.state;
     let base_dr =

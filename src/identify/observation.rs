@@ -63,6 +63,17 @@ impl ObsModel {
         }
     }
 
+    /// Independent observations per pose: position 3, a unit direction 2 more, a rotation 3
+    /// more — fewer than [`rows`](Self::rows), since a unit direction's 3 rows and a rotation's
+    /// 9 are constrained (the redundancy of a fit counts these, not rows).
+    pub fn observations(self) -> usize {
+        match self {
+            ObsModel::Position => 3,
+            ObsModel::Np | ObsModel::Op => 3 + 2,
+            ObsModel::Full => 3 + 3,
+        }
+    }
+
     /// Default stage axis in the flange frame (+x for NP, +y for OP).
     pub fn default_stage_axis(self) -> Vector3<f64> {
         match self {
@@ -185,10 +196,10 @@ pub trait JacobianSink {
     fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]);
 }
 
-/// The row-major Jacobian of [`residual_jacobian`].
-struct RowMajor<'a> {
-    jac: &'a mut [f64],
-    np: usize,
+/// The row-major Jacobian of [`residual_jacobian`] (`rows × np`; an empty `jac` wants none).
+pub(crate) struct RowMajor<'a> {
+    pub(crate) jac: &'a mut [f64],
+    pub(crate) np: usize,
 }
 
 impl JacobianSink for RowMajor<'_> {

@@ -2,11 +2,11 @@
 
 use std::ops::Range;
 
-use nalgebra::Vector3;
+use nalgebra::{DVector, Vector3};
 
 use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
 use super::observation::{
-    residual_into, residual_jacobian, turns_directions, JacobianSink, Measured, ObsConfig,
+    residual_into, residual_jacobian, turns_directions, JacobianSink, Measured, ObsConfig, RowMajor,
 };
 use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
@@ -36,10 +36,13 @@ impl<'a> CalibProblem<'a> {
         for p in poses {
             q_start.push(q_start[q_start.len() - 1] + p.q.len());
         }
-        let q_sin_cos = poses
-            .iter()
-            .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
-            .collect();
+        let q_sin_cos = split_map(poses.len(), |r| {
+            poses[r]
+                .iter()
+                .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
+                .collect::<Vec<_>>()
+        })
+        .concat();
         let turning: Vec<usize> = (0..params.len())
             .filter(|&c| turns_directions(&params[c]))
             .collect();
@@ -162,6 +165,41 @@ impl CalibProblem<'_> {
         (pos.finish(), dir.finish())
     }
 
+    /// `Σ Jᵢᵀ·(r(moved) − r(state) − h·J·v)` over the poses `range`, `J` and `r` row by row at
+    /// `state` (the unscaled sum of [`Problem::second_directional`]).
+    fn curvature_sum(
+        &self,
+        state: &RobotModel,
+        moved: &RobotModel,
+        v: &[f64],
+        h: f64,
+        range: Range<usize>,
+    ) -> DVector<f64> {
+        let (k, rows) = (self.params.len(), self.cfg.model.rows());
+        let mut jac = vec![0.0; rows * k];
+        let (mut r0, mut r1) = (vec![0.0; rows], vec![0.0; rows]);
+        let mut sum = DVector::zeros(k);
+        for i in range.filter(|&i| self.poses[i].weight != 0.0) {
+            let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+            let mut sink = RowMajor {
+                jac: &mut jac,
+                np: k,
+            };
+            residual_into(state, p, t, self.cfg, self.params, &mut r0, &mut sink);
+            let mut none = RowMajor {
+                jac: &mut [],
+                np: k,
+            };
+            residual_into(moved, p, t, self.cfg, self.params, &mut r1, &mut none);
+            for (row, (a, b)) in jac.chunks_exact(k).zip(r0.iter().zip(&r1)) {
+                let jv: f64 = row.iter().zip(v).map(|(j, x)| j * x).sum();
+                let c = b - a - h * jv;
+                sum.iter_mut().zip(row).for_each(|(s, j)| *s += c * j);
+            }
+        }
+        sum
+    }
+
     /// The sums of the position rows and of the direction rows at `state`, apart (the direction
     /// weight of the configuration is not applied).
     pub fn linearize_split(&self, state: &RobotModel) -> SplitSums {
@@ -217,5 +255,21 @@ impl Problem for CalibProblem<'_> {
 
     fn retract(&self, state: &RobotModel, step: &[f64]) -> RobotModel {
         retract(state, self.params, step)
+    }
+
+    fn values(&self, state: &RobotModel) -> Vec<f64> {
+        self.params.iter().map(|p| p.value(state)).collect()
+    }
+
+    fn second_directional(&self, state: &RobotModel, v: &[f64], h: f64) -> Option<DVector<f64>> {
+        let hv: Vec<f64> = v.iter().map(|x| h * x).collect();
+        let moved = retract(state, self.params, &hv);
+        let parts = split_map(self.poses.len(), |r| {
+            self.curvature_sum(state, &moved, v, h, r)
+        });
+        let sum = parts
+            .into_iter()
+            .fold(DVector::zeros(self.params.len()), |a, b| a + b);
+        Some(sum * (2.0 / (h * h)))
     }
 }

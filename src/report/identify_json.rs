@@ -232,7 +232,12 @@ pub fn calibrate(
     let ident = to_measured(&ident_rows, model, stage_travel_mm)?;
     let verify = to_measured(&verify_rows, model, stage_travel_mm)?;
     let id = identify(robot, &ident, opts)?;
-    let bounds = QualityBounds::default();
+    // the verdict judges σ by the bounds the identification kept its set within
+    let bounds = QualityBounds {
+        sigma_mm: opts.practical.max_sigma_mm,
+        sigma_rad: opts.practical.max_sigma_rad,
+        ..QualityBounds::default()
+    };
     let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
     if let Some(c) = axis.filter(|c| {
         c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad

@@ -141,15 +141,9 @@ async fn readme_campaign_parameters_are_plausible_with_sigma_within_bounds() {
     }
 }
 
-/// The UR5 files in the shared reference tree beside the checkout (`../shared`; a worktree of
-/// `/work/wt/NAME` finds it one level further up).
+/// The UR5 files copied into the repository (with their licence and provenance).
 fn ur5_dir() -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    ["../shared", "../../shared"]
-        .iter()
-        .map(|s| root.join(s).join("reference/realdata/ur5"))
-        .find(|d| d.join("grid.csv").is_file())
-        .expect("../shared/reference/realdata/ur5 (UR5 laser-tracker data)")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/realdata/ur5")
 }
 
 #[test]

@@ -1,0 +1,97 @@
+//! Criterion benchmark of `cellcal identify`'s whole pipeline from the file, and of its phases,
+//! on a 10 000-pose OP data set (all poses ident, as `cellcal simulate-data --poses 10000
+//! --ident 10000` writes it): read + parse, split + convert, identify, the four metric
+//! evaluations, and the whole of it (`calibrate` from the file). Run with
+//! `cargo bench --bench pipeline`.
+
+use std::hint::black_box;
+use std::path::Path;
+
+use cellcal::analysis::evaluate;
+use cellcal::dataset::{parse_csv, split, to_measured, write_csv, Required};
+use cellcal::identify::solver::Options;
+use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel};
+use cellcal::model::{parse_robot, RobotModel};
+use cellcal::report::calibrate;
+use cellcal::simulate::{self, truth, SimConfig};
+use criterion::{criterion_group, criterion_main, Criterion};
+
+const POSES: usize = 10_000;
+const OP: Required = Required {
+    p2: true,
+    rotation: false,
+};
+
+fn tx60() -> RobotModel {
+    parse_robot(
+        include_str!("../config/robots/staubli_tx60.toml"),
+        Path::new("tx60"),
+    )
+    .expect("robot")
+}
+
+/// The simulated OP campaign as a CSV file in `dir`.
+fn write_data(dir: &Path) -> std::path::PathBuf {
+    let nominal = tx60();
+    let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
+    let cfg = SimConfig {
+        poses: POSES,
+        ident: POSES,
+        ..SimConfig::default()
+    };
+    let data = simulate::simulate(&nominal, &truth, &cfg).expect("sim");
+    let path = dir.join("op10k.csv");
+    std::fs::write(&path, write_csv(&data.observations, 6, "pipeline bench")).expect("write");
+    path
+}
+
+fn bench_pipeline(c: &mut Criterion) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = write_data(dir.path());
+    let robot = tx60();
+    let opts = IdentifyOptions {
+        obs: ObsConfig::new(ObsModel::Op, 10.0),
+        identify_base: false,
+        identify_tool: false,
+        robust: None,
+        point_weights: None,
+        solver: Options::default(),
+    };
+    let read = || std::fs::read_to_string(&path).expect("read");
+    let text = read();
+    let rows = parse_csv(&text, 6, OP).expect("parse");
+    let (ident_rows, _) = split(&rows);
+    let ident = to_measured(&ident_rows, ObsModel::Op, 10.0).expect("convert");
+    let id = identify(&robot, &ident, &opts).expect("identify");
+
+    let mut g = c.benchmark_group("pipeline_op_10k");
+    g.sample_size(20);
+    g.bench_function("read_parse", |b| {
+        b.iter(|| parse_csv(black_box(&read()), 6, OP).expect("parse"))
+    });
+    g.bench_function("split_convert", |b| {
+        b.iter(|| {
+            let (i, v) = split(black_box(&rows));
+            (
+                to_measured(&i, ObsModel::Op, 10.0).expect("convert"),
+                to_measured(&v, ObsModel::Op, 10.0).expect("convert"),
+            )
+        })
+    });
+    g.bench_function("identify", |b| {
+        b.iter(|| identify(&robot, black_box(&ident), &opts).expect("identify"))
+    });
+    g.bench_function("metrics", |b| {
+        b.iter(|| [&id.initial, &id.corrected].map(|m| evaluate(m, black_box(&ident), &opts.obs)))
+    });
+    g.bench_function("whole_from_file", |b| {
+        b.iter(|| {
+            let rows = parse_csv(&read(), 6, OP).expect("parse");
+            calibrate(&robot, &rows, &opts, 10.0).expect("calibrate")
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_pipeline);
+criterion_main!(benches);
