@@ -56,6 +56,7 @@ fn bench_pipeline(c: &mut Criterion) {
         robust: None,
         point_weights: None,
         solver: Options::default(),
+        practical: Default::default(),
     };
     let read = || std::fs::read_to_string(&path).expect("read");
     let text = read();

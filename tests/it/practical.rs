@@ -76,14 +76,16 @@ async fn readme_campaign_parameters_are_plausible_with_sigma_within_bounds() {
     let r = &f.report;
     assert_sigmas_within_bounds(r);
     // the stage axis is measured a few mrad off +y: β6 is formally identifiable, but a6 and
-    // d6 cancel it inside the box; held at nominal, a6 and d6 are at the truth (to the
-    // tool-frame setup's error, a few hundredths of a millimetre)
+    // d6 cancel it inside the box (before: Δa6 −16 mm, Δd6 +2 mm). Held at nominal, a6 and d6
+    // are plausible; their comparison with the truth is the noise-free re-fit below, because
+    // the tool-frame setup measures the tool with part of them in it (d6's −0.107 mm shows up
+    // as the measured tool z 59.89 mm instead of 60.0).
     assert_held_back(r, "beta6");
     let truth = paper_errors();
     for name in ["a6", "d6"] {
         let p = r.parameters.iter().find(|p| p.name == name).expect(name);
         assert!(
-            p.identified && (p.error - truth[name]).abs() < 0.1,
+            p.identified && p.error.abs() < 0.2 && (p.error - truth[name]).abs() < 0.2,
             "{name}: {} vs truth {}",
             p.error,
             truth[name]

@@ -60,7 +60,8 @@ fn an_ill_posed_case_is_poor_and_exits_3() {
     // 8 identification poses for 24 parameters: the fit follows the noise
     let dir = tempfile::tempdir().expect("tempdir");
     let data = simulate_poses(dir.path(), 60, 8, &[]);
-    let (out, v) = identify(dir.path(), &data, &["--model", "op"]);
+    // every structurally identifiable parameter kept (`--noise-mm 0`): the ill-posed fit itself
+    let (out, v) = identify(dir.path(), &data, &["--model", "op", "--noise-mm", "0"]);
     assert_eq!(out.status.code(), Some(3));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("poor (too_few_poses, overfit)"), "{err}");
@@ -112,7 +113,7 @@ fn a_stage_axis_that_contradicts_the_data_is_refused() {
     );
     ok(&out);
     assert_eq!(v["quality"], "warning");
-    assert_eq!(codes(&v), ["stage_axis"]);
+    assert!(codes(&v).contains(&"stage_axis"), "{v}");
 }
 
 #[test]
