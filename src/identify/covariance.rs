@@ -32,7 +32,13 @@ pub fn covariance(normal: DMatrix<f64>, sigma0_sq: f64) -> Covariance {
     let k = normal.nrows();
     let cov =
         spd_inverse(normal).unwrap_or_else(|| DMatrix::from_element(k, k, f64::NAN)) * sigma0_sq;
-    let std: Vec<f64> = (0..k).map(|i| cov[(i, i)].max(0.0).sqrt()).collect();
+    // NaN stays NaN (an undetermined σ must not read as a perfect 0)
+    let std: Vec<f64> = (0..k)
+        .map(|i| match cov[(i, i)] {
+            v if v.is_nan() => f64::NAN,
+            v => v.max(0.0).sqrt(),
+        })
+        .collect();
     let correlation = DMatrix::from_fn(k, k, |i, j| cov[(i, j)] / (std[i] * std[j]));
     Covariance { std, correlation }
 }
@@ -85,5 +91,15 @@ mod tests {
         let inv = spd_inverse(m.clone()).expect("positive definite");
         assert!((&m * &inv - DMatrix::identity(5, 5)).norm() < 1e-12);
         assert!(spd_inverse(-m).is_none());
+    }
+
+    #[test]
+    fn a_singular_normal_matrix_gives_undetermined_not_zero_sigmas() {
+        let singular = DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 1.0, 1.0]);
+        let c = covariance(singular, 0.01);
+        assert!(c.std.iter().all(|s| s.is_nan()), "{:?}", c.std);
+        let fine = DMatrix::from_row_slice(2, 2, &[4.0, 0.0, 0.0, 1.0]);
+        let c = covariance(fine, 0.01);
+        assert!((c.std[0] - 0.05).abs() < 1e-12 && (c.std[1] - 0.1).abs() < 1e-12);
     }
 }

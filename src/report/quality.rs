@@ -268,9 +268,16 @@ fn sigma_finding(f: &mut Findings, r: &IdentifyReport, b: &QualityBounds) {
                 b.sigma_mm
             };
             let sigma = p.std.unwrap_or(f64::NAN);
-            let ratio = sigma / bound;
-            (ratio > 1.0 || ratio.is_nan()).then(|| {
-                let text = if p.unit == "rad" {
+            // an undetermined σ (singular normal matrix) is as bad as it gets
+            let ratio = if sigma.is_finite() {
+                sigma / bound
+            } else {
+                f64::INFINITY
+            };
+            (ratio > 1.0).then(|| {
+                let text = if !sigma.is_finite() {
+                    format!("{} σ undetermined", p.name)
+                } else if p.unit == "rad" {
                     format!("{} σ {:.3} mrad", p.name, sigma * 1e3)
                 } else {
                     format!("{} σ {:.3} mm", p.name, sigma)
