@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::analysis::metrics::{evaluate, Metrics};
+use crate::analysis::metrics::{evaluate_pair, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
 use crate::identify::{identify, Identification, IdentifyError, IdentifyOptions};
 use crate::model::rotation::to_rotation_vector;
@@ -164,16 +164,13 @@ pub fn calibrate(
     let ident = to_measured(&ident_rows, model, stage_travel_mm)?;
     let verify = to_measured(&verify_rows, model, stage_travel_mm)?;
     let id = identify(robot, &ident, opts)?;
-    let m = |model: &RobotModel, set: &[_]| evaluate(model, set, &opts.obs);
+    let m = |set: &[_]| {
+        let (before, after) = evaluate_pair(&id.initial, &id.corrected, set, &opts.obs);
+        BeforeAfter { before, after }
+    };
     let metrics = MetricsJson {
-        ident: BeforeAfter {
-            before: m(&id.initial, &ident),
-            after: m(&id.corrected, &ident),
-        },
-        verify: (!verify.is_empty()).then(|| BeforeAfter {
-            before: m(&id.initial, &verify),
-            after: m(&id.corrected, &verify),
-        }),
+        ident: m(&ident),
+        verify: (!verify.is_empty()).then(|| m(&verify)),
     };
     let names: Vec<String> = id
         .identifiability
