@@ -1,13 +1,13 @@
 //! Criterion benchmark of `cellcal identify`'s whole pipeline from the file, and of its phases,
 //! on a 10 000-pose OP data set (all poses ident, as `cellcal simulate-data --poses 10000
-//! --ident 10000` writes it): read + parse, split + convert, identify, the four metric
-//! evaluations, and the whole of it (`calibrate` from the file). Run with
+//! --ident 10000` writes it): read + parse, split + convert, identify, the metrics before and
+//! after, and the whole of it (`calibrate` from the file). Run with
 //! `cargo bench --bench pipeline`.
 
 use std::hint::black_box;
 use std::path::Path;
 
-use cellcal::analysis::evaluate;
+use cellcal::analysis::metrics::evaluate_pair;
 use cellcal::dataset::{parse_csv, split, to_measured, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel};
@@ -83,7 +83,7 @@ fn bench_pipeline(c: &mut Criterion) {
         b.iter(|| identify(&robot, black_box(&ident), &opts).expect("identify"))
     });
     g.bench_function("metrics", |b| {
-        b.iter(|| [&id.initial, &id.corrected].map(|m| evaluate(m, black_box(&ident), &opts.obs)))
+        b.iter(|| evaluate_pair(&id.initial, &id.corrected, black_box(&ident), &opts.obs))
     });
     g.bench_function("whole_from_file", |b| {
         b.iter(|| {

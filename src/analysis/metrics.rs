@@ -51,34 +51,46 @@ fn percentile(sorted: &[f64], pct: f64) -> f64 {
 }
 
 /// Position and attitude errors per pose.
-///
-/// The chain is computed in the measurement frame into reused frames (no allocation per pose,
-/// the twists' sines once per model), over two fixed halves of the poses on two threads
-/// ([`split_map`]), so the errors are the same bit for bit on any machine.
 pub fn pose_errors(
     model: &RobotModel,
     poses: &[Measured],
     cfg: &ObsConfig,
 ) -> Vec<(Vector3<f64>, Option<f64>)> {
-    let base = Pose {
-        r: model.base_rotation,
-        p: model.base_translation,
-    };
-    let parts = split_map(poses.len(), |range| {
-        let mut f = Frames::new();
-        poses[range]
-            .iter()
-            .map(|m| {
-                forward_from(&base, &model.joints, &m.q, None, &mut f);
-                let fl = f.flange();
-                (
-                    m.p1 - fl.transform_point(&model.tool),
-                    attitude(m, &fl.r, cfg),
-                )
-            })
-            .collect::<Vec<_>>()
+    let [errors] = errors_of([model], poses, cfg);
+    errors
+}
+
+/// [`pose_errors`] of `N` models on the same poses: each pose's joint sines and cosines once
+/// for all models, each model's chain in the measurement frame into reused frames (no
+/// allocation per pose, the twists' sines once per model), over two fixed halves of the poses
+/// on two threads ([`split_map`]), so the errors are the same bit for bit on any machine.
+fn errors_of<const N: usize>(
+    models: [&RobotModel; N],
+    poses: &[Measured],
+    cfg: &ObsConfig,
+) -> [Vec<(Vector3<f64>, Option<f64>)>; N] {
+    let bases = models.map(|m| Pose {
+        r: m.base_rotation,
+        p: m.base_translation,
     });
-    parts.concat()
+    let parts = split_map(poses.len(), |range| {
+        let mut frames: [Frames; N] = std::array::from_fn(|_| Frames::new());
+        let mut out: [Vec<_>; N] = std::array::from_fn(|_| Vec::with_capacity(range.len()));
+        let mut trig = Vec::new();
+        for m in &poses[range] {
+            trig.clear();
+            trig.extend(m.q.iter().map(|q| q.sin_cos()));
+            for k in 0..N {
+                let f = &mut frames[k];
+                forward_from(&bases[k], &models[k].joints, &m.q, Some(&trig), f);
+                let fl = f.flange();
+                let e = m.p1 - fl.transform_point(&models[k].tool);
+                out[k].push((e, attitude(m, &fl.r, cfg)));
+            }
+        }
+        out
+    });
+    std::array::from_fn(|k| parts.iter().flat_map(|p| p[k].iter().copied()).collect())
 }
 
 /// The attitude error of one pose given the modelled flange rotation `r` (measurement frame).
@@ -97,12 +109,28 @@ fn attitude(m: &Measured, r: &Matrix3<f64>, cfg: &ObsConfig) -> Option<f64> {
 
 /// Metrics of `model` on `poses`.
 pub fn evaluate(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Metrics {
-    let errs = pose_errors(model, poses, cfg);
+    summarize(&pose_errors(model, poses, cfg))
+}
+
+/// Metrics of two models on the same poses (as [`evaluate`] gives each; the joints' sines and
+/// cosines are computed once for both).
+pub fn evaluate_pair(
+    a: &RobotModel,
+    b: &RobotModel,
+    poses: &[Measured],
+    cfg: &ObsConfig,
+) -> (Metrics, Metrics) {
+    let [ea, eb] = errors_of([a, b], poses, cfg);
+    (summarize(&ea), summarize(&eb))
+}
+
+/// The metrics of per-pose position and attitude errors.
+fn summarize(errs: &[(Vector3<f64>, Option<f64>)]) -> Metrics {
     let n = errs.len().max(1) as f64;
     let mut norms: Vec<f64> = errs.iter().map(|(e, _)| e.norm()).collect();
     let mut axial_mean = [0.0; 3];
     let mut axial_max = [0.0f64; 3];
-    for (e, _) in &errs {
+    for (e, _) in errs {
         for k in 0..3 {
             axial_mean[k] += e[k].abs() / n;
             axial_max[k] = axial_max[k].max(e[k].abs());

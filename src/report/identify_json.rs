@@ -15,7 +15,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWarning};
-use crate::analysis::metrics::{evaluate, Metrics};
+use crate::analysis::metrics::{evaluate_pair, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
 use crate::identify::{identify, DropKind, Identification, IdentifyError, IdentifyOptions};
 use crate::model::rotation::to_rotation_vector;
@@ -250,16 +250,13 @@ pub fn calibrate(
             limit_deg: bounds.stage_axis_error_rad.to_degrees(),
         });
     }
-    let m = |model: &RobotModel, set: &[_]| evaluate(model, set, &opts.obs);
+    let m = |set: &[_]| {
+        let (before, after) = evaluate_pair(&id.initial, &id.corrected, set, &opts.obs);
+        BeforeAfter { before, after }
+    };
     let metrics = MetricsJson {
-        ident: BeforeAfter {
-            before: m(&id.initial, &ident),
-            after: m(&id.corrected, &ident),
-        },
-        verify: (!verify.is_empty()).then(|| BeforeAfter {
-            before: m(&id.initial, &verify),
-            after: m(&id.corrected, &verify),
-        }),
+        ident: m(&ident),
+        verify: (!verify.is_empty()).then(|| m(&verify)),
     };
     let names: Vec<String> = id
         .identifiability
