@@ -23,7 +23,7 @@
 //!   plain LM crawls: 2 456 iterations on the UR5 grid set, 166 with acceleration (288 and 37
 //!   on the UR5 set with all grid poses).
 //! - **Termination** (MINPACK `lmder`): `ftol` on the actual and predicted relative cost
-//!   reduction, `xtol` on the scaled step relative to the scaled parameter norm, `gtol` on the
+//!   reduction (on the predicted one alone once the last step confirmed the model), `xtol` on the scaled step relative to the scaled parameter norm, `gtol` on the
 //!   largest cosine between the residual and a Jacobian column; each is its own [`Termination`].
 
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
