@@ -5,7 +5,7 @@
 //! whose reference row is the last one at or before its own row id.
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use rusqlite::{params, OptionalExtension, TransactionBehavior};
+use rusqlite::{params, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
 use super::error::{Ctx, StoreError};
@@ -263,18 +263,5 @@ impl Store {
                 })
             })
             .collect()
-    }
-
-    /// The newest measurement row of campaign `id` (0 when none).
-    pub fn last_measurement_row(&self, id: i64) -> Result<i64, StoreError> {
-        self.conn
-            .query_row(
-                "SELECT max(id) FROM measurements WHERE campaign_id = ?1",
-                [id],
-                |r| r.get::<_, Option<i64>>(0),
-            )
-            .optional()
-            .ctx("read the newest measurement")
-            .map(|v| v.flatten().unwrap_or(0))
     }
 }
