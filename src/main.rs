@@ -24,7 +24,7 @@ use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
 #[derive(Parser)]
 #[command(
     name = "cellcal",
-    version,
+    version = cellcal::build_info::LONG_VERSION,
     about = "Robot calibration cell: identify MDH errors from laser-tracker data"
 )]
 struct Cli {

@@ -6,6 +6,7 @@ mod cell_sim;
 mod cli;
 mod cockpit;
 mod common;
+mod deploy;
 mod frames;
 mod identifiability;
 mod paper;
