@@ -25,6 +25,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
+use crate::campaign::stored::{stored_model_toml, StoredError};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
@@ -53,6 +54,9 @@ pub enum DaemonError {
     /// A daemon task panicked or was cancelled.
     #[error("daemon task failed: {0}")]
     Task(String),
+    /// A stored campaign cannot be rebuilt (its stored configuration, model or result).
+    #[error(transparent)]
+    Stored(StoredError),
 }
 
 /// Campaign settings a client may change from the configuration's `[campaign]` defaults.
@@ -800,6 +804,18 @@ impl Daemon {
                 })
             })
             .collect())
+    }
+
+    /// The campaign's corrected model as robot-file TOML
+    /// ([`crate::campaign::stored::stored_model_toml`]), `None` before a result. Cancel-safe
+    /// (reads only).
+    pub async fn model(&self, id: i64) -> Result<Option<String>, DaemonError> {
+        self.read(move |s| Ok(stored_model_toml(s, id)))
+            .await?
+            .map_err(|e| match e {
+                StoredError::Store(StoreError::NoCampaign(id)) => DaemonError::NotFound(id),
+                e => DaemonError::Stored(e),
+            })
     }
 
     /// The campaign's latest result (the `cellcal identify` JSON), if any. Cancel-safe.

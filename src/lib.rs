@@ -13,8 +13,10 @@
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
-//! - [`report`]: the identify JSON contract and the printed summary.
+//! - [`report`]: the identify JSON contract, the printed summary and the corrected model file.
 //! - [`build_info`]: the version, git commit and build date of this binary.
+//! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
+//!   program says, and the compensate CSV files.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
@@ -29,6 +31,7 @@ pub mod auth;
 pub mod build_info;
 pub mod campaign;
 pub mod cell;
+pub mod compensate;
 pub mod config;
 pub mod daemon;
 pub mod dataset;

@@ -70,6 +70,10 @@ enum Command {
         /// Write the result (the `cellcal identify` JSON contract) here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Write the corrected model here: a robot TOML with the identified absolute values
+        /// that every command takes as `--robot` (as `GET /api/campaigns/{id}/model`).
+        #[arg(long)]
+        model_out: Option<PathBuf>,
         /// Store file (default: `store` of the configuration).
         #[arg(long)]
         store: Option<PathBuf>,
@@ -121,6 +125,9 @@ enum Command {
     },
     /// Write a stored campaign's measurements as an identify CSV (with its setup header).
     Export(cli::export::ExportArgs),
+    /// Joints for the real robot (the identified model): from tool targets in the measurement
+    /// frame, or from a program's joints computed on the nominal model.
+    Compensate(cli::compensate::CompensateArgs),
     /// Import an identify CSV as a new, fully measured campaign.
     Import {
         /// Store file.
@@ -242,6 +249,7 @@ fn main() -> ExitCode {
             config,
             arm,
             json,
+            model_out,
             store,
             campaign,
             quiet,
@@ -252,6 +260,7 @@ fn main() -> ExitCode {
             config,
             arm,
             json,
+            model_out,
             store,
             campaign,
             quiet,
@@ -271,6 +280,7 @@ fn main() -> ExitCode {
         } => run_cmd::serve(&config, &listen, store),
         Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export(args) => cli::export::run(args),
+        Command::Compensate(args) => cli::compensate::run(args),
         Command::Import {
             store,
             robot,

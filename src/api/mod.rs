@@ -18,6 +18,7 @@
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
+//! | `GET /api/campaigns/{id}/model` | the corrected model: a robot TOML (`text/plain`) that `--robot` loads, 404 until identified |
 
 pub mod guard;
 pub mod openapi;
@@ -60,9 +61,10 @@ impl From<DaemonError> for ApiError {
             DaemonError::BadRequest(_) => StatusCode::BAD_REQUEST,
             DaemonError::NotFound(_) => StatusCode::NOT_FOUND,
             DaemonError::Conflict(_) => StatusCode::CONFLICT,
-            DaemonError::Session(_) | DaemonError::Store(_) | DaemonError::Task(_) => {
-                StatusCode::INTERNAL_SERVER_ERROR
-            }
+            DaemonError::Session(_)
+            | DaemonError::Store(_)
+            | DaemonError::Task(_)
+            | DaemonError::Stored(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
         ApiError(status, e.to_string())
     }
@@ -160,6 +162,7 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .route("/api/campaigns/{id}/events", get(journal))
         .route("/api/campaigns/{id}/stream", get(stream))
         .route("/api/campaigns/{id}/result", get(result))
+        .route("/api/campaigns/{id}/model", get(model))
         .route("/api/campaigns/{id}/prompt", get(prompt))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
@@ -349,6 +352,31 @@ async fn journal(
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),
+        None => Err(ApiError(
+            StatusCode::NOT_FOUND,
+            format!("campaign {id} has no result yet"),
+        )),
+    }
+}
+
+/// The corrected model of a campaign: the robot TOML `cellcal run --model-out` writes.
+#[utoipa::path(get, path = "/api/campaigns/{id}/model", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "a robot model file (TOML) with the identified absolute MDH values, base and tool, the nominal joint limits and a provenance header; every command loads it as `--robot`", body = String, content_type = "text/plain; charset=utf-8"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
+        (status = 500, description = "the stored campaign cannot be rebuilt", body = ErrorBody)))]
+async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    match d.model(id).await? {
+        Some(text) => Ok((
+            [(
+                axum::http::header::CONTENT_TYPE,
+                "text/plain; charset=utf-8",
+            )],
+            text,
+        )
+            .into_response()),
         None => Err(ApiError(
             StatusCode::NOT_FOUND,
             format!("campaign {id} has no result yet"),

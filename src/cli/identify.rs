@@ -17,7 +17,10 @@ use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
 use cellcal::model::RobotModel;
-use cellcal::report::{calibrate, summary_text, IdentifyReport, Quality};
+use cellcal::report::model_file::sha256_hex;
+use cellcal::report::{
+    calibrate, corrected_model_toml, summary_text, BaseSource, IdentifyReport, Quality,
+};
 use cellcal::simulate::TrackerNoise;
 use cellcal::store::Store;
 
@@ -108,6 +111,10 @@ pub struct IdentifyArgs {
     /// Write the JSON result here.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write the corrected model here: a robot TOML with the identified absolute values that
+    /// every command takes as `--robot` (and `compensate --identified`).
+    #[arg(long)]
+    model_out: Option<PathBuf>,
 }
 
 /// What the data source gives before the flags apply.
@@ -124,6 +131,10 @@ struct Source {
     origin: String,
     /// Names the rows in error messages.
     label: String,
+    /// Where the data and the nominal model come from, for a corrected model's header.
+    provenance: Vec<String>,
+    /// The setup holds a registered base.
+    registered_base: bool,
 }
 
 /// Run `cellcal identify`.
@@ -134,18 +145,39 @@ pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
         (None, None) => return Err(input(anyhow!("give --data CSV or --store FILE"))),
     };
     let label = source.label.clone();
+    let provenance = source.provenance.clone();
+    let registered = source.registered_base;
     let (robot, opts, travel, rows) = resolve(&a, source)?;
+    let base = BaseSource::of(opts.identify_base, registered);
     let (report, _) = calibrate(&robot, &rows, &opts, travel)
         .with_context(|| label.clone())
         .map_err(input)?;
     print!("{}", summary_text(&report));
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report).map_err(other)?;
-        std::fs::write(path, text)
-            .with_context(|| format!("{}: cannot write", path.display()))
-            .map_err(other)?;
+        write_file(path, &text)?;
+    }
+    if let Some(path) = &a.model_out {
+        let text = corrected_model_toml(&report, &robot, &provenance, base).map_err(other)?;
+        write_file(path, &text)?;
     }
     poor_is_exit_3(&report, "the result")
+}
+
+/// Write `text` to `path` (exit 1 when it cannot).
+pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), Failure> {
+    std::fs::write(path, text)
+        .with_context(|| format!("{}: cannot write", path.display()))
+        .map_err(other)
+}
+
+/// `NAME (sha256 HEX)` of a file read as `text`.
+pub(crate) fn file_id(path: &Path, text: &str) -> String {
+    format!(
+        "{} (sha256 {})",
+        path.display(),
+        sha256_hex(text.as_bytes())
+    )
 }
 
 /// Exit 3 when the verdict is `poor` (after the result was printed and written).
@@ -175,6 +207,9 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
         .as_deref()
         .ok_or_else(|| input(anyhow!("--data needs --robot")))?;
     let robot = load_robot(robot_path).map_err(input)?;
+    let robot_text = std::fs::read_to_string(robot_path)
+        .with_context(|| format!("{}: cannot read", robot_path.display()))
+        .map_err(input)?;
     let model = a
         .model
         .ok_or_else(|| input(anyhow!("--data needs --model")))?
@@ -193,13 +228,20 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
     let rows = parse_csv(&text, robot.dof(), required)
         .with_context(|| label.clone())
         .map_err(input)?;
+    let provenance = vec![
+        format!("Data: {}", file_id(data, &text)),
+        format!("Nominal model: {}", file_id(robot_path, &robot_text)),
+    ];
     Ok(Source {
         robot,
         rows,
+        registered_base: setup.base_translation_mm.is_some()
+            || setup.base_rotation_vector_rad.is_some(),
         setup,
         campaign: None,
         origin: format!("the header of {label}"),
         label,
+        provenance,
     })
 }
 
@@ -217,13 +259,24 @@ fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
         .with_context(|| store.display().to_string())
         .map_err(input)?;
     let origin = format!("campaign {id} in {}", store.display());
+    let mut provenance = vec![format!("Data: {origin}")];
+    if let Some(path) = &a.robot {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))
+            .map_err(input)?;
+        provenance.push(format!("Nominal model: {}", file_id(path, &text)));
+    } else {
+        provenance.push("Nominal model: the campaign's stored robot model".to_owned());
+    }
     Ok(Source {
         robot: c.nominal,
         rows: c.rows,
+        registered_base: c.setup.base_translation_mm.is_some(),
         setup: c.setup,
         campaign: Some(c.opts),
         label: origin.clone(),
         origin,
+        provenance,
     })
 }
 

@@ -18,7 +18,7 @@ use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWa
 use crate::analysis::metrics::{evaluate_pair, Metrics};
 use crate::dataset::{split, to_measured, ConvertError, Observation};
 use crate::identify::{identify, DropKind, Identification, IdentifyError, IdentifyOptions};
-use crate::model::rotation::to_rotation_vector;
+use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
 
 /// Why the pipeline failed.
@@ -295,7 +295,7 @@ pub fn calibrate(
             .collect(),
         base: BaseJson {
             translation_mm: id.corrected.base_translation.into(),
-            rotation_vector_rad: to_rotation_vector(&id.corrected.base_rotation).into(),
+            rotation_vector_rad: log_so3(&id.corrected.base_rotation).into(),
         },
         tool: ToolJson {
             translation_mm: id.corrected.tool.into(),
