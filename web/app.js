@@ -23,6 +23,7 @@ const ui = {
   measured: [],        // [{done, total, pose, dev}] of the selected campaign ('measured' events)
   drifts: [],          // [{after, drift_mm, max_mm}] of the selected campaign ('drift' events)
   listKey: '',         // the campaign list as last drawn
+  plotTotal: null,     // poses_total the plot's x axis was drawn for
   audio: null,         // the WebAudio context of the question beep
   beeps: 0,
 };
@@ -198,6 +199,7 @@ function renderView(v) {
   $('progress-bar').max = Math.max(total, 1);
   $('progress-bar').value = done;
   $('time-left').textContent = timeLeft(v);
+  if (total !== ui.plotTotal) { ui.plotTotal = total; renderDeviation(); }
   const state = v ? v.state : '';
   const terminal = state === 'done';
   $('cmd-arm').disabled = !v || v.armed || terminal;
@@ -255,6 +257,7 @@ function renderPrompt(v) {
   $('prompt-value').hidden = !numeric || !canAnswer;
   document.querySelector('label[for=prompt-value]').hidden = !numeric || !canAnswer;
   $('prompt-confirm').hidden = !canAnswer;
+  $('prompt-hint').hidden = !canAnswer;
   panel.hidden = false;
   cue(panel);
   if (canAnswer) (numeric ? $('prompt-value') : $('prompt-confirm')).focus();
@@ -539,22 +542,21 @@ function niceCeil(x) {
 function renderDeviation() {
   const plot = $('deviation-plot');
   plot.replaceChildren();
-  const W = 900; const H = 240; const L = 60; const R = 14; const T = 12; const B = 36;
+  const W = 900; const H = 240; const L = 76; const R = 14; const T = 12; const B = 36;
   const pts = ui.measured.filter((p) => typeof p.dev === 'number' && Number.isFinite(p.dev));
   const total = Math.max(1, ui.view ? ui.view.poses_total : 0, ...ui.measured.map((p) => p.total || 0));
-  const top = niceCeil(Math.max(0.001, ...pts.map((p) => p.dev)));
+  const top = niceCeil(Math.max(0.1, ...pts.map((p) => p.dev)));
   const x = (done) => L + ((W - L - R) * (done - 1)) / Math.max(1, total - 1);
   const y = (mm) => T + (H - T - B) * (1 - mm / top);
   for (const f of [0, 0.5, 1]) {
     svg(plot, 'line', { class: 'grid', x1: L, x2: W - R, y1: y(top * f), y2: y(top * f) });
-    svg(plot, 'text', { x: L - 6, y: y(top * f) + 4, 'text-anchor': 'end' }, (top * f).toPrecision(2));
+    svg(plot, 'text', { x: L - 6, y: y(top * f) + 4, 'text-anchor': 'end' }, (f ? (top * f).toPrecision(2) : '0') + ' mm');
   }
   svg(plot, 'line', { class: 'axis', x1: L, x2: L, y1: T, y2: H - B });
   svg(plot, 'line', { class: 'axis', x1: L, x2: W - R, y1: H - B, y2: H - B });
   svg(plot, 'text', { x: L, y: H - B + 16, 'text-anchor': 'middle' }, '1');
   svg(plot, 'text', { x: W - R, y: H - B + 16, 'text-anchor': 'end' }, String(total));
   svg(plot, 'text', { x: (L + W - R) / 2, y: H - 4, 'text-anchor': 'middle' }, 'pose (measuring order)');
-  svg(plot, 'text', { x: 14, y: T + (H - T - B) / 2, 'text-anchor': 'middle', transform: 'rotate(-90 14 ' + (T + (H - T - B) / 2) + ')' }, 'mm');
   if (pts.length > 1) {
     svg(plot, 'polyline', { class: 'line', points: pts.map((p) => x(p.done) + ',' + y(p.dev)).join(' ') });
   }

@@ -409,6 +409,9 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
         last_seq = q["seq"].as_u64().map(|n| n.to_string());
         check_context(c, q).await;
         assert_eq!(q["robot_stopped"], Value::Bool(true), "{q}");
+        // the visual cue: the tab's title says a question is open
+        let title = c.title().await.expect("title");
+        assert!(title.contains("Question"), "{title}");
         contexts.push((q["pose"].clone(), q["position"].clone()));
         if let (Some(after), false) = (how.dashboard_after, shot) {
             if v["poses_done"].as_u64().unwrap_or(0) >= after as u64 {
@@ -600,6 +603,8 @@ async fn the_page_runs_a_manual_campaign_with_its_dashboard() {
     let Some(driver) = chromedriver() else { return };
     let (_dir, s, c) = signed_in_on_a_manual_cell(&driver).await;
     let id = create_from_page(&c, &s, POSES, IDENT).await;
+    // the audible cue on: a beep for every question
+    click(&c, "sound-toggle").await;
     arm_and_start(&c).await;
     let how = Answering {
         off_once: true,
@@ -610,6 +615,16 @@ async fn the_page_runs_a_manual_campaign_with_its_dashboard() {
     assert!(answered > 2 * POSES, "{answered} questions answered");
     verdict_is_shown(&c, &s, id, POSES).await;
     deviations_are_journalled(&s, id, POSES);
+    let beeps: usize = by_id(&c, "prompt-panel")
+        .await
+        .attr("data-beeps")
+        .await
+        .expect("attr")
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    assert!(beeps >= 2 * POSES, "{beeps} beeps for {answered} questions");
+    // tall enough for the whole result view
+    c.set_window_size(1280, 2600).await.expect("window size");
     screenshot_from(&c, "result-view", "result.png").await;
     c.close().await.expect("close");
 }
