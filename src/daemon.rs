@@ -29,7 +29,7 @@ use crate::campaign::stored::{stored_model_toml, StoredError};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
-use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
+use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext};
 use crate::config::CellConfig;
 use crate::store::{CampaignRow, EventRecord, JournalEntry, Store, StoreError, StoreReader};
 
@@ -131,6 +131,10 @@ pub struct PromptView {
     pub text: String,
     /// Expected numeric answer (mm), if a number is asked for.
     pub expected_mm: Option<f64>,
+    /// What the engine is doing: pose n of N, P1 or P2, whether the robot stands still, why
+    /// the question is asked again.
+    #[serde(flatten)]
+    pub context: PromptContext,
 }
 
 /// A campaign as clients see it.
@@ -427,6 +431,7 @@ impl Daemon {
                 id: p.prompt.id.clone(),
                 text: p.prompt.text.clone(),
                 expected_mm: p.prompt.expected_mm,
+                context: p.prompt.context.clone(),
             })
         });
         CampaignView {
@@ -878,6 +883,7 @@ async fn pump_prompts(
             id: p.prompt.id.clone(),
             text: p.prompt.text.clone(),
             expected_mm: p.prompt.expected_mm,
+            context: p.prompt.context.clone(),
         };
         *lock(&slot) = Some(p);
         // a store that cannot journal also stops the engine, which reports it

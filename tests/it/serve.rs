@@ -122,7 +122,7 @@ pub(crate) fn post(s: &Server, path: &str, body: &str) -> (u16, Value) {
     post_as(s, &s.token, path, body)
 }
 
-fn post_as(s: &Server, token: &str, path: &str, body: &str) -> (u16, Value) {
+pub(crate) fn post_as(s: &Server, token: &str, path: &str, body: &str) -> (u16, Value) {
     let mut r = agent()
         .post(&format!("{}{path}", s.base))
         .header("content-type", "application/json")
@@ -743,17 +743,38 @@ fn last_event_id_resumes_from_the_journal() {
     assert_eq!(code, 400, "{e}");
 }
 
+/// `[[api.tokens]]` for `operator-token`, `technician-token` and `viewer-token` (names
+/// `operator one`, …).
+pub(crate) fn role_tokens() -> String {
+    ["operator", "technician", "viewer"]
+        .iter()
+        .map(|role| {
+            let digest = TokenDigest::of_token(&format!("{role}-token")).to_hex();
+            format!(
+                "\n[[api.tokens]]\nname = \"{role} one\"\nrole = \"{role}\"\nsha256 = \"{digest}\"\n"
+            )
+        })
+        .collect()
+}
+
+/// `serve` on a configuration with [`role_tokens`], used with `operator-token`.
+pub(crate) fn start_as_operator(cfg: &Path, store: &Path) -> Server {
+    start_with(
+        cfg,
+        store,
+        "127.0.0.1:0",
+        Token::Configured("operator-token"),
+        Stdio::null(),
+        &[],
+    )
+}
+
 /// A configuration with `[[api.tokens]]` for `operator-token`, `technician-token`, `viewer-token`
 /// (plus `extra`, appended as is).
 fn config_with_tokens(dir: &Path, extra: &str) -> std::path::PathBuf {
     let cfg = fast_config(dir, "serial", 20, 14);
     let mut text = std::fs::read_to_string(&cfg).expect("config");
-    for role in ["operator", "technician", "viewer"] {
-        let digest = TokenDigest::of_token(&format!("{role}-token")).to_hex();
-        text.push_str(&format!(
-            "\n[[api.tokens]]\nname = \"{role} one\"\nrole = \"{role}\"\nsha256 = \"{digest}\"\n"
-        ));
-    }
+    text.push_str(&role_tokens());
     text.push_str(extra);
     std::fs::write(&cfg, text).expect("write config");
     cfg
@@ -814,14 +835,7 @@ fn requests_without_a_known_token_are_refused_and_the_token_is_never_logged() {
 fn roles_limit_what_a_token_may_do() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = config_with_tokens(dir.path(), "");
-    let s = start_with(
-        &cfg,
-        &dir.path().join("c.db"),
-        "127.0.0.1:0",
-        Token::Configured("operator-token"),
-        Stdio::null(),
-        &[],
-    );
+    let s = start_as_operator(&cfg, &dir.path().join("c.db"));
     // viewer: reads, but may not create, arm or start; may abort
     assert_eq!(get_as(&s, "viewer-token", "/api/campaigns").0, 200);
     let (code, v) = post_as(&s, "viewer-token", "/api/campaigns", "{}");
