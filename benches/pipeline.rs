@@ -8,9 +8,9 @@ use std::hint::black_box;
 use std::path::Path;
 
 use cellcal::analysis::metrics::evaluate_pair;
-use cellcal::dataset::{parse_csv, split, to_measured, write_csv, Required};
+use cellcal::dataset::{parse_csv, split_measured, write_csv, Required};
 use cellcal::identify::solver::Options;
-use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel};
+use cellcal::identify::{identify, IdentifyOptions, JointTrig, ObsConfig, ObsModel};
 use cellcal::model::{parse_robot, RobotModel};
 use cellcal::report::calibrate;
 use cellcal::simulate::{self, truth, SimConfig};
@@ -61,8 +61,7 @@ fn bench_pipeline(c: &mut Criterion) {
     let read = || std::fs::read_to_string(&path).expect("read");
     let text = read();
     let rows = parse_csv(&text, 6, OP).expect("parse");
-    let (ident_rows, _) = split(&rows);
-    let ident = to_measured(&ident_rows, ObsModel::Op, 10.0).expect("convert");
+    let (ident, _) = split_measured(&rows, ObsModel::Op, 10.0).expect("convert");
     let id = identify(&robot, &ident, &opts).expect("identify");
 
     let mut g = c.benchmark_group("pipeline_op_10k");
@@ -71,19 +70,17 @@ fn bench_pipeline(c: &mut Criterion) {
         b.iter(|| parse_csv(black_box(&read()), 6, OP).expect("parse"))
     });
     g.bench_function("split_convert", |b| {
-        b.iter(|| {
-            let (i, v) = split(black_box(&rows));
-            (
-                to_measured(&i, ObsModel::Op, 10.0).expect("convert"),
-                to_measured(&v, ObsModel::Op, 10.0).expect("convert"),
-            )
-        })
+        b.iter(|| split_measured(black_box(&rows), ObsModel::Op, 10.0).expect("convert"))
     });
     g.bench_function("identify", |b| {
         b.iter(|| identify(&robot, black_box(&ident), &opts).expect("identify"))
     });
     g.bench_function("metrics", |b| {
-        b.iter(|| evaluate_pair(&id.initial, &id.corrected, black_box(&ident), &opts.obs))
+        let trig = JointTrig::of(&ident);
+        b.iter(|| {
+            let t = Some(&trig);
+            evaluate_pair(&id.initial, &id.corrected, black_box(&ident), t, &opts.obs)
+        })
     });
     g.bench_function("whole_from_file", |b| {
         b.iter(|| {

@@ -9,7 +9,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::identify::observation::{Measured, ObsConfig, ObsModel};
-use crate::identify::problem::split_map;
+use crate::identify::problem::{split_map, JointTrig};
 use crate::model::kinematics::{forward_from, Frames, Pose};
 use crate::model::rotation::to_rotation_vector;
 use crate::model::RobotModel;
@@ -56,17 +56,19 @@ pub fn pose_errors(
     poses: &[Measured],
     cfg: &ObsConfig,
 ) -> Vec<(Vector3<f64>, Option<f64>)> {
-    let [errors] = errors_of([model], poses, cfg);
+    let [errors] = errors_of([model], poses, None, cfg);
     errors
 }
 
 /// [`pose_errors`] of `N` models on the same poses: each pose's joint sines and cosines once
-/// for all models, each model's chain in the measurement frame into reused frames (no
-/// allocation per pose, the twists' sines once per model), over two fixed halves of the poses
-/// on two threads ([`split_map`]), so the errors are the same bit for bit on any machine.
+/// for all models (from `trig`, the poses' [`JointTrig`], when given), each model's chain in
+/// the measurement frame into reused frames (no allocation per pose, the twists' sines once
+/// per model), over two fixed halves of the poses on two threads ([`split_map`]), so the
+/// errors are the same bit for bit on any machine.
 fn errors_of<const N: usize>(
     models: [&RobotModel; N],
     poses: &[Measured],
+    trig: Option<&JointTrig>,
     cfg: &ObsConfig,
 ) -> [Vec<(Vector3<f64>, Option<f64>)>; N] {
     let bases = models.map(|m| Pose {
@@ -76,13 +78,20 @@ fn errors_of<const N: usize>(
     let parts = split_map(poses.len(), |range| {
         let mut frames: [Frames; N] = std::array::from_fn(|_| Frames::new());
         let mut out: [Vec<_>; N] = std::array::from_fn(|_| Vec::with_capacity(range.len()));
-        let mut trig = Vec::new();
-        for m in &poses[range] {
-            trig.clear();
-            trig.extend(m.q.iter().map(|q| q.sin_cos()));
+        let mut own = Vec::new();
+        for i in range {
+            let m = &poses[i];
+            let q_trig = match trig {
+                Some(t) => t.pose(i),
+                None => {
+                    own.clear();
+                    own.extend(m.q.iter().map(|q| q.sin_cos()));
+                    &own
+                }
+            };
             for k in 0..N {
                 let f = &mut frames[k];
-                forward_from(&bases[k], &models[k].joints, &m.q, Some(&trig), f);
+                forward_from(&bases[k], &models[k].joints, &m.q, Some(q_trig), f);
                 let fl = f.flange();
                 let e = m.p1 - fl.transform_point(&models[k].tool);
                 out[k].push((e, attitude(m, &fl.r, cfg)));
@@ -112,15 +121,20 @@ pub fn evaluate(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Metr
     summarize(&pose_errors(model, poses, cfg))
 }
 
-/// Metrics of two models on the same poses (as [`evaluate`] gives each; the joints' sines and
-/// cosines are computed once for both).
+/// Metrics of two models on the same poses (as [`evaluate`] gives each) in one pass: the
+/// joints' sines and cosines once for both, or none given `trig` ([`JointTrig::of`] the poses).
 pub fn evaluate_pair(
     a: &RobotModel,
     b: &RobotModel,
     poses: &[Measured],
+    trig: Option<&JointTrig>,
     cfg: &ObsConfig,
 ) -> (Metrics, Metrics) {
-    let [ea, eb] = errors_of([a, b], poses, cfg);
+    assert!(
+        trig.is_none_or(|t| t.covers(poses.len())),
+        "a joint table of other poses"
+    );
+    let [ea, eb] = errors_of([a, b], poses, trig, cfg);
     (summarize(&ea), summarize(&eb))
 }
 

@@ -49,60 +49,85 @@ pub fn to_measured(
     model: ObsModel,
     travel_mm: f64,
 ) -> Result<Vec<Measured>, ConvertError> {
-    rows.iter()
-        .map(|o| {
-            let mut m = Measured {
-                q: o.q.clone(),
-                p1: o.p1,
-                direction: None,
-                rotation: None,
-                weight: 1.0,
-            };
-            if let Some(p2) = o.p2 {
-                let d = p2 - o.p1;
-                let n = d.norm();
-                if matches!(model, ObsModel::Np | ObsModel::Op)
-                    && (n - travel_mm).abs() > 0.5 * travel_mm
-                {
-                    return Err(ConvertError::BadTravel {
-                        line: o.line,
-                        pose: o.id.clone(),
-                        measured_mm: n,
-                        travel_mm,
-                    });
-                }
-                if n > 0.0 {
-                    m.direction = Some(d / n);
-                }
-            }
-            // only the full model uses the rotation: spare the others its projection (an SVD)
-            if let Some(r) = o.rotation.filter(|_| model == ObsModel::Full) {
-                let dev = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
-                if dev > 0.1 {
-                    return Err(ConvertError::NotRotation {
-                        line: o.line,
-                        pose: o.id.clone(),
-                        deviation: dev,
-                    });
-                }
-                m.rotation = Some(project_so3(&r));
-            }
-            let missing = match model {
-                ObsModel::Np | ObsModel::Op if m.direction.is_none() => Some("p2_x, p2_y, p2_z"),
-                ObsModel::Full if m.rotation.is_none() => Some("n_x … a_z"),
-                _ => None,
-            };
-            if let Some(what) = missing {
-                return Err(ConvertError::Missing {
-                    line: o.line,
-                    pose: o.id.clone(),
-                    model: model.name(),
-                    what,
-                });
-            }
-            Ok(m)
-        })
-        .collect()
+    measured_all(rows.iter(), model, travel_mm)
+}
+
+/// The identification and the verification rows (file order kept), each converted as
+/// [`to_measured`] does ([`split`] then [`to_measured`], without copying the rows; the first
+/// unusable identification row is reported before any verification row).
+pub fn split_measured(
+    rows: &[Observation],
+    model: ObsModel,
+    travel_mm: f64,
+) -> Result<(Vec<Measured>, Vec<Measured>), ConvertError> {
+    let of =
+        |set: PoseSet| measured_all(rows.iter().filter(move |o| o.set == set), model, travel_mm);
+    Ok((of(PoseSet::Ident)?, of(PoseSet::Verify)?))
+}
+
+/// The rows `rows` converted for `model`, into a vector of their number (no regrowth).
+fn measured_all<'a>(
+    rows: impl Iterator<Item = &'a Observation> + Clone,
+    model: ObsModel,
+    travel_mm: f64,
+) -> Result<Vec<Measured>, ConvertError> {
+    let mut out = Vec::with_capacity(rows.clone().count());
+    for o in rows {
+        out.push(measured(o, model, travel_mm)?);
+    }
+    Ok(out)
+}
+
+/// One row converted for `model` (see [`to_measured`]).
+fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured, ConvertError> {
+    let mut m = Measured {
+        q: o.q.clone(),
+        p1: o.p1,
+        direction: None,
+        rotation: None,
+        weight: 1.0,
+    };
+    if let Some(p2) = o.p2 {
+        let d = p2 - o.p1;
+        let n = d.norm();
+        if matches!(model, ObsModel::Np | ObsModel::Op) && (n - travel_mm).abs() > 0.5 * travel_mm {
+            return Err(ConvertError::BadTravel {
+                line: o.line,
+                pose: o.id.clone(),
+                measured_mm: n,
+                travel_mm,
+            });
+        }
+        if n > 0.0 {
+            m.direction = Some(d / n);
+        }
+    }
+    // only the full model uses the rotation: spare the others its projection (an SVD)
+    if let Some(r) = o.rotation.filter(|_| model == ObsModel::Full) {
+        let dev = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
+        if dev > 0.1 {
+            return Err(ConvertError::NotRotation {
+                line: o.line,
+                pose: o.id.clone(),
+                deviation: dev,
+            });
+        }
+        m.rotation = Some(project_so3(&r));
+    }
+    let missing = match model {
+        ObsModel::Np | ObsModel::Op if m.direction.is_none() => Some("p2_x, p2_y, p2_z"),
+        ObsModel::Full if m.rotation.is_none() => Some("n_x … a_z"),
+        _ => None,
+    };
+    if let Some(what) = missing {
+        return Err(ConvertError::Missing {
+            line: o.line,
+            pose: o.id.clone(),
+            model: model.name(),
+            what,
+        });
+    }
+    Ok(m)
 }
 
 /// Split rows into identification and verification sets (file order kept).

@@ -343,14 +343,15 @@ impl Columns {
     }
 
     /// The observations of the data rows `text` (whole lines, no header) that follow
-    /// `lines_before` lines of the file; ids of rows without a `pose` column are left empty.
-    fn rows(&self, text: &str, lines_before: usize) -> Result<Vec<Observation>, CsvError> {
+    /// `lines_before` lines of the file, read by the `csv` crate (any quoting); ids of rows
+    /// without a `pose` column are left empty.
+    fn quoted_rows(&self, text: &str, lines_before: usize) -> Result<Vec<Observation>, CsvError> {
         let mut rdr = csv::ReaderBuilder::new()
             .comment(Some(b'#'))
             .flexible(true)
             .has_headers(false)
             .from_reader(text.as_bytes());
-        let mut out = Vec::with_capacity(text.len() / 64);
+        let mut out = Vec::new();
         let mut rec = csv::StringRecord::new();
         loop {
             let more = rdr.read_record(&mut rec).map_err(|e| CsvError::Malformed {
@@ -361,23 +362,41 @@ impl Columns {
                 return Ok(out);
             }
             let line = lines_before + rec.position().map_or(1, |p| record_line(text, p));
-            if rec.len() != self.names.len() {
-                return Err(CsvError::Malformed {
-                    line,
-                    message: format!(
-                        "{} fields, but the header has {}",
-                        rec.len(),
-                        self.names.len()
-                    ),
-                });
-            }
-            out.push(self.observation(&rec, line)?);
+            let fields: Vec<&str> = rec.iter().collect();
+            out.push(self.observation(&fields, line)?);
         }
     }
 
-    /// The observation in one record (line `line`).
-    fn observation(&self, rec: &csv::StringRecord, line: usize) -> Result<Observation, CsvError> {
-        let field = |c: usize| rec.get(c).unwrap_or("").trim();
+    /// [`quoted_rows`](Self::quoted_rows) of a [`plain`] text, split by hand: every line
+    /// end ends a record, blank lines and `#` lines are skipped, fields end at commas (the
+    /// `csv` crate reads such a text the same, and slower).
+    fn plain_rows(&self, text: &str, lines_before: usize) -> Result<Vec<Observation>, CsvError> {
+        let mut out = Vec::with_capacity(text.len() / 64);
+        let mut fields: Vec<&str> = Vec::with_capacity(self.names.len());
+        for (i, raw) in text.split('\n').enumerate() {
+            let record = raw.strip_suffix('\r').unwrap_or(raw);
+            if record.is_empty() || record.starts_with('#') {
+                continue;
+            }
+            split_fields(record, &mut fields);
+            out.push(self.observation(&fields, lines_before + i + 1)?);
+        }
+        Ok(out)
+    }
+
+    /// The observation in the fields of one record (line `line`).
+    fn observation(&self, fields: &[&str], line: usize) -> Result<Observation, CsvError> {
+        if fields.len() != self.names.len() {
+            return Err(CsvError::Malformed {
+                line,
+                message: format!(
+                    "{} fields, but the header has {}",
+                    fields.len(),
+                    self.names.len()
+                ),
+            });
+        }
+        let field = |c: usize| trim_field(fields[c]);
         let num = |c: usize| -> Result<f64, CsvError> {
             let raw = field(c);
             let bad = |v: &str| (line, self.names[c].clone(), v.to_owned());
@@ -415,11 +434,10 @@ impl Columns {
                 value: set_raw.to_owned(),
             });
         };
-        let q = self
-            .q
-            .iter()
-            .map(|&c| num(c))
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut q = Vec::with_capacity(self.q.len());
+        for &c in &self.q {
+            q.push(num(c)?);
+        }
         let p2 = self.p2.as_deref().map(vec3).transpose()?;
         let rotation = match &self.rotation {
             Some(cols) => {
@@ -445,10 +463,10 @@ impl Columns {
 
 /// Parse a data set for a robot with `dof` joints.
 ///
-/// One reused record per reader, fields trimmed in place: no allocation per row beyond the
-/// row's own `Observation` (the `csv` crate's trimming copies every record). When no field is
-/// quoted every line end ends a record, and the rows are parsed in two halves on two threads
-/// ([`split_map`]; same rows, line numbers and first error as one pass).
+/// The header row by the `csv` crate; the data rows, when none is quoted ([`plain`]), split by
+/// hand with no allocation per row beyond the row's own `Observation`, in two halves on two
+/// threads ([`split_map`]; same rows, line numbers and first error as one pass), else by the
+/// `csv` crate in one pass.
 pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Observation>, CsvError> {
     let mut rdr = reader(text);
     let headers = rdr.headers().map_err(|e| CsvError::Malformed {
@@ -465,24 +483,19 @@ pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Obser
     let cols = Columns::find(names, dof, required)?;
     let body_start = usize::try_from(rdr.position().byte()).unwrap_or(text.len());
     let body = text.get(body_start..).unwrap_or("");
-    let lines_before = text.as_bytes()[..text.len() - body.len()]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count();
-    let parts = if body.contains('"') {
-        vec![cols.rows(body, lines_before)]
-    } else {
+    let lines_before = newlines(&text.as_bytes()[..text.len() - body.len()]);
+    let parts = if plain(body) {
         split_map(body.len(), |r| {
             let (start, end) = (line_start(body, r.start), line_start(body, r.end));
-            let before = lines_before
-                + body.as_bytes()[..start]
-                    .iter()
-                    .filter(|&&b| b == b'\n')
-                    .count();
-            cols.rows(&body[start..end], before)
+            let before = lines_before + newlines(&body.as_bytes()[..start]);
+            cols.plain_rows(&body[start..end], before)
         })
+    } else {
+        vec![cols.quoted_rows(body, lines_before)]
     };
-    let mut out = Vec::new();
+    // the parts in order, into the first one's room (no copy of the first)
+    let mut parts = parts.into_iter();
+    let mut out = parts.next().unwrap_or_else(|| Ok(Vec::new()))?;
     for part in parts {
         out.extend(part?);
     }
@@ -495,6 +508,44 @@ pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Obser
         }
     }
     Ok(out)
+}
+
+/// Whether `text` needs no CSV unquoting: no `"`, and every `\r` ends a line (`\r\n`), so
+/// every record is one line ([`Columns::plain_rows`]).
+fn plain(text: &str) -> bool {
+    !text.contains('"')
+        && text
+            .match_indices('\r')
+            .all(|(i, _)| text.as_bytes().get(i + 1) == Some(&b'\n'))
+}
+
+/// The comma-separated fields of one unquoted record into `out` (cleared first).
+fn split_fields<'a>(record: &'a str, out: &mut Vec<&'a str>) {
+    out.clear();
+    let mut start = 0;
+    for (i, &b) in record.as_bytes().iter().enumerate() {
+        if b == b',' {
+            out.push(&record[start..i]);
+            start = i + 1;
+        }
+    }
+    out.push(&record[start..]);
+}
+
+/// `field.trim()`, without its character walk when the field starts and ends in visible ASCII.
+fn trim_field(field: &str) -> &str {
+    let visible = |b: Option<&u8>| b.is_some_and(|b| b.is_ascii_graphic());
+    let b = field.as_bytes();
+    if visible(b.first()) && visible(b.last()) {
+        field
+    } else {
+        field.trim()
+    }
+}
+
+/// The number of line ends in `bytes`.
+fn newlines(bytes: &[u8]) -> usize {
+    bytes.iter().filter(|&&b| b == b'\n').count()
 }
 
 /// A CSV reader of `text` with `#` comments, records of any length (checked by
@@ -637,6 +688,30 @@ mod tests {
         let blank = "set,q1,q2,p1_x,p1_y,p1_z\n\n# c\n\nident,0,0,1,2,x\n";
         let e = parse_csv(blank, 2, Required::default()).unwrap_err();
         assert!(matches!(e, CsvError::NotNumeric { line: 5, .. }), "{e:?}");
+    }
+
+    #[test]
+    fn rows_split_by_hand_are_the_rows_of_the_csv_crate() {
+        // CRLF line ends, blank lines, comments, spaces around fields, a last line without end
+        let text = many_rows(600, &[])
+            .replace('\n', "\r\n")
+            .replacen("\r\n", "\r\n\r\n", 40)
+            + "verify,1,2,3,4,5";
+        assert!(plain(&text));
+        let quoted = text.replacen("ident,", "\"ident\",", 1);
+        assert!(!plain(&quoted));
+        let by_hand = parse_csv(&text, 2, Required::default()).unwrap();
+        assert_eq!(by_hand, parse_csv(&quoted, 2, Required::default()).unwrap());
+        assert_eq!(by_hand.len(), 601);
+        // a lone carriage return ends a record for the csv crate: not split by hand
+        assert!(!plain("ident,1\rident,2\n"));
+        // fields trim as `str::trim` does, Unicode spaces included
+        for f in ["1.5", " 1.5", "1.5\t", "\u{a0}1.5", "1.5\u{2003}", "", " "] {
+            assert_eq!(trim_field(f), f.trim(), "{f:?}");
+        }
+        let mut fields = Vec::new();
+        split_fields(",a,,b ,", &mut fields);
+        assert_eq!(fields, ["", "a", "", "b ", ""]);
     }
 
     #[test]

@@ -39,7 +39,7 @@ use nalgebra::DMatrix;
 use super::normal::SplitSums;
 use super::observation::{Measured, ObsConfig};
 use super::params::ParamId;
-use super::problem::CalibProblem;
+use super::problem::{CalibProblem, JointTrig};
 use crate::model::{ParamKind, RobotModel};
 
 /// Scale of direction rows and angle columns for the rank test (mm).
@@ -694,21 +694,22 @@ pub fn analyze(
     cfg: &ObsConfig,
     candidates: &[ParamId],
 ) -> Identifiability {
-    analyze_linearized(model, poses, cfg, candidates, None).0
+    analyze_linearized(model, poses, &JointTrig::of(poses), cfg, candidates, None).0
 }
 
 /// [`analyze`], with the practical test when `practical` is given, also returning the sums it
 /// computed at `model` over all candidates: the solver's first linearisation is a restriction
-/// of them.
+/// of them. `trig` is [`JointTrig::of`] the poses.
 pub fn analyze_linearized(
     model: &RobotModel,
     poses: &[Measured],
+    trig: &JointTrig,
     cfg: &ObsConfig,
     candidates: &[ParamId],
     practical: Option<&PracticalBounds>,
 ) -> (Identifiability, SplitSums) {
     let order = priority_order(model, candidates);
-    let sums = CalibProblem::new(poses, cfg, &order).linearize_split(model);
+    let sums = CalibProblem::with_trig(poses, trig, cfg, &order).linearize_split(model);
     let weighted = practical.map(|b| (b, sums.normal_matrix(cfg.direction_weight_mm)));
     let result = select(&order, candidates, scale_gram(&sums, &order), weighted);
     (result, sums)

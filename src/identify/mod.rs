@@ -24,6 +24,7 @@ use rand::{Rng, SeedableRng};
 pub use identifiability::{DropKind, Dropped, Identifiability, PracticalBounds};
 pub use observation::{predict, Measured, ObsConfig, ObsModel};
 pub use params::{all_params, retract, ParamId};
+pub use problem::JointTrig;
 pub use robust::RobustLoss;
 
 use crate::measure::fit_rigid;
@@ -246,6 +247,17 @@ pub fn identify(
     poses: &[Measured],
     opts: &IdentifyOptions,
 ) -> Result<Identification, IdentifyError> {
+    identify_with(nominal, poses, &JointTrig::of(poses), opts)
+}
+
+/// [`identify`] given the poses' joint trigonometry (`trig` = [`JointTrig::of`] `poses`), which
+/// the analysis and every linearisation share (and the caller's metrics may too).
+pub fn identify_with(
+    nominal: &RobotModel,
+    poses: &[Measured],
+    trig: &JointTrig,
+    opts: &IdentifyOptions,
+) -> Result<Identification, IdentifyError> {
     opts.practical.check().map_err(IdentifyError::BadBounds)?;
     let weighted: Vec<Measured>;
     let poses = match &opts.point_weights {
@@ -280,6 +292,7 @@ pub fn identify(
     let (ident, sums) = identifiability::analyze_linearized(
         &initial,
         poses,
+        trig,
         &opts.obs,
         &candidates,
         Some(&practical_bounds(opts)),
@@ -295,7 +308,7 @@ pub fn identify(
         return Err(IdentifyError::RankDeficient { missing });
     }
     let params = ident.identified.clone();
-    let problem = CalibProblem::new(poses, &opts.obs, &params);
+    let problem = CalibProblem::with_trig(poses, trig, &opts.obs, &params);
     // the analysis linearised at the initial model already: start the solver from it
     let start = sums
         .linearization(&params, opts.obs.direction_weight_mm)

@@ -1,7 +1,8 @@
 //! Normal-equation sums `rᵀr`, `Jᵀr`, `JᵀJ`, accumulated block by block.
 //!
-//! Jacobian rows are gathered in blocks of up to [`BLOCK_POSES`] poses and folded into `JᵀJ` by
-//! one matrix product per block (cache-friendly GEMM instead of a scalar loop per row). The
+//! Rows `[J r]` are gathered in blocks of up to [`BLOCK_POSES`] poses and folded into the sums
+//! by one matrix product per block, `[J r]ᵀ[J r]`, which holds `JᵀJ`, `Jᵀr` and `rᵀr` at once
+//! (cache-friendly GEMM instead of a scalar loop per row). The
 //! position rows and the direction rows of a pose go to separate blocks: the direction block
 //! holds only the columns of parameters that turn directions (translations give zero direction
 //! rows), and the split lets one set of sums serve any direction weight ([`SplitSums`]).
@@ -103,8 +104,14 @@ impl SplitSums {
     }
 }
 
+/// Tile edge of the matrix product's kernels (8×8 with AVX-512, 8×4 with AVX2): rows padded
+/// with zeros to a multiple of it keep every tile whole, which is cheaper than the partial
+/// tiles of an odd width.
+const GEMM_TILE: usize = 8;
+
 /// Rows of `[J r]` over some of the problem's columns, gathered in blocks and folded into
-/// normal-equation sums one block at a time.
+/// normal-equation sums one block at a time: one matrix product per block gives
+/// `[J r]ᵀ[J r]`, which holds `JᵀJ`, `Jᵀr` (last column) and `rᵀr` (corner) at once.
 pub(crate) struct Folder {
     /// The problem's columns held here, in order.
     cols: Vec<usize>,
@@ -112,64 +119,71 @@ pub(crate) struct Folder {
     k: usize,
     /// Rows per block.
     cap: usize,
-    /// The block's Jacobian, row after row; read as a column-major matrix it is `Jᵀ`.
-    jac: Vec<f64>,
-    /// The block's residuals.
-    res: Vec<f64>,
-    /// Sums over the held columns.
-    sums: NormalSums,
+    /// Rows in the block.
+    rows: usize,
+    /// The block's rows `[J r]` (held columns, then the residual), row after row; read as a
+    /// column-major matrix it is `[J r]ᵀ`.
+    block: Vec<f64>,
+    /// `[J r]ᵀ[J r]` summed over the folded blocks.
+    gram: DMatrix<f64>,
 }
 
 impl Folder {
     /// A folder of the columns `cols` of a `k`-column problem, in blocks of `cap` rows.
     pub fn new(cols: Vec<usize>, k: usize, cap: usize) -> Folder {
-        let width = cols.len();
+        let stride = (cols.len() + 1).next_multiple_of(GEMM_TILE);
         Folder {
             cols,
             k,
             cap,
-            jac: Vec::with_capacity(cap * width),
-            res: Vec::with_capacity(cap),
-            sums: NormalSums::zeros(width),
+            rows: 0,
+            block: Vec::with_capacity(cap * stride),
+            gram: DMatrix::zeros(stride, stride),
         }
     }
 
-    /// Room for `rows` (≤ the block size) more rows, zeroed: their Jacobian (row-major over the
-    /// held columns) and their residuals.
-    pub fn rows(&mut self, rows: usize) -> (&mut [f64], &mut [f64]) {
-        if self.res.len() + rows > self.cap {
+    /// Entries per row: the held columns, the residual, then zeros up to a multiple of
+    /// [`GEMM_TILE`].
+    pub fn stride(&self) -> usize {
+        self.gram.nrows()
+    }
+
+    /// Room for `rows` (≤ the block size) more rows `[J r 0]`, zeroed, each
+    /// [`stride`](Self::stride) entries: the Jacobian over the held columns, the residual at
+    /// index `cols.len()`.
+    pub fn rows(&mut self, rows: usize) -> &mut [f64] {
+        if self.rows + rows > self.cap {
             self.flush();
         }
-        let (j0, r0) = (self.jac.len(), self.res.len());
-        self.jac.resize(j0 + rows * self.cols.len(), 0.0);
-        self.res.resize(r0 + rows, 0.0);
-        (&mut self.jac[j0..], &mut self.res[r0..])
+        let start = self.block.len();
+        self.block.resize(start + rows * self.stride(), 0.0);
+        self.rows += rows;
+        &mut self.block[start..]
     }
 
     fn flush(&mut self) {
-        let width = self.cols.len();
-        let n = self.res.len();
-        let s = &mut self.sums;
-        s.sum_sq += self.res.iter().map(|r| r * r).sum::<f64>();
-        if width > 0 && n > 0 {
-            let g = s.g.as_mut_slice();
-            for (row, r) in self.jac.chunks_exact(width).zip(&self.res) {
-                g.iter_mut().zip(row).for_each(|(g, j)| *g += j * r);
-            }
-            let jt = DMatrixView::from_slice(&self.jac, width, n);
-            s.h.gemm(1.0, &jt, &jt.transpose(), 1.0);
+        if self.rows > 0 {
+            let m = DMatrixView::from_slice(&self.block, self.stride(), self.rows);
+            self.gram.gemm(1.0, &m, &m.transpose(), 1.0);
         }
-        self.jac.clear();
-        self.res.clear();
+        self.block.clear();
+        self.rows = 0;
     }
 
     /// The sums over all the problem's columns (zero in columns not held).
     pub fn finish(mut self) -> NormalSums {
         self.flush();
-        if self.cols.len() == self.k {
-            self.sums
+        let w = self.cols.len();
+        let g = &self.gram;
+        let sums = NormalSums {
+            sum_sq: g[(w, w)],
+            g: g.view((0, w), (w, 1)).column(0).into_owned(),
+            h: g.view((0, 0), (w, w)).into_owned(),
+        };
+        if w == self.k {
+            sums
         } else {
-            self.sums.embed(&self.cols, self.k)
+            sums.embed(&self.cols, self.k)
         }
     }
 }

@@ -1,5 +1,6 @@
 //! The calibration least-squares problem over a set of poses.
 
+use std::borrow::Cow;
 use std::ops::Range;
 
 use nalgebra::{DVector, Vector3};
@@ -12,16 +13,62 @@ use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
 use crate::model::RobotModel;
 
+/// `sin_cos` of every pose's joint values, pose after pose: no parameter changes them, so one
+/// table serves the identifiability analysis, every linearisation and the metrics, which then
+/// evaluate no sine or cosine per pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointTrig {
+    /// `sin_cos` of the joint values, pose after pose.
+    sin_cos: Vec<(f64, f64)>,
+    /// Start of each pose's joint values in `sin_cos` (and the end).
+    start: Vec<usize>,
+}
+
+impl JointTrig {
+    /// The table of `poses`, its two halves filled on two threads above
+    /// [`PARALLEL_MIN_POSES`] (in place: no copy of the table).
+    pub fn of(poses: &[Measured]) -> JointTrig {
+        let mut start = Vec::with_capacity(poses.len() + 1);
+        start.push(0);
+        for p in poses {
+            start.push(start[start.len() - 1] + p.q.len());
+        }
+        let mut sin_cos = vec![(0.0, 0.0); start[poses.len()]];
+        let fill = |poses: &[Measured], out: &mut [(f64, f64)]| {
+            let q = poses.iter().flat_map(|p| &p.q);
+            out.iter_mut().zip(q).for_each(|(sc, q)| *sc = q.sin_cos());
+        };
+        if poses.len() < PARALLEL_MIN_POSES {
+            fill(poses, &mut sin_cos);
+        } else {
+            let half = poses.len() / 2;
+            let (a, b) = sin_cos.split_at_mut(start[half]);
+            std::thread::scope(|s| {
+                s.spawn(|| fill(&poses[half..], b));
+                fill(&poses[..half], a);
+            });
+        }
+        JointTrig { sin_cos, start }
+    }
+
+    /// `sin_cos` of pose `i`'s joint values.
+    pub fn pose(&self, i: usize) -> &[(f64, f64)] {
+        &self.sin_cos[self.start[i]..self.start[i + 1]]
+    }
+
+    /// Whether this is the table of `n` poses.
+    pub fn covers(&self, n: usize) -> bool {
+        self.start.len() == n + 1
+    }
+}
+
 /// Stacked residuals of all poses with respect to the chosen parameters.
 pub struct CalibProblem<'a> {
     poses: &'a [Measured],
     cfg: &'a ObsConfig,
     params: &'a [ParamId],
-    /// `sin_cos` of every pose's joint values, pose after pose (they do not change while the
-    /// parameters do, so each linearisation evaluates no sine or cosine per pose).
-    q_sin_cos: Vec<(f64, f64)>,
-    /// Start of each pose's joint values in `q_sin_cos` (and the end).
-    q_start: Vec<usize>,
+    /// The poses' joint trigonometry (own, or shared with the analysis and the metrics).
+    trig: Cow<'a, JointTrig>,
     /// The columns of parameters that turn directions (the direction blocks hold only these).
     turning: Vec<usize>,
     /// Per column, its index among `turning`.
@@ -31,18 +78,27 @@ pub struct CalibProblem<'a> {
 impl<'a> CalibProblem<'a> {
     /// A problem over `poses` (weights in each pose) for `params`.
     pub fn new(poses: &'a [Measured], cfg: &'a ObsConfig, params: &'a [ParamId]) -> Self {
-        let mut q_start = Vec::with_capacity(poses.len() + 1);
-        q_start.push(0);
-        for p in poses {
-            q_start.push(q_start[q_start.len() - 1] + p.q.len());
-        }
-        let q_sin_cos = split_map(poses.len(), |r| {
-            poses[r]
-                .iter()
-                .flat_map(|p| p.q.iter().map(|q| q.sin_cos()))
-                .collect::<Vec<_>>()
-        })
-        .concat();
+        Self::build(poses, Cow::Owned(JointTrig::of(poses)), cfg, params)
+    }
+
+    /// [`new`](Self::new) with the poses' joint trigonometry computed already (`trig` must be
+    /// [`JointTrig::of`] these poses).
+    pub fn with_trig(
+        poses: &'a [Measured],
+        trig: &'a JointTrig,
+        cfg: &'a ObsConfig,
+        params: &'a [ParamId],
+    ) -> Self {
+        assert!(trig.covers(poses.len()), "a joint table of other poses");
+        Self::build(poses, Cow::Borrowed(trig), cfg, params)
+    }
+
+    fn build(
+        poses: &'a [Measured],
+        trig: Cow<'a, JointTrig>,
+        cfg: &'a ObsConfig,
+        params: &'a [ParamId],
+    ) -> Self {
         let turning: Vec<usize> = (0..params.len())
             .filter(|&c| turns_directions(&params[c]))
             .collect();
@@ -54,8 +110,7 @@ impl<'a> CalibProblem<'a> {
             poses,
             cfg,
             params,
-            q_sin_cos,
-            q_start,
+            trig,
             turning,
             dir_col,
         }
@@ -63,7 +118,7 @@ impl<'a> CalibProblem<'a> {
 
     /// `sin_cos` of pose `i`'s joint values.
     fn q_trig(&self, i: usize) -> &[(f64, f64)] {
-        &self.q_sin_cos[self.q_start[i]..self.q_start[i + 1]]
+        self.trig.pose(i)
     }
 
     /// Weighted residual norm of each pose at a state.
@@ -100,15 +155,16 @@ pub fn split_map<R: Send>(n: usize, f: impl Fn(Range<usize>) -> R + Sync) -> Vec
     })
 }
 
-/// Writes one pose's Jacobian into a position block (all columns) and a direction block (the
-/// columns that turn directions).
+/// Writes one pose's Jacobian into rows `[J r]` of a position block (all columns) and of a
+/// direction block (the columns that turn directions).
 struct BlockSink<'a> {
     pos: &'a mut [f64],
     dir: &'a mut [f64],
-    k: usize,
+    /// Entries per row of the position block and of the direction block.
+    pos_stride: usize,
+    dir_stride: usize,
     /// Per column, its index in the direction block.
     dir_col: &'a [Option<usize>],
-    kd: usize,
 }
 
 impl JacobianSink for BlockSink<'_> {
@@ -119,15 +175,30 @@ impl JacobianSink for BlockSink<'_> {
     #[inline(always)]
     fn column(&mut self, c: usize, dp: &Vector3<f64>, dd: &[Vector3<f64>]) {
         for r in 0..3 {
-            self.pos[r * self.k + c] = dp[r];
+            self.pos[r * self.pos_stride + c] = dp[r];
         }
         if let Some(j) = self.dir_col[c] {
             for (m, d) in dd.iter().enumerate() {
                 for r in 0..3 {
-                    self.dir[(3 * m + r) * self.kd + j] = d[r];
+                    self.dir[(3 * m + r) * self.dir_stride + j] = d[r];
                 }
             }
         }
+    }
+}
+
+impl BlockSink<'_> {
+    /// The residuals `res` (position rows, then direction rows) into the rows' residual
+    /// entries (after the `k` position and the `kd` direction columns).
+    fn residuals(&mut self, res: &[f64], k: usize, kd: usize) {
+        let (p, d) = res.split_at(3);
+        let put = |rows: &mut [f64], stride: usize, at: usize, r: &[f64]| {
+            for (row, v) in rows.chunks_exact_mut(stride).zip(r) {
+                row[at] = *v;
+            }
+        };
+        put(self.pos, self.pos_stride, k, p);
+        put(self.dir, self.dir_stride, kd, d);
     }
 }
 
@@ -142,25 +213,22 @@ impl CalibProblem<'_> {
     ) -> (NormalSums, NormalSums) {
         let k = self.params.len();
         let nd = cfg.model.rows() - 3;
-        let kd = self.turning.len();
         let block = BLOCK_POSES.min(range.len()).max(1);
         let mut pos = Folder::new((0..k).collect(), k, block * 3);
         let mut dir = Folder::new(self.turning.clone(), k, block * nd);
+        let (pos_stride, dir_stride) = (pos.stride(), dir.stride());
         let mut res = vec![0.0; 3 + nd];
         for i in range.filter(|&i| self.poses[i].weight != 0.0) {
-            let (pj, pr) = pos.rows(3);
-            let (dj, dr) = dir.rows(nd);
             let mut sink = BlockSink {
-                pos: pj,
-                dir: dj,
-                k,
+                pos: pos.rows(3),
+                dir: dir.rows(nd),
+                pos_stride,
+                dir_stride,
                 dir_col: &self.dir_col,
-                kd,
             };
             let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
             residual_into(state, p, t, cfg, self.params, &mut res, &mut sink);
-            pr.copy_from_slice(&res[..3]);
-            dr.copy_from_slice(&res[3..]);
+            sink.residuals(&res, k, self.turning.len());
         }
         (pos.finish(), dir.finish())
     }

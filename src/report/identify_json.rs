@@ -16,8 +16,10 @@ use serde::{Deserialize, Serialize};
 
 use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWarning};
 use crate::analysis::metrics::{evaluate_pair, Metrics};
-use crate::dataset::{split, to_measured, ConvertError, Observation};
-use crate::identify::{identify, DropKind, Identification, IdentifyError, IdentifyOptions};
+use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
+use crate::identify::{
+    identify_with, DropKind, Identification, IdentifyError, IdentifyOptions, JointTrig,
+};
 use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
 
@@ -217,6 +219,15 @@ impl IdentifyReport {
     }
 }
 
+/// The pose ids of the identification rows at `indices` (into the identification rows).
+fn ident_ids(rows: &[Observation], indices: &[usize]) -> Vec<String> {
+    if indices.is_empty() {
+        return Vec::new();
+    }
+    let ident: Vec<&Observation> = rows.iter().filter(|o| o.set == PoseSet::Ident).collect();
+    indices.iter().map(|&i| ident[i].id.clone()).collect()
+}
+
 /// Run the identify pipeline on data-set rows.
 pub fn calibrate(
     robot: &RobotModel,
@@ -224,14 +235,14 @@ pub fn calibrate(
     opts: &IdentifyOptions,
     stage_travel_mm: f64,
 ) -> Result<(IdentifyReport, Identification), CalibrateError> {
-    let (ident_rows, verify_rows) = split(rows);
-    if ident_rows.is_empty() {
+    if !rows.iter().any(|o| o.set == PoseSet::Ident) {
         return Err(CalibrateError::NoIdentRows);
     }
     let model = opts.obs.model;
-    let ident = to_measured(&ident_rows, model, stage_travel_mm)?;
-    let verify = to_measured(&verify_rows, model, stage_travel_mm)?;
-    let id = identify(robot, &ident, opts)?;
+    let (ident, verify) = split_measured(rows, model, stage_travel_mm)?;
+    // one joint table for the identification and the metrics of the ident set
+    let trig = JointTrig::of(&ident);
+    let id = identify_with(robot, &ident, &trig, opts)?;
     // the verdict judges σ by the bounds the identification kept its set within
     let bounds = QualityBounds {
         sigma_mm: opts.practical.max_sigma_mm,
@@ -250,13 +261,13 @@ pub fn calibrate(
             limit_deg: bounds.stage_axis_error_rad.to_degrees(),
         });
     }
-    let m = |set: &[_]| {
-        let (before, after) = evaluate_pair(&id.initial, &id.corrected, set, &opts.obs);
+    let m = |set: &[_], trig| {
+        let (before, after) = evaluate_pair(&id.initial, &id.corrected, set, trig, &opts.obs);
         BeforeAfter { before, after }
     };
     let metrics = MetricsJson {
-        ident: m(&ident),
-        verify: (!verify.is_empty()).then(|| m(&verify)),
+        ident: m(&ident, Some(&trig)),
+        verify: (!verify.is_empty()).then(|| m(&verify, None)),
     };
     let names: Vec<String> = id
         .identifiability
@@ -311,11 +322,7 @@ pub fn calibrate(
         direction_weight_mm: opts.obs.direction_weight_mm,
         condition_number: id.identifiability.condition_number(),
         sigma0_mm: id.sigma0_mm,
-        rejected_poses: id
-            .rejected
-            .iter()
-            .map(|&i| ident_rows[i].id.clone())
-            .collect(),
+        rejected_poses: ident_ids(rows, &id.rejected),
         correlation: CorrelationJson {
             names,
             matrix: (0..k)
