@@ -15,6 +15,7 @@
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
 //! - [`report`]: the identify JSON contract and the printed summary.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
+//! - [`metrics`]: the daemon's Prometheus metrics (`GET /metrics`).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
@@ -32,6 +33,7 @@ pub mod daemon;
 pub mod dataset;
 pub mod identify;
 pub mod measure;
+pub mod metrics;
 pub mod model;
 pub mod plan;
 pub mod report;
