@@ -2,7 +2,9 @@
 //! (`Content-Type: application/json`, at most 64 KiB); every error is `{"error": "..."}` with a
 //! 4xx/5xx status. [`guard`] checks `Host`, `Origin` and the bearer token of every request
 //! before routing; the routes check the caller's [`crate::auth::Role`] for what it asks.
-//! [`serve`] runs the router over plain HTTP or TLS ([`tls`]).
+//! [`serve`] runs the router over plain HTTP or TLS ([`tls`]). Every handler is cancel-safe: a
+//! dropped request only stops its own reads or waits (a command is applied before its reply
+//! waits for the engine; a creation or load runs in its own task).
 //!
 //! | method and path | what |
 //! |---|---|

@@ -17,7 +17,8 @@ use crate::metrics::Metrics;
 /// The label of a request no route matched.
 const UNMATCHED: &str = "unmatched";
 
-/// Middleware: time the request, count it by route, log an error answer.
+/// Middleware: time the request, count it by route, log an error answer. Cancel-safe: a
+/// dropped request is neither counted nor logged.
 pub(super) async fn observe(
     State(metrics): State<Arc<Metrics>>,
     req: Request,

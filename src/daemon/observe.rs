@@ -342,3 +342,72 @@ impl Observer {
         true
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::parse_cell_config;
+
+    fn cfg(stage: &str) -> CellConfig {
+        let text = format!("robot = \"r.toml\"\n[stage]\nkind = \"{stage}\"\n");
+        parse_cell_config(&text, std::path::Path::new("/cell.toml")).expect("config")
+    }
+
+    fn fault(kind: &str) -> FaultView {
+        FaultView {
+            kind: kind.into(),
+            message: "m".into(),
+            at_ms: 1,
+            action: "reconnect".into(),
+            campaign: 1,
+        }
+    }
+
+    fn connected(w: &CellWatch, c: &CellConfig) -> [Option<bool>; 3] {
+        let v = w.view(c);
+        [v.tracker.connected, v.robot.connected, v.stage.connected]
+    }
+
+    #[test]
+    fn connected_is_learned_from_the_run_and_unknown_without_one() {
+        let c = cfg("serial");
+        let mut w = CellWatch::default();
+        assert_eq!(connected(&w, &c), [None; 3]);
+        let run = w.run_loaded(&c, None);
+        assert_eq!(connected(&w, &c), [Some(false); 3]);
+        w.step_done();
+        assert_eq!(connected(&w, &c), [Some(true); 3]);
+        // a beam break is no connection fault; a timeout is
+        w.fault("tracker", fault("BeamBroken"));
+        assert_eq!(connected(&w, &c), [Some(true); 3]);
+        w.fault("robot", fault("Timeout"));
+        assert_eq!(connected(&w, &c), [Some(true), Some(false), Some(true)]);
+        assert_eq!(w.view(&c).robot.last_fault, Some(fault("Timeout")));
+        w.step_done();
+        assert_eq!(connected(&w, &c), [Some(true); 3]);
+        // an older run's late end leaves the newer run alone
+        let newer = w.run_loaded(&c, None);
+        w.run_ended(run);
+        assert_eq!(connected(&w, &c), [Some(false); 3]);
+        w.run_ended(newer);
+        assert_eq!(connected(&w, &c), [None; 3]);
+        // the last faults stay
+        assert_eq!(w.view(&c).tracker.last_fault, Some(fault("BeamBroken")));
+    }
+
+    #[test]
+    fn a_manual_micrometer_has_no_connection() {
+        let c = cfg("manual");
+        let mut w = CellWatch::default();
+        w.run_loaded(&c, None);
+        w.step_done();
+        let v = w.view(&c);
+        assert_eq!(v.stage.kind, "manual");
+        assert_eq!((v.stage.connected, v.stage.address), (None, None));
+        assert_eq!(v.tracker.connected, Some(true));
+        // a simulated device has no address without a run
+        assert_eq!(v.tracker.kind, "emscon");
+        assert!(v.tracker.simulated);
+        assert_eq!(v.tracker.address, None);
+    }
+}
