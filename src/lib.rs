@@ -18,6 +18,7 @@
 //! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
 //!   program says, and the compensate CSV files.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
+//! - [`metrics`]: the daemon's Prometheus metrics (`GET /metrics`).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
@@ -37,6 +38,7 @@ pub mod daemon;
 pub mod dataset;
 pub mod identify;
 pub mod measure;
+pub mod metrics;
 pub mod model;
 pub mod plan;
 pub mod report;

@@ -111,6 +111,11 @@ enum Command {
         /// Store file (default: `store` of the configuration).
         #[arg(long)]
         store: Option<PathBuf>,
+        /// Log lines on stderr: `text` (human) or `json` (one object a line). Level from
+        /// `RUST_LOG` (default `info`): campaign loads and state changes, device faults, every
+        /// request answered 4xx/5xx; never a token.
+        #[arg(long, value_parser = ["text", "json"], default_value = "text")]
+        log_format: String,
     },
     /// Make a random REST API token: prints it once (`token: …`) and the `[[api.tokens]]`
     /// entry (name, role, SHA-256) to paste into the cell configuration.
@@ -229,12 +234,29 @@ fn other<E: Into<anyhow::Error>>(e: E) -> Failure {
     Failure(1, e.into())
 }
 
-fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+/// Log to stderr: `serve` at `info` unless `RUST_LOG` says otherwise (text or JSON lines),
+/// every other command only what `RUST_LOG` asks for.
+fn init_logging(command: &Command) {
+    use tracing_subscriber::EnvFilter;
+    let (default, json) = match command {
+        Command::Serve { log_format, .. } => ("info", log_format == "json"),
+        _ => ("error", false),
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    let logs = tracing_subscriber::fmt()
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .init();
+        .with_ansi(std::io::stderr().is_terminal());
+    if json {
+        logs.json().init();
+    } else {
+        logs.init();
+    }
+}
+
+fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logging(&cli.command);
     let result = match cli.command {
         Command::Identify(args) => cli::identify::run(*args),
         Command::Significance {
@@ -277,6 +299,7 @@ fn main() -> ExitCode {
             config,
             listen,
             store,
+            log_format: _,
         } => run_cmd::serve(&config, &listen, store),
         Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export(args) => cli::export::run(args),

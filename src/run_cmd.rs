@@ -241,7 +241,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         if let Some(token) = one_time {
             println!("open {}://{bound}/?token={token}", scheme.as_str());
         }
-        eprintln!("campaign store {}", store_path.display());
+        tracing::info!(store = %store_path.display(), "campaign store");
         let mut signals = StopSignals::install().map_err(other)?;
         let app = api::router(
             Arc::clone(&daemon),
@@ -253,7 +253,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         tokio::select! {
             r = &mut server => r.map_err(other)?,
             _ = signals.next() => {
-                eprintln!("stopping: aborting the loaded campaign");
+                tracing::info!("stopping: aborting the loaded campaign");
                 daemon.shutdown().await;
                 handle.graceful_shutdown(Some(std::time::Duration::from_secs(5)));
                 let _ = tokio::time::timeout(std::time::Duration::from_secs(6), server).await;

@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 
 use super::engine::{campaign_identification, SetupResult};
 use crate::config::{parse_cell_config, ConfigError};
-use crate::dataset::{CsvSetup, Observation};
+use crate::dataset::{write_csv, CsvSetup, Observation};
 use crate::identify::IdentifyOptions;
 use crate::model::{parse_robot, RobotFileError, RobotModel};
 use crate::report::model_file::sha256_hex;
@@ -74,6 +74,24 @@ pub struct StoredCampaign {
     pub rows: Vec<Observation>,
     /// The setup the identification uses, as the CSV header carries it.
     pub setup: CsvSetup,
+}
+
+impl StoredCampaign {
+    /// The identify CSV of this campaign exactly as `cellcal export` writes it (and
+    /// `GET /api/campaigns/{id}/measurements?format=csv` serves it): a comment naming the
+    /// campaign, `source` (the store) and the identify flags it used, the setup header, the rows.
+    pub fn export_csv(&self, source: &str) -> String {
+        let o = &self.opts;
+        let comment = format!(
+            "cellcal export: campaign {} from {source}\nidentified by the campaign as: --model {}{}{}\n{}",
+            self.id,
+            o.obs.model.name(),
+            if o.identify_base { " --identify-base" } else { "" },
+            if o.identify_tool { " --identify-tool" } else { "" },
+            self.setup.comment_lines()
+        );
+        write_csv(&self.rows, self.nominal.dof(), &comment)
+    }
 }
 
 /// Rebuild campaign `id`'s identification from `store`; `robot` replaces the stored robot model

@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use cellcal::campaign::stored::load_stored;
-use cellcal::dataset::write_csv;
 
 use super::identify::{campaign_id, open_store};
 use crate::{input, other, Failure};
@@ -33,18 +32,8 @@ pub fn run(a: ExportArgs) -> Result<(), Failure> {
     let c = load_stored(&s, id, None)
         .with_context(|| a.store.display().to_string())
         .map_err(input)?;
-    let dof = c.nominal.dof();
-    let o = &c.opts;
-    let comment =
-        format!(
-        "cellcal export: campaign {id} from {}\nidentified by the campaign as: --model {}{}{}\n{}",
-        a.store.display(),
-        o.obs.model.name(),
-        if o.identify_base { " --identify-base" } else { "" },
-        if o.identify_tool { " --identify-tool" } else { "" },
-        c.setup.comment_lines()
-    );
-    std::fs::write(&a.out, write_csv(&c.rows, dof, &comment))
+    let csv = c.export_csv(&a.store.display().to_string());
+    std::fs::write(&a.out, csv)
         .with_context(|| format!("{}: cannot write", a.out.display()))
         .map_err(other)?;
     println!(

@@ -1,5 +1,8 @@
 //! The one integration-test binary: modules per capability.
 
+mod api_fuzz;
+mod api_load;
+mod api_routes;
 mod browser;
 mod campaign;
 mod cell_sim;
