@@ -13,7 +13,8 @@
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
-//! - [`report`]: the identify JSON contract and the printed summary.
+//! - [`report`]: the identify JSON contract, the printed summary and the HTML report.
+//! - [`build_info`]: this build's version and git commit.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
@@ -25,6 +26,7 @@
 pub mod analysis;
 pub mod api;
 pub mod auth;
+pub mod build_info;
 pub mod campaign;
 pub mod cell;
 pub mod config;

@@ -121,6 +121,8 @@ enum Command {
     },
     /// Write a stored campaign's measurements as an identify CSV (with its setup header).
     Export(cli::export::ExportArgs),
+    /// Write a stored campaign's calibration report: one self-contained HTML file with plots.
+    Report(cli::report::ReportArgs),
     /// Import an identify CSV as a new, fully measured campaign.
     Import {
         /// Store file.
@@ -271,6 +273,7 @@ fn main() -> ExitCode {
         } => run_cmd::serve(&config, &listen, store),
         Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export(args) => cli::export::run(args),
+        Command::Report(args) => cli::report::run(args),
         Command::Import {
             store,
             robot,

@@ -18,6 +18,7 @@
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
+//! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
 
 pub mod guard;
 pub mod openapi;
@@ -160,6 +161,7 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .route("/api/campaigns/{id}/events", get(journal))
         .route("/api/campaigns/{id}/stream", get(stream))
         .route("/api/campaigns/{id}/result", get(result))
+        .route("/api/campaigns/{id}/report", get(report))
         .route("/api/campaigns/{id}/prompt", get(prompt))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
@@ -349,6 +351,23 @@ async fn journal(
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),
+        None => Err(ApiError(
+            StatusCode::NOT_FOUND,
+            format!("campaign {id} has no result yet"),
+        )),
+    }
+}
+
+/// The calibration report of a campaign: one self-contained HTML page.
+#[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
+async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    match d.report_html(id).await? {
+        Some(html) => Ok(web::report_page(html)),
         None => Err(ApiError(
             StatusCode::NOT_FOUND,
             format!("campaign {id} has no result yet"),

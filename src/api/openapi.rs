@@ -27,6 +27,7 @@ use utoipa::{Modify, OpenApi};
         super::journal,
         super::stream,
         super::result,
+        super::report,
         super::prompt,
         super::web::index,
         super::web::app_js,

@@ -1,5 +1,5 @@
 //! Binary-only code of commands: `cellcal identify` (with `practical.rs`, its
-//! practical-identifiability flags), `cellcal export`, `cellcal token` and the access set-up of
+//! practical-identifiability flags), `cellcal export`, `cellcal report`, `cellcal token` and the access set-up of
 //! `cellcal serve` (one module per command: its clap arguments and its run function; `main.rs`
 //! only dispatches).
 
@@ -7,4 +7,5 @@ pub mod access;
 pub mod export;
 pub mod identify;
 pub mod practical;
+pub mod report;
 pub mod token;

@@ -1,6 +1,7 @@
-//! Reports: the `cellcal identify` pipeline, its JSON contract, its verdict and its printed
-//! summary.
+//! Reports: the `cellcal identify` pipeline, its JSON contract, its verdict, its printed
+//! summary and the HTML calibration report.
 
+pub mod html;
 pub mod identify_json;
 pub mod quality;
 pub mod summary;

@@ -13,6 +13,7 @@ mod paths;
 mod practical;
 mod quality;
 mod realdata;
+mod report;
 mod reproduce;
 mod robust;
 mod safety;

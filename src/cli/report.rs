@@ -1,0 +1,52 @@
+//! `cellcal report`: the calibration report of a stored campaign as one self-contained HTML
+//! file (`cellcal::report::html`).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Context};
+
+use cellcal::campaign::report::campaign_report;
+use cellcal::report::html::{render, ReportInput};
+use cellcal::wall_clock::now_unix_ms;
+
+use super::identify::{campaign_id, open_store};
+use crate::{input, other, Failure};
+
+/// Arguments of `cellcal report`.
+#[derive(clap::Args)]
+pub struct ReportArgs {
+    /// Store file.
+    #[arg(long)]
+    store: PathBuf,
+    /// Campaign id (default: the latest).
+    #[arg(long)]
+    campaign: Option<i64>,
+    /// Output HTML file.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Run `cellcal report`.
+pub fn run(a: ReportArgs) -> Result<(), Failure> {
+    let s = open_store(&a.store)?;
+    let id = campaign_id(&s, &a.store, a.campaign)?;
+    let name = a.store.display().to_string();
+    let report = campaign_report(&s, id, &name, now_unix_ms())
+        .with_context(|| name.clone())
+        .map_err(input)?
+        .ok_or_else(|| {
+            input(anyhow!(
+                "{name}: campaign {id} has no result yet (run it to the end first)"
+            ))
+        })?;
+    write_report(&a.out, &report)?;
+    println!("wrote the report of campaign {id} to {}", a.out.display());
+    Ok(())
+}
+
+/// Render `report` into `path`.
+pub(crate) fn write_report(path: &Path, report: &ReportInput) -> Result<(), Failure> {
+    std::fs::write(path, render(report))
+        .with_context(|| format!("{}: cannot write", path.display()))
+        .map_err(other)
+}
