@@ -217,6 +217,8 @@ fn check_campaign_sections(html: &str) {
     }
     assert!(!html.contains("did not come from a campaign store"));
     assert!(!html.contains("Per-pose errors are not available"));
+    // the rebuilt identification reproduces the stored result: no note that it differs
+    assert!(!html.contains("class=\"note\""), "a note in the page");
 }
 
 #[test]
@@ -236,6 +238,24 @@ fn a_stored_campaign_reports_from_the_cli_and_the_daemon() {
     let doc = check_structure(&html, PLOTS);
     let seen = check_numbers(&doc, &json);
     check_named_numbers(&doc, &json, &seen);
+    check_campaign_sections(&html);
+
+    // identify --store --report: this run's result, the campaign's facts
+    let (again_json, again_html) = (dir.path().join("again.json"), dir.path().join("again.html"));
+    cellcal()
+        .args(["identify", "--store"])
+        .arg(&store)
+        .arg("--json")
+        .arg(&again_json)
+        .arg("--report")
+        .arg(&again_html)
+        .assert()
+        .success();
+    let again: Value =
+        serde_json::from_str(&std::fs::read_to_string(&again_json).expect("json")).expect("JSON");
+    let html = std::fs::read_to_string(&again_html).expect("report written");
+    let doc = check_structure(&html, PLOTS);
+    assert_eq!(check_numbers(&doc, &again), seen);
     check_campaign_sections(&html);
 
     // the daemon serves the same page for the same campaign; 404 (JSON) before a result

@@ -202,6 +202,7 @@ th { background: #f3f3f3; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 tr.held td { color: #777; }
 .plots { display: grid; grid-template-columns: repeat(auto-fill, minmax(420px, 1fr)); gap: 8px 16px; }
+.plots.wide { grid-template-columns: 1fr; max-width: 820px; }
 figure { margin: 0.4em 0; }
 figcaption { font-size: 0.85em; color: #555; }
 svg.plot { max-width: 100%; height: auto; display: block; }
@@ -214,8 +215,9 @@ footer { margin-top: 3em; color: #777; font-size: 0.85em; border-top: 1px solid 
   body { font-size: 10.5pt; max-width: none; padding: 0; }
   nav { display: none; }
   h2 { break-after: avoid; }
-  figure, table, .note { break-inside: avoid; }
+  figure, tr, .note { break-inside: avoid; }
   .plots { grid-template-columns: 1fr 1fr; }
+  .plots.wide { grid-template-columns: 1fr; }
   #parameters, #correlation, #significance { break-before: page; }
   a { color: inherit; text-decoration: none; }
 }

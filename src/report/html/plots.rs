@@ -4,6 +4,7 @@
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// Why a plot could not be drawn.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -96,9 +97,10 @@ pub fn per_pose(title: &str, y_desc: &str, s: &BeforeAfter) -> Result<String, Pl
             .map_err(failed)?;
         chart
             .configure_mesh()
-            .light_line_style(GRID)
+            .light_line_style(WHITE)
             .bold_line_style(GRID)
             .x_desc("pose")
+            .x_label_formatter(&|v| format!("{v:.0}"))
             .y_desc(y_desc)
             .label_style((FONT, 11))
             .draw()
@@ -160,7 +162,7 @@ pub fn histogram(
             .map_err(failed)?;
         chart
             .configure_mesh()
-            .light_line_style(GRID)
+            .light_line_style(WHITE)
             .bold_line_style(GRID)
             .x_desc(x_desc)
             .y_desc("poses")
@@ -198,19 +200,20 @@ pub fn bars(
             .map_err(failed)?;
         chart
             .configure_mesh()
-            .light_line_style(GRID)
+            .light_line_style(WHITE)
             .bold_line_style(GRID)
             .disable_x_mesh()
+            .label_style((FONT, 11))
             .x_labels(k + 1)
             .x_label_formatter(&|v| segment_label(labels, v))
             .x_label_style(
                 (FONT, 10)
                     .into_font()
                     .transform(FontTransform::Rotate90)
-                    .into_text_style(root),
+                    .into_text_style(root)
+                    .pos(Pos::new(HPos::Left, VPos::Center)),
             )
             .y_desc(y_desc)
-            .label_style((FONT, 11))
             .draw()
             .map_err(failed)?;
         chart
@@ -275,7 +278,8 @@ pub fn heat_map(title: &str, names: &[String], matrix: &[Vec<f64>]) -> Result<St
                 (FONT, 10)
                     .into_font()
                     .transform(FontTransform::Rotate90)
-                    .into_text_style(&plot),
+                    .into_text_style(&plot)
+                    .pos(Pos::new(HPos::Left, VPos::Center)),
             )
             .y_label_style((FONT, 10))
             .draw()
@@ -351,6 +355,15 @@ mod tests {
             after: &[0.1, 0.2],
         };
         assert!(per_pose("t", "mm", &s).is_err());
+    }
+
+    #[test]
+    fn category_labels_are_rotated_not_overlapping() {
+        let labels: Vec<String> = (0..30).map(|i| format!("theta{i}")).collect();
+        let values: Vec<f64> = (0..30).map(f64::from).collect();
+        let svg = bars("t", "mm", &labels, &values).expect("drawn");
+        // every category label (and the empty one past the last category) turned by 90°
+        assert_eq!(svg.matches("rotate(90").count(), 31, "{svg:.2000}");
     }
 
     #[test]

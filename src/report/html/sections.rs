@@ -558,7 +558,7 @@ fn significance(input: &ReportInput) -> String {
         "<p>How much each MDH parameter moves the flange (paper §2.2, Fig. 3): the mean \
          projection of the pose error a perturbation causes (0.1 mm on lengths, 0.1 rad on \
          angles) over {} random joint configurations of the nominal model. ē_p is position \
-         (mm); ē_n, ē_o, ē_a are the flange x, y, z axes (unit-vector change).</p>\n<div class=\"plots\">\n",
+         (mm); ē_n, ē_o, ē_a are the flange x, y, z axes (unit-vector change).</p>\n<div class=\"plots wide\">\n",
         SIGNIFICANCE_SAMPLES
     );
     let series: [(
