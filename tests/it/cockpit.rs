@@ -141,6 +141,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         ("/api/campaigns/{id}/events", "get"),
         ("/api/campaigns/{id}/stream", "get"),
         ("/api/campaigns/{id}/result", "get"),
+        ("/api/campaigns/{id}/report", "get"),
         ("/api/campaigns/{id}/prompt", "get"),
     ] {
         let op = &paths
@@ -167,7 +168,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         }
     }
     assert!(
-        paths.len() == 13,
+        paths.len() == 14,
         "documented paths: {:?}",
         paths.keys().collect::<Vec<_>>()
     );
