@@ -286,6 +286,26 @@ fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
     })
 }
 
+/// `--store FILE [--campaign ID]`: a stored campaign (default: the store's latest).
+#[derive(clap::Args)]
+pub struct StoredCampaignArgs {
+    /// Store file.
+    #[arg(long)]
+    pub store: PathBuf,
+    /// Campaign id (default: the latest).
+    #[arg(long)]
+    pub campaign: Option<i64>,
+}
+
+impl StoredCampaignArgs {
+    /// The open store and the campaign's id.
+    pub fn open(&self) -> Result<(Store, i64), Failure> {
+        let s = open_store(&self.store)?;
+        let id = campaign_id(&s, &self.store, self.campaign)?;
+        Ok((s, id))
+    }
+}
+
 /// Open an existing store (a missing file is an error, not a new store).
 pub(crate) fn open_store(path: &Path) -> Result<Store, Failure> {
     if !path.is_file() {

@@ -9,18 +9,14 @@ use cellcal::campaign::report::campaign_report;
 use cellcal::report::html::{render, ReportInput};
 use cellcal::wall_clock::now_unix_ms;
 
-use super::identify::{campaign_id, open_store};
+use super::identify::StoredCampaignArgs;
 use crate::{input, other, Failure};
 
 /// Arguments of `cellcal report`.
 #[derive(clap::Args)]
 pub struct ReportArgs {
-    /// Store file.
-    #[arg(long)]
-    store: PathBuf,
-    /// Campaign id (default: the latest).
-    #[arg(long)]
-    campaign: Option<i64>,
+    #[command(flatten)]
+    source: StoredCampaignArgs,
     /// Output HTML file.
     #[arg(long)]
     out: PathBuf,
@@ -28,9 +24,8 @@ pub struct ReportArgs {
 
 /// Run `cellcal report`.
 pub fn run(a: ReportArgs) -> Result<(), Failure> {
-    let s = open_store(&a.store)?;
-    let id = campaign_id(&s, &a.store, a.campaign)?;
-    let name = a.store.display().to_string();
+    let (s, id) = a.source.open()?;
+    let name = a.source.store.display().to_string();
     let report = campaign_report(&s, id, &name, now_unix_ms())
         .with_context(|| name.clone())
         .map_err(input)?

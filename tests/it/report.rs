@@ -142,6 +142,13 @@ fn check_named_numbers(doc: &Html, json: &Value, seen: &[String]) {
     assert_eq!(badge[0].value().attr("data-value"), Some(q));
 }
 
+/// The identify JSON and the report page written to `json` and `html`.
+fn read_outputs(json: &Path, html: &Path) -> (Value, String) {
+    let text = std::fs::read_to_string(json).expect("JSON written");
+    let page = std::fs::read_to_string(html).expect("report written");
+    (serde_json::from_str(&text).expect("JSON"), page)
+}
+
 /// Plots of a page with both sets and attitude: 4 per-pose and 2 histograms per set, one
 /// attitude plot per set, the heat map and four significance charts.
 const PLOTS: usize = 2 * 4 + 2 * 2 + 2 + 1 + 4;
@@ -157,9 +164,7 @@ fn identify_writes_a_report_whose_numbers_are_the_json_s() {
         .arg(&html_path)
         .assert()
         .success();
-    let json: Value =
-        serde_json::from_str(&std::fs::read_to_string(&json_path).expect("json")).expect("JSON");
-    let html = std::fs::read_to_string(&html_path).expect("report written");
+    let (json, html) = read_outputs(&json_path, &html_path);
     let doc = check_structure(&html, PLOTS);
     let seen = check_numbers(&doc, &json);
     check_named_numbers(&doc, &json, &seen);
@@ -197,8 +202,8 @@ fn run_small_campaign(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, Va
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let v = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("JSON");
-    (cfg, store, v)
+    let v = serde_json::from_str(&std::fs::read_to_string(&json).expect("JSON written"));
+    (cfg, store, v.expect("JSON"))
 }
 
 /// A stored campaign's page: the campaign sections are filled from the store.
@@ -251,9 +256,7 @@ fn a_stored_campaign_reports_from_the_cli_and_the_daemon() {
         .arg(&again_html)
         .assert()
         .success();
-    let again: Value =
-        serde_json::from_str(&std::fs::read_to_string(&again_json).expect("json")).expect("JSON");
-    let html = std::fs::read_to_string(&again_html).expect("report written");
+    let (again, html) = read_outputs(&again_json, &again_html);
     let doc = check_structure(&html, PLOTS);
     assert_eq!(check_numbers(&doc, &again), seen);
     check_campaign_sections(&html);
@@ -266,18 +269,11 @@ fn a_stored_campaign_reports_from_the_cli_and_the_daemon() {
             .header("authorization", &format!("Bearer {}", s.token))
             .call()
             .expect("GET");
-        let ct = r
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_owned();
-        let csp = r
-            .headers()
-            .get("content-security-policy")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_owned();
+        let header = |name: &str| {
+            let v = r.headers().get(name).and_then(|v| v.to_str().ok());
+            v.unwrap_or("").to_owned()
+        };
+        let (ct, csp) = (header("content-type"), header("content-security-policy"));
         let body = r.body_mut().read_to_string().expect("body");
         (r.status().as_u16(), ct, csp, body)
     };

@@ -91,98 +91,48 @@ fn verdict(r: &IdentifyReport) -> String {
     s
 }
 
-/// One metric row: label, decimals and how to read it from a [`Metrics`] (with its JSON key).
-struct MetricRow {
-    label: &'static str,
-    key: &'static str,
-    get: fn(&Metrics) -> Option<f64>,
-    /// Shown ×1000 (rad → mrad).
-    milli: bool,
+/// How a metric is shown.
+#[derive(Clone, Copy, PartialEq)]
+enum Shown {
+    /// mm, 4 decimals.
+    Mm,
+    /// rad shown as mrad, 3 decimals.
+    Mrad,
+    /// A count.
+    Count,
 }
 
-const METRIC_ROWS: [MetricRow; 14] = [
-    row("mean ‖e‖ (mm)", "position_mean_mm", |m| {
-        Some(m.position_mean_mm)
-    }),
-    row("rms ‖e‖ (mm)", "position_rms_mm", |m| {
-        Some(m.position_rms_mm)
-    }),
-    row("p95 ‖e‖ (mm)", "position_p95_mm", |m| {
-        Some(m.position_p95_mm)
-    }),
-    row("max ‖e‖ (mm)", "position_max_mm", |m| {
-        Some(m.position_max_mm)
-    }),
-    row("mean |e_x| (mm)", "position_axial_mean_mm/0", |m| {
-        Some(m.position_axial_mean_mm[0])
-    }),
-    row("mean |e_y| (mm)", "position_axial_mean_mm/1", |m| {
-        Some(m.position_axial_mean_mm[1])
-    }),
-    row("mean |e_z| (mm)", "position_axial_mean_mm/2", |m| {
-        Some(m.position_axial_mean_mm[2])
-    }),
-    row("max |e_x| (mm)", "position_axial_max_mm/0", |m| {
-        Some(m.position_axial_max_mm[0])
-    }),
-    row("max |e_y| (mm)", "position_axial_max_mm/1", |m| {
-        Some(m.position_axial_max_mm[1])
-    }),
-    row("max |e_z| (mm)", "position_axial_max_mm/2", |m| {
-        Some(m.position_axial_max_mm[2])
-    }),
-    mrad("mean attitude (mrad)", "attitude_mean_rad", |m| {
-        m.attitude_mean_rad
-    }),
-    mrad("rms attitude (mrad)", "attitude_rms_rad", |m| {
-        m.attitude_rms_rad
-    }),
-    mrad("max attitude (mrad)", "attitude_max_rad", |m| {
-        m.attitude_max_rad
-    }),
-    MetricRow {
-        label: "poses",
-        key: "poses",
-        get: |m| Some(m.poses as f64),
-        milli: false,
-    },
+/// The accuracy table's rows: label, the metric's JSON key (a pointer below the metrics
+/// object) and how it is shown.
+const METRIC_ROWS: [(&str, &str, Shown); 14] = [
+    ("mean ‖e‖ (mm)", "position_mean_mm", Shown::Mm),
+    ("rms ‖e‖ (mm)", "position_rms_mm", Shown::Mm),
+    ("p95 ‖e‖ (mm)", "position_p95_mm", Shown::Mm),
+    ("max ‖e‖ (mm)", "position_max_mm", Shown::Mm),
+    ("mean |e_x| (mm)", "position_axial_mean_mm/0", Shown::Mm),
+    ("mean |e_y| (mm)", "position_axial_mean_mm/1", Shown::Mm),
+    ("mean |e_z| (mm)", "position_axial_mean_mm/2", Shown::Mm),
+    ("max |e_x| (mm)", "position_axial_max_mm/0", Shown::Mm),
+    ("max |e_y| (mm)", "position_axial_max_mm/1", Shown::Mm),
+    ("max |e_z| (mm)", "position_axial_max_mm/2", Shown::Mm),
+    ("mean attitude (mrad)", "attitude_mean_rad", Shown::Mrad),
+    ("rms attitude (mrad)", "attitude_rms_rad", Shown::Mrad),
+    ("max attitude (mrad)", "attitude_max_rad", Shown::Mrad),
+    ("poses", "poses", Shown::Count),
 ];
 
-const fn row(
-    label: &'static str,
-    key: &'static str,
-    get: fn(&Metrics) -> Option<f64>,
-) -> MetricRow {
-    MetricRow {
-        label,
-        key,
-        get,
-        milli: false,
-    }
-}
-
-const fn mrad(
-    label: &'static str,
-    key: &'static str,
-    get: fn(&Metrics) -> Option<f64>,
-) -> MetricRow {
-    MetricRow {
-        label,
-        key,
-        get,
-        milli: true,
-    }
-}
-
-fn metric_cell(pointer: &str, r: &MetricRow, m: &Metrics) -> String {
-    let v = (r.get)(m);
-    let shown = match v {
-        Some(v) if r.key == "poses" => format!("{v:.0}"),
-        Some(v) if r.milli => fixed(v * 1e3, 3),
-        Some(v) => fixed(v, 4),
-        None => "—".to_owned(),
+/// The cell of metric `key` of `m` (its JSON form), tagged with `pointer/key`.
+fn metric_cell(pointer: &str, key: &str, shown: Shown, m: &serde_json::Value) -> String {
+    let v = m
+        .pointer(&format!("/{key}"))
+        .and_then(serde_json::Value::as_f64);
+    let text = match (v, shown) {
+        (Some(v), Shown::Count) => format!("{v:.0}"),
+        (Some(v), Shown::Mrad) => fixed(v * 1e3, 3),
+        (Some(v), Shown::Mm) => fixed(v, 4),
+        (None, _) => "—".to_owned(),
     };
-    json_cell(&format!("{pointer}/{}", r.key), v, &shown)
+    json_cell(&format!("{pointer}/{key}"), v, &text)
 }
 
 fn accuracy(r: &IdentifyReport) -> String {
@@ -200,18 +150,25 @@ fn accuracy(r: &IdentifyReport) -> String {
         let _ = write!(s, "<th>{name} before</th><th>{name} after</th>");
     }
     s.push_str("</tr>\n");
-    for mr in &METRIC_ROWS {
-        let _ = write!(s, "<tr><th>{}</th>", esc(mr.label));
-        for (name, pair) in &sets {
+    let json = |m: &Metrics| serde_json::to_value(m).unwrap_or_default();
+    let sets: Vec<_> = sets
+        .into_iter()
+        .map(|(name, p)| (name, json(&p.before), json(&p.after)))
+        .collect();
+    for (label, key, shown) in METRIC_ROWS {
+        let _ = write!(s, "<tr><th>{}</th>", esc(label));
+        for (name, before, after) in &sets {
             s.push_str(&metric_cell(
                 &format!("/metrics/{name}/before"),
-                mr,
-                &pair.before,
+                key,
+                shown,
+                before,
             ));
             s.push_str(&metric_cell(
                 &format!("/metrics/{name}/after"),
-                mr,
-                &pair.after,
+                key,
+                shown,
+                after,
             ));
         }
         s.push_str("</tr>\n");
