@@ -10,6 +10,7 @@ use super::page::{
 use super::plots::{self, BeforeAfter};
 use super::{CampaignFacts, ReportInput, SetErrors, SIGNIFICANCE_SAMPLES};
 use crate::analysis::metrics::Metrics;
+use crate::analysis::significance::Significance;
 use crate::campaign::engine::{BaseResult, ToolFrameResult};
 use crate::report::identify_json::{BeforeAfter as MetricsPair, IdentifyReport, ParameterJson};
 use crate::wall_clock::utc_text;
@@ -518,18 +519,14 @@ fn significance(input: &ReportInput) -> String {
          (mm); ē_n, ē_o, ē_a are the flange x, y, z axes (unit-vector change).</p>\n<div class=\"plots wide\">\n",
         SIGNIFICANCE_SAMPLES
     );
-    let series: [(
-        &str,
-        &str,
-        fn(&crate::analysis::significance::Significance) -> f64,
-    ); 4] = [
-        ("ē_p: position", "mm", |x| x.e_p_mm),
-        ("ē_n: flange x axis", "", |x| x.e_n),
-        ("ē_o: flange y axis", "", |x| x.e_o),
-        ("ē_a: flange z axis", "", |x| x.e_a),
+    let column = |get: fn(&Significance) -> f64| sig.iter().map(get).collect::<Vec<f64>>();
+    let series = [
+        ("ē_p: position", "mm", column(|x| x.e_p_mm)),
+        ("ē_n: flange x axis", "", column(|x| x.e_n)),
+        ("ē_o: flange y axis", "", column(|x| x.e_o)),
+        ("ē_a: flange z axis", "", column(|x| x.e_a)),
     ];
-    for (title, unit, get) in series {
-        let values: Vec<f64> = sig.iter().map(get).collect();
+    for (title, unit, values) in series {
         s.push_str(&figure(plots::bars(title, unit, &labels, &values), title));
     }
     s.push_str("</div>\n");
