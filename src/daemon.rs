@@ -1015,6 +1015,24 @@ impl Daemon {
         Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
     }
 
+    /// The calibration report of a campaign (one self-contained HTML page), `None` while it has
+    /// no result. Built on a blocking thread from a store reader (the campaign's identification
+    /// is rebuilt for the per-pose plots). Cancel-safe (reads only).
+    pub async fn report_html(&self, id: i64) -> Result<Option<String>, DaemonError> {
+        let name = self
+            .readers
+            .path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let at = crate::wall_clock::now_unix_ms();
+        self.read(move |s| {
+            let input = crate::campaign::report::campaign_report(s, id, &name, at)?;
+            Ok(input.map(|i| crate::report::html::render(&i)))
+        })
+        .await
+    }
+
     /// Refuse new campaigns, wait for one being loaded, abort the loaded campaign (if running)
     /// and wait for its engine to stop the robot. Not cancel-safe: a dropped call may leave the
     /// campaign aborting on its own.

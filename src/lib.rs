@@ -13,7 +13,7 @@
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
-//! - [`report`]: the identify JSON contract, the printed summary and the corrected model file.
+//! - [`report`]: the identify JSON contract, the printed summary, the corrected model file and the HTML report.
 //! - [`build_info`]: the version, git commit and build date of this binary.
 //! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
 //!   program says, and the compensate CSV files.

@@ -133,6 +133,8 @@ enum Command {
     /// Joints for the real robot (the identified model): from tool targets in the measurement
     /// frame, or from a program's joints computed on the nominal model.
     Compensate(cli::compensate::CompensateArgs),
+    /// Write a stored campaign's calibration report: one self-contained HTML file with plots.
+    Report(cli::report::ReportArgs),
     /// Import an identify CSV as a new, fully measured campaign.
     Import {
         /// Store file.
@@ -304,6 +306,7 @@ fn main() -> ExitCode {
         Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export(args) => cli::export::run(args),
         Command::Compensate(args) => cli::compensate::run(args),
+        Command::Report(args) => cli::report::run(args),
         Command::Import {
             store,
             robot,

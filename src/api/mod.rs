@@ -25,6 +25,7 @@
 //! | `GET /api/campaigns/{id}/plan` | the stored plan (`PlanView`): poses in move order, set, joints (rad), done marks |
 //! | `GET /api/devices` | tracker, robot, stage: kind, address, simulated, connected, last fault (`DevicesView`) |
 //! | `GET /metrics` | Prometheus metrics, OpenMetrics text ([`crate::metrics`]); a token of any role |
+//! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
 
 pub mod guard;
 mod observe;
@@ -180,6 +181,7 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .route("/api/campaigns/{id}/stream", get(stream))
         .route("/api/campaigns/{id}/result", get(result))
         .route("/api/campaigns/{id}/model", get(model))
+        .route("/api/campaigns/{id}/report", get(report))
         .route("/api/campaigns/{id}/prompt", get(prompt))
         .route("/api/campaigns/{id}/measurements", get(measurements))
         .route("/api/campaigns/{id}/plan", get(plan))
@@ -402,6 +404,23 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
             text,
         )
             .into_response()),
+        None => Err(ApiError(
+            StatusCode::NOT_FOUND,
+            format!("campaign {id} has no result yet"),
+        )),
+    }
+}
+
+/// The calibration report of a campaign: one self-contained HTML page.
+#[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
+async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    match d.report_html(id).await? {
+        Some(html) => Ok(web::report_page(html)),
         None => Err(ApiError(
             StatusCode::NOT_FOUND,
             format!("campaign {id} has no result yet"),

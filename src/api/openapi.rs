@@ -28,6 +28,7 @@ use utoipa::{Modify, OpenApi};
         super::stream,
         super::result,
         super::model,
+        super::report,
         super::prompt,
         super::measurements,
         super::plan,

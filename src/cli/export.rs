@@ -8,18 +8,14 @@ use anyhow::Context;
 
 use cellcal::campaign::stored::load_stored;
 
-use super::identify::{campaign_id, open_store};
+use super::identify::StoredCampaignArgs;
 use crate::{input, other, Failure};
 
 /// Arguments of `cellcal export`.
 #[derive(clap::Args)]
 pub struct ExportArgs {
-    /// Store file.
-    #[arg(long)]
-    store: PathBuf,
-    /// Campaign id (default: the latest).
-    #[arg(long)]
-    campaign: Option<i64>,
+    #[command(flatten)]
+    source: StoredCampaignArgs,
     /// Output CSV.
     #[arg(long)]
     out: PathBuf,
@@ -27,12 +23,11 @@ pub struct ExportArgs {
 
 /// Run `cellcal export`.
 pub fn run(a: ExportArgs) -> Result<(), Failure> {
-    let s = open_store(&a.store)?;
-    let id = campaign_id(&s, &a.store, a.campaign)?;
+    let (s, id) = a.source.open()?;
     let c = load_stored(&s, id, None)
-        .with_context(|| a.store.display().to_string())
+        .with_context(|| a.source.store.display().to_string())
         .map_err(input)?;
-    let csv = c.export_csv(&a.store.display().to_string());
+    let csv = c.export_csv(&a.source.store.display().to_string());
     std::fs::write(&a.out, csv)
         .with_context(|| format!("{}: cannot write", a.out.display()))
         .map_err(other)?;

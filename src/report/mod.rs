@@ -1,6 +1,7 @@
 //! Reports: the `cellcal identify` pipeline, its JSON contract, its verdict, its printed
-//! summary and the corrected model file.
+//! summary, the corrected model file and the HTML calibration report.
 
+pub mod html;
 pub mod identify_json;
 pub mod model_file;
 pub mod quality;

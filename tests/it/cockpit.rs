@@ -128,6 +128,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         ("/api/campaigns/{id}/stream", "get"),
         ("/api/campaigns/{id}/result", "get"),
         ("/api/campaigns/{id}/model", "get"),
+        ("/api/campaigns/{id}/report", "get"),
         ("/api/campaigns/{id}/prompt", "get"),
         ("/api/campaigns/{id}/measurements", "get"),
         ("/api/campaigns/{id}/plan", "get"),
@@ -158,7 +159,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         }
     }
     assert!(
-        paths.len() == 18,
+        paths.len() == 19,
         "documented paths: {:?}",
         paths.keys().collect::<Vec<_>>()
     );

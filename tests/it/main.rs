@@ -19,6 +19,7 @@ mod paths;
 mod practical;
 mod quality;
 mod realdata;
+mod report;
 mod reproduce;
 mod robust;
 mod safety;
