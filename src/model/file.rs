@@ -359,7 +359,7 @@ mod tests {
             j.alpha -= 2.0e-5 / k;
             j.beta += 1e-20 * k;
         }
-        m.base_translation = Vector3::new(2512.345_678_901, -0.1, 1e-9);
+        m.base_translation = Vector3::new(2_512.345_678_901, -0.1, 1e-9);
         m.base_rotation = from_rotation_vector(&Vector3::new(1e-9, -0.7, 2.9));
         m.tool = Vector3::new(0.1, -35.7, 60.0 + 1.0 / 3.0);
         m.limits[3].min = 1.0 / 7.0 - 3.0;
