@@ -244,6 +244,26 @@ fn compensate_csv_files_name_bad_cells() {
     }
 }
 
+/// `cellcal compensate --robot TX60 --identified ID --MODE INPUT --out OUT`: exit code and
+/// stderr.
+fn compensate(identified: &Path, mode: &str, input: &Path, out: &Path) -> (Option<i32>, String) {
+    let o = cellcal()
+        .args(["compensate", "--robot"])
+        .arg(robot())
+        .arg("--identified")
+        .arg(identified)
+        .arg(mode)
+        .arg(input)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("runs");
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
 /// `cellcal compensate` end to end: both modes write the contract's columns; a bad file is
 /// exit 2 naming line and column; an unreachable target is exit 3 with the file written.
 #[test]
@@ -281,22 +301,8 @@ fn compensate_command_writes_the_joint_file() {
     let t_path = dir.path().join("t.csv");
     std::fs::write(&t_path, &targets).unwrap();
     let j_path = dir.path().join("j.csv");
-    let out = cellcal()
-        .args(["compensate", "--robot"])
-        .arg(robot())
-        .arg("--identified")
-        .arg(&id_path)
-        .arg("--targets")
-        .arg(&t_path)
-        .arg("--out")
-        .arg(&j_path)
-        .output()
-        .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (code, err) = compensate(&id_path, "--targets", &t_path, &j_path);
+    assert_eq!(code, Some(0), "{err}");
     let j = std::fs::read_to_string(&j_path).unwrap();
     let mut lines = j.lines();
     assert_eq!(
@@ -321,57 +327,22 @@ fn compensate_command_writes_the_joint_file() {
     // a program computed on the nominal model
     let p_path = dir.path().join("p.csv");
     std::fs::write(&p_path, &program).unwrap();
-    cellcal()
-        .args(["compensate", "--robot"])
-        .arg(robot())
-        .arg("--identified")
-        .arg(&id_path)
-        .arg("--joints")
-        .arg(&p_path)
-        .arg("--out")
-        .arg(&j_path)
-        .assert()
-        .success();
+    let (code, err) = compensate(&id_path, "--joints", &p_path, &j_path);
+    assert_eq!(code, Some(0), "{err}");
     let j = std::fs::read_to_string(&j_path).unwrap();
     assert_eq!(j.lines().count(), 6);
     assert!(j.lines().skip(1).all(|l| l.contains(",true,")), "{j}");
 
     // bad input: exit 2 naming line and column
     std::fs::write(&t_path, targets.replacen("t1,", "t1,x", 1)).unwrap();
-    let out = cellcal()
-        .args(["compensate", "--robot"])
-        .arg(robot())
-        .arg("--identified")
-        .arg(&id_path)
-        .arg("--targets")
-        .arg(&t_path)
-        .arg("--out")
-        .arg(&j_path)
-        .output()
-        .expect("runs");
-    assert_eq!(out.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (code, err) = compensate(&id_path, "--targets", &t_path, &j_path);
+    assert_eq!(code, Some(2));
     assert!(err.contains("t.csv: line 3, column `x_mm`: `x"), "{err}");
 
     // out of reach: exit 3, the row written as not reachable
     std::fs::write(&t_path, "x_mm,y_mm,z_mm\n0,0,5000\n").unwrap();
-    let out = cellcal()
-        .args(["compensate", "--robot"])
-        .arg(robot())
-        .arg("--identified")
-        .arg(&id_path)
-        .arg("--targets")
-        .arg(&t_path)
-        .arg("--out")
-        .arg(&j_path)
-        .output()
-        .expect("runs");
-    assert_eq!(
-        out.status.code(),
-        Some(3),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (code, err) = compensate(&id_path, "--targets", &t_path, &j_path);
+    assert_eq!(code, Some(3), "{err}");
     let j = std::fs::read_to_string(&j_path).unwrap();
     assert!(j.lines().nth(1).unwrap().contains(",false,"), "{j}");
 }
