@@ -379,11 +379,16 @@ async fn journal(
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),
-        None => Err(ApiError(
-            StatusCode::NOT_FOUND,
-            format!("campaign {id} has no result yet"),
-        )),
+        None => Err(no_result_yet(id)),
     }
+}
+
+/// 404 for a campaign that has not been identified (its result, model and report).
+fn no_result_yet(id: i64) -> ApiError {
+    ApiError(
+        StatusCode::NOT_FOUND,
+        format!("campaign {id} has no result yet"),
+    )
 }
 
 /// The corrected model of a campaign: the robot TOML `cellcal run --model-out` writes.
@@ -404,10 +409,7 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
             text,
         )
             .into_response()),
-        None => Err(ApiError(
-            StatusCode::NOT_FOUND,
-            format!("campaign {id} has no result yet"),
-        )),
+        None => Err(no_result_yet(id)),
     }
 }
 
@@ -421,10 +423,7 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
 async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.report_html(id).await? {
         Some(html) => Ok(web::report_page(html)),
-        None => Err(ApiError(
-            StatusCode::NOT_FOUND,
-            format!("campaign {id} has no result yet"),
-        )),
+        None => Err(no_result_yet(id)),
     }
 }
 
