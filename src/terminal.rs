@@ -179,6 +179,19 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
                 bar.set_message(text);
             }
             Ok(CampaignEvent::Note { text }) => line(text),
+            Ok(CampaignEvent::Devices {
+                tracker,
+                robot,
+                stage,
+            }) => {
+                let said = |s: Option<String>| s.unwrap_or_else(|| "(cannot say)".to_owned());
+                line(format!(
+                    "devices: tracker {}; robot {}; stage {}",
+                    said(tracker),
+                    said(robot),
+                    said(stage)
+                ));
+            }
             Ok(CampaignEvent::Prompt { .. }) => {}
             Ok(CampaignEvent::Setup { result }) => {
                 let v = |path: &str| result.pointer(path).cloned().unwrap_or_default();

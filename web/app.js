@@ -484,6 +484,7 @@ function summary(kind, d) {
       + (typeof d.deviation_mm === 'number' ? ', ' + d.deviation_mm.toFixed(3) + ' mm from the nominal model' : '');
     case 'prompt': return 'question ' + d.seq + ': ' + d.text;
     case 'note': return d.text;
+    case 'devices': return ['tracker', 'robot', 'stage'].map((k) => k + ' ' + (d[k] || 'unknown')).join('; ');
     case 'fault': return d.device + ' ' + d.kind + ': ' + d.message + ' → ' + d.action;
     case 'drift': return 'drift ' + fmt(d.drift_mm, 4) + ' mm (max ' + d.max_mm + ')';
     case 'result': return 'result: quality ' + ((d.json && d.json.quality) || '—');
@@ -605,6 +606,7 @@ function renderDevices(d, note) {
     const f = dev ? dev.last_fault : null;
     cells[4].textContent = !dev ? '' : !f ? 'none'
       : f.kind + ': ' + f.message + (f.at_ms ? ' (' + new Date(f.at_ms).toLocaleTimeString() + ')' : '');
+    cells[5].textContent = dev && typeof dev.identity === 'string' ? dev.identity : '';
   }
   $('device-note').textContent = note;
 }

@@ -793,6 +793,12 @@ impl Run<'_> {
                 )));
             }
         }
+        self.journal(CampaignEvent::Devices {
+            tracker: self.dev.tracker.identity(),
+            robot: self.dev.robot.identity(),
+            stage: self.dev.stage.identity(),
+        })
+        .await?;
         Ok(())
     }
 

@@ -143,6 +143,17 @@ pub enum CampaignEvent {
         #[serde(flatten)]
         context: PromptContext,
     },
+    /// What each device said it is when it was prepared (model, serial, firmware; null when it
+    /// cannot say): journalled after every successful preparation, so a report names the
+    /// devices a campaign was measured with.
+    Devices {
+        /// The tracker's identity.
+        tracker: Option<String>,
+        /// The robot controller's identity.
+        robot: Option<String>,
+        /// The stage's identity.
+        stage: Option<String>,
+    },
     /// Free-text progress note.
     Note {
         /// Text.
@@ -166,7 +177,8 @@ impl CampaignEvent {
         )
     }
 
-    /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `note`, `result`).
+    /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `devices`,
+    /// `note`, `result`).
     pub fn kind(&self) -> &'static str {
         match self {
             CampaignEvent::State { .. } => "state",
@@ -175,6 +187,7 @@ impl CampaignEvent {
             CampaignEvent::Drift { .. } => "drift",
             CampaignEvent::Setup { .. } => "setup",
             CampaignEvent::Prompt { .. } => "prompt",
+            CampaignEvent::Devices { .. } => "devices",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",
         }

@@ -107,7 +107,7 @@ pub fn campaign_facts(
         setup: SetupResult::load(store, id)?,
         drift: events.iter().filter_map(drift_check).collect(),
         faults: events.iter().filter_map(fault).collect(),
-        devices: devices(cfg.as_ref().ok()),
+        devices: with_identities(devices(cfg.as_ref().ok()), &events),
         journal_span_ms: events
             .first()
             .zip(events.last())
@@ -164,7 +164,19 @@ fn at(what: &str, address: &str, m: DeviceMode) -> String {
     }
 }
 
-/// The cell's devices as the stored configuration names them (identities are not journalled).
+/// `entries` with the identities of the journal's last `devices` event (the devices of the
+/// campaign's last session).
+fn with_identities(mut entries: Vec<DeviceEntry>, events: &[EventRecord]) -> Vec<DeviceEntry> {
+    let Some(said) = events.iter().rev().find_map(|e| event_of(e, "devices")) else {
+        return entries;
+    };
+    for entry in &mut entries {
+        entry.identity = said[entry.device.as_str()].as_str().map(str::to_owned);
+    }
+    entries
+}
+
+/// The cell's devices as the stored configuration names them (identities: [`with_identities`]).
 fn devices(cfg: Option<&CellConfig>) -> Vec<DeviceEntry> {
     let Some(c) = cfg else {
         return ["tracker", "robot", "stage"]

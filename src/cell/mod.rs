@@ -142,6 +142,11 @@ pub trait Tracker: Send + Sync {
     async fn relock(&mut self, predicted_mm: Option<Vector3<f64>>) -> Result<(), CellError>;
     /// Drop and re-establish the connection, then prepare again.
     async fn reconnect(&mut self) -> Result<(), CellError>;
+    /// What the device said it is at its last successful connection (model, serial, firmware),
+    /// for the campaign journal and the report; `None` before one or when it cannot say.
+    fn identity(&self) -> Option<String> {
+        None
+    }
 }
 
 /// A robot controller.
@@ -159,6 +164,11 @@ pub trait Robot: Send + Sync {
     async fn stop(&mut self) -> Result<(), CellError>;
     /// Drop and re-establish the connection; never switches power on (only `prepare` does).
     async fn reconnect(&mut self) -> Result<(), CellError>;
+    /// What the device said it is at its last successful connection (model, serial, firmware),
+    /// for the campaign journal and the report; `None` before one or when it cannot say.
+    fn identity(&self) -> Option<String> {
+        None
+    }
 }
 
 /// The 1D stage carrying the target ball.
@@ -173,6 +183,11 @@ pub trait Stage: Send + Sync {
     /// What the engine is doing at the next [`Stage::move_to`] (a manual stage shows it with
     /// its question); a motorised stage ignores it.
     fn set_prompt_context(&mut self, _context: PromptContext) {}
+    /// What the device said it is at its last successful connection (model, serial, firmware),
+    /// for the campaign journal and the report; `None` before one or when it cannot say.
+    fn identity(&self) -> Option<String> {
+        None
+    }
 }
 
 /// The two stage positions a pose is measured at.

@@ -73,6 +73,8 @@ pub struct LinkRobot {
     cfg: LinkRobotConfig,
     client: Option<RobotClient>,
     speed_pct: Option<f64>,
+    /// From the last `HELLO`.
+    identity: Option<String>,
 }
 
 impl LinkRobot {
@@ -82,6 +84,7 @@ impl LinkRobot {
             cfg,
             client: None,
             speed_pct: None,
+            identity: None,
         }
     }
 
@@ -118,12 +121,15 @@ impl LinkRobot {
         if matches!(&self.client, Some(c) if !c.is_closed()) {
             return Ok(());
         }
-        self.client = Some(self.open().await?);
+        let (client, identity) = self.open().await?;
+        self.client = Some(client);
+        self.identity = Some(identity);
         Ok(())
     }
 
-    /// A new connection that has said HELLO (v2, or v1 with an older server).
-    async fn open(&self) -> Result<RobotClient, CellError> {
+    /// A new connection that has said HELLO (v2, or v1 with an older server), and what the
+    /// controller said it is.
+    async fn open(&self) -> Result<(RobotClient, String), CellError> {
         let client = RobotClient::connect(self.cfg.address.as_str(), self.cfg.client_config())
             .await
             .map_err(cell_err)?;
@@ -132,7 +138,14 @@ impl LinkRobot {
             address = %self.cfg.address, ctrl = %id.ctrl, arm = %id.arm, sw = %id.sw,
             protocol = client.protocol_version().unwrap_or(0), "robot connected"
         );
-        Ok(client)
+        let identity = format!(
+            "arm {} on controller {}, robotlink server {} (protocol v{})",
+            id.arm,
+            id.ctrl,
+            id.sw,
+            client.protocol_version().unwrap_or(1)
+        );
+        Ok((client, identity))
     }
 }
 
@@ -212,11 +225,16 @@ impl Robot for LinkRobot {
         if let Some(c) = self.client.take() {
             c.close().await;
         }
-        let client = self.open().await?;
+        let (client, identity) = self.open().await?;
         if let Some(speed) = self.speed_pct {
             client.speed(speed).await.map_err(cell_err)?;
         }
         self.client = Some(client);
+        self.identity = Some(identity);
         Ok(())
+    }
+
+    fn identity(&self) -> Option<String> {
+        self.identity.clone()
     }
 }

@@ -179,6 +179,13 @@ impl Stage for ManualStage {
         self.context = context;
     }
 
+    fn identity(&self) -> Option<String> {
+        Some(match self.gauge {
+            Some(_) => "manual micrometer read by its RS-232 gauge".to_owned(),
+            None => "manual micrometer (the technician's readings)".to_owned(),
+        })
+    }
+
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
         // the context holds for this move only: a later move without one claims nothing
         let context = std::mem::take(&mut self.context);

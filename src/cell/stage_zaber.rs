@@ -115,12 +115,18 @@ fn cell_err(e: StageError) -> CellError {
 pub struct ZaberStageAdapter {
     cfg: ZaberStageAdapterConfig,
     stage: Option<ZaberStage<SerialStream>>,
+    /// From the last `identify`.
+    identity: Option<String>,
 }
 
 impl ZaberStageAdapter {
     /// A stage adapter; the port is opened in [`Stage::prepare`].
     pub fn new(cfg: ZaberStageAdapterConfig) -> ZaberStageAdapter {
-        ZaberStageAdapter { cfg, stage: None }
+        ZaberStageAdapter {
+            cfg,
+            stage: None,
+            identity: None,
+        }
     }
 
     /// The configuration.
@@ -186,6 +192,14 @@ impl Stage for ZaberStageAdapter {
             product = id.product.unwrap_or("(configured scale)"),
             "stage identified"
         );
+        self.identity = Some(format!(
+            "Zaber {} (device.id {}, peripheral.id {}), serial {}, firmware {}",
+            id.product.unwrap_or("stage of configured scale"),
+            id.device_id,
+            id.peripheral_id,
+            id.serial,
+            id.firmware
+        ));
         let stage = self.open()?;
         if home {
             let r = stage.home().await;
@@ -200,5 +214,9 @@ impl Stage for ZaberStageAdapter {
         let stage = self.open()?;
         let r = stage.move_abs_mm(position_mm).await;
         r.map_err(|e| self.after(e))
+    }
+
+    fn identity(&self) -> Option<String> {
+        self.identity.clone()
     }
 }

@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use async_trait::async_trait;
-use emscon::{Client, ClientConfig, EmsconError, StationarySetup};
+use emscon::{Client, ClientConfig, EmsconError, StationarySetup, SystemStatus};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use tracing::{debug, info, warn};
@@ -95,6 +95,15 @@ pub fn classify_emscon(e: &EmsconError) -> FaultKind {
     }
 }
 
+/// The tracker as its system status names it: serial number and emScon version.
+fn status_identity(s: &SystemStatus) -> String {
+    let [major, minor, build] = s.version;
+    format!(
+        "emScon tracker serial {}, emScon {major}.{minor}.{build}",
+        s.serial_number
+    )
+}
+
 fn cell_err(e: EmsconError) -> CellError {
     CellError::new(DeviceKind::Tracker, classify_emscon(&e), e.to_string())
 }
@@ -103,6 +112,8 @@ fn cell_err(e: EmsconError) -> CellError {
 pub struct EmsconTracker {
     cfg: EmsconTrackerConfig,
     client: Option<Client>,
+    /// From the last `GetSystemStatus` of a setup.
+    identity: Option<String>,
 }
 
 impl std::fmt::Debug for EmsconTracker {
@@ -117,7 +128,11 @@ impl std::fmt::Debug for EmsconTracker {
 impl EmsconTracker {
     /// A tracker adapter; nothing is connected until [`Tracker::prepare`].
     pub fn new(cfg: EmsconTrackerConfig) -> EmsconTracker {
-        EmsconTracker { cfg, client: None }
+        EmsconTracker {
+            cfg,
+            client: None,
+            identity: None,
+        }
     }
 
     /// The configuration.
@@ -153,6 +168,7 @@ impl EmsconTracker {
         };
         let status = client.setup_stationary(&setup).await.map_err(cell_err)?;
         info!(address = %self.cfg.address, tps = status.tracker_processor_status, "tracker ready");
+        self.identity = Some(status_identity(&status));
         self.client = Some(client);
         Ok(())
     }
@@ -171,7 +187,9 @@ impl Tracker for EmsconTracker {
                 };
                 let res = c.setup_stationary(&setup).await;
                 self.client = Some(c);
-                return res.map(drop).map_err(cell_err);
+                let status = res.map_err(cell_err)?;
+                self.identity = Some(status_identity(&status));
+                return Ok(());
             }
             c.close().await;
         }
@@ -246,5 +264,9 @@ impl Tracker for EmsconTracker {
             c.close().await;
         }
         self.connect_and_setup().await
+    }
+
+    fn identity(&self) -> Option<String> {
+        self.identity.clone()
     }
 }

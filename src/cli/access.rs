@@ -10,7 +10,7 @@ use cellcal::api::{Gate, Scheme};
 use cellcal::auth::{new_token, Role, TokenDigest, TokenTable};
 use cellcal::config::ApiSection;
 
-use crate::{input, other, Failure};
+use super::{input, other, Failure};
 
 /// Refuse a non-loopback `addr` without configured tokens (exit 2); warn on stderr when it
 /// would carry tokens over plain HTTP.

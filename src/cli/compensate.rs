@@ -12,7 +12,7 @@ use cellcal::compensate::{Compensated, Compensator};
 use cellcal::model::{load_robot, RobotModel};
 
 use super::identify::write_file;
-use crate::{input, Failure};
+use super::{input, Failure};
 
 /// The default start of the first target's nominal solution (deg): elbow up, wrist on its
 /// positive side — the ready pose of a TX60-like six-axis arm.

@@ -9,7 +9,7 @@ use anyhow::Context;
 use cellcal::campaign::stored::load_stored;
 
 use super::identify::StoredCampaignArgs;
-use crate::{input, other, Failure};
+use super::{input, other, Failure};
 
 /// Arguments of `cellcal export`.
 #[derive(clap::Args)]

@@ -27,7 +27,7 @@ use cellcal::simulate::TrackerNoise;
 use cellcal::store::Store;
 use cellcal::wall_clock::now_unix_ms;
 
-use crate::{input, other, Failure};
+use super::{input, other, Failure};
 
 /// Stage travel when neither the data nor a flag gives one (mm).
 const DEFAULT_TRAVEL_MM: f64 = 10.0;

@@ -10,7 +10,7 @@ use cellcal::report::html::{render, ReportInput};
 use cellcal::wall_clock::now_unix_ms;
 
 use super::identify::StoredCampaignArgs;
-use crate::{input, other, Failure};
+use super::{input, other, Failure};
 
 /// Arguments of `cellcal report`.
 #[derive(clap::Args)]

@@ -5,7 +5,7 @@ use anyhow::anyhow;
 
 use cellcal::auth::{new_token, Role, TokenDigest};
 
-use crate::{input, other, Failure};
+use super::{input, other, Failure};
 
 /// The configuration entry that accepts the token with digest `digest` as `name` with `role`.
 pub fn toml_entry(name: &str, role: Role, digest: &TokenDigest) -> String {
@@ -16,8 +16,21 @@ pub fn toml_entry(name: &str, role: Role, digest: &TokenDigest) -> String {
     )
 }
 
+/// Arguments of `cellcal token`.
+#[derive(clap::Args)]
+pub struct TokenArgs {
+    /// Who will hold the token (named in refusals; the token itself is never stored).
+    #[arg(long)]
+    name: String,
+    /// What it may do: `viewer` (reads, abort), `technician` (also answer, pause),
+    /// `operator` (everything).
+    #[arg(long, value_parser = ["viewer", "technician", "operator"])]
+    role: String,
+}
+
 /// Make the token and print it (first line, `token: …`) and the TOML to paste.
-pub fn run(name: &str, role: &str) -> Result<(), Failure> {
+pub fn run(a: TokenArgs) -> Result<(), Failure> {
+    let (name, role) = (a.name.as_str(), a.role.as_str());
     let role = Role::parse(role).ok_or_else(|| {
         input(anyhow!(
             "--role `{role}`: not one of viewer, technician, operator"

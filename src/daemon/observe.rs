@@ -58,6 +58,9 @@ pub struct DeviceView {
     pub connected: Option<bool>,
     /// The last fault the engine journalled for this device (kept after the campaign ends).
     pub last_fault: Option<FaultView>,
+    /// What the device said it is (model, serial, firmware) when a run last prepared it;
+    /// kept after the campaign ends, `null` before any run prepared it or when it cannot say.
+    pub identity: Option<String>,
 }
 
 /// The cell's three devices.
@@ -78,6 +81,7 @@ struct Watched {
     sim_address: Option<String>,
     connected: Option<bool>,
     last_fault: Option<FaultView>,
+    identity: Option<String>,
 }
 
 /// The devices' status, updated by the observer.
@@ -152,6 +156,14 @@ impl CellWatch {
         }
     }
 
+    /// The run prepared every device (a completed step); each said what it is.
+    fn prepared(&mut self, identities: [Option<String>; 3]) {
+        self.step_done();
+        for (d, id) in self.devices.iter_mut().zip(identities) {
+            d.identity = id;
+        }
+    }
+
     /// A journalled fault of `device`.
     fn fault(&mut self, device: &str, f: FaultView) {
         let Some(d) = device_index(device).map(|i| &mut self.devices[i]) else {
@@ -182,6 +194,7 @@ impl CellWatch {
             simulated,
             connected: w.connected,
             last_fault: w.last_fault.clone(),
+            identity: w.identity.clone(),
         };
         DevicesView {
             tracker: one(
@@ -337,6 +350,10 @@ impl Observer {
                 lock(&self.cell).step_done();
             }
             "setup" | "drift" => lock(&self.cell).step_done(),
+            "devices" => {
+                let said = |k: &str| Some(text(k)).filter(|s| !s.is_empty()).map(str::to_owned);
+                lock(&self.cell).prepared([said("/tracker"), said("/robot"), said("/stage")]);
+            }
             _ => {}
         }
         true

@@ -86,6 +86,7 @@ fn measurements_plan_devices_metrics_and_logs() {
         assert_eq!(d[dev]["connected"], Value::Null, "{d}");
         assert_eq!(d[dev]["address"], Value::Null, "{d}");
         assert_eq!(d[dev]["last_fault"], Value::Null, "{d}");
+        assert_eq!(d[dev]["identity"], Value::Null, "{d}");
     }
 
     let (code, v) = post(&s, "/api/campaigns", "{}");
@@ -167,6 +168,15 @@ fn measurements_plan_devices_metrics_and_logs() {
     assert_eq!(fault["kind"], "BeamBroken", "{d}");
     assert!(fault["at_ms"].as_i64().expect("at_ms") > 0, "{d}");
     assert!(fault["message"].is_string(), "{d}");
+    // what each device said it is when the run prepared it (the journalled `devices` event)
+    for (dev, said) in [
+        ("tracker", "emScon tracker serial "),
+        ("robot", "robotlink server "),
+        ("stage", "Zaber "),
+    ] {
+        let identity = d[dev]["identity"].as_str().unwrap_or_default();
+        assert!(identity.contains(said), "{dev}: {d}");
+    }
 
     // measurements: JSON rows and the CSV of `cellcal export`, byte for byte
     let (code, rows) = get(&s, &format!("/api/campaigns/{id}/measurements"));

@@ -507,6 +507,12 @@ async fn dashboard_is_filled(c: &Client, s: &Server) {
             _ => "unknown",
         };
         assert!(row.contains(want), "{name}: {row} (API {code}: {devices})");
+        if let Some(identity) = devices[name]["identity"].as_str() {
+            assert!(
+                row.contains(identity),
+                "{name}: {row} (API {code}: {devices})"
+            );
+        }
     }
     let drift = text(c, "drift-checks").await;
     assert!(drift.contains("reference"), "{drift}");

@@ -217,9 +217,17 @@ fn check_campaign_sections(html: &str) {
         "robotlink controller (simulated cell, in-process)",
         "cell configuration (as stored)",
         "robot model file (as stored)",
+        // what the devices said they are when the run prepared them (journalled `devices`)
+        "emScon tracker serial ",
+        "robotlink server ",
+        "Zaber ",
     ] {
         assert!(html.contains(what), "missing: {what}");
     }
+    assert!(
+        !html.contains("not recorded by this campaign"),
+        "a device without identity"
+    );
     assert!(!html.contains("did not come from a campaign store"));
     assert!(!html.contains("Per-pose errors are not available"));
     // the rebuilt identification reproduces the stored result: no note that it differs

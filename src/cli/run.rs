@@ -1,64 +1,80 @@
-//! `cellcal run`, `cellcal serve`, `cellcal import`: thin front ends over the campaign engine
-//! and the store.
+//! `cellcal run`: a campaign from the terminal (plan, measure, store, identify); simulated
+//! devices start in-process.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{anyhow, Context};
 
-use cellcal::api::{self, Scheme};
 use cellcal::campaign::session::{open_session, Resume, SessionError};
 use cellcal::campaign::stored::stored_model_toml;
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
-use cellcal::daemon::Daemon;
-use cellcal::dataset::{parse_csv, Required};
-use cellcal::model::load_robot;
 use cellcal::report::{summary_text, IdentifyReport};
-use cellcal::store::{NewCampaign, Store};
+use cellcal::store::Store;
 
-use crate::cli::access;
-use crate::cli::identify::{poor_is_exit_3, write_file};
+use super::identify::{poor_is_exit_3, write_file};
+use super::{input, other, runtime, Failure};
 use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
-use crate::{input, other, Failure};
 
-/// Options of `cellcal run`.
-pub struct RunOptions {
-    /// Cell configuration.
-    pub config: PathBuf,
-    /// Allow motion and start at once.
-    pub arm: bool,
-    /// Write the result JSON here.
-    pub json: Option<PathBuf>,
-    /// Write the corrected model (robot TOML) here.
-    pub model_out: Option<PathBuf>,
-    /// Store file (default: the configuration's).
-    pub store: Option<PathBuf>,
-    /// Resume this campaign.
-    pub campaign: Option<i64>,
+/// Arguments of `cellcal run`.
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// Cell configuration file (TOML).
+    #[arg(long, default_value = "config/cell.sim.toml")]
+    config: PathBuf,
+    /// Allow motion and start at once (without it the campaign is only planned and stored).
+    #[arg(long)]
+    arm: bool,
+    /// Write the result (the `cellcal identify` JSON contract) here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write the corrected model here: a robot TOML with the identified absolute values
+    /// that every command takes as `--robot` (as `GET /api/campaigns/{id}/model`).
+    #[arg(long)]
+    model_out: Option<PathBuf>,
+    /// Store file (default: `store` of the configuration).
+    #[arg(long)]
+    store: Option<PathBuf>,
+    /// Resume this stored campaign at its first unmeasured pose.
+    #[arg(long)]
+    campaign: Option<i64>,
     /// No progress bar.
-    pub quiet: bool,
-    /// What an operator fault does (pause and ask at the terminal, or stop resumable).
-    pub on_fault: FaultPolicy,
-    /// Resume although the configuration or robot model changed since the campaign was created.
-    pub accept_changed_config: bool,
-    /// Re-register a moved tracker frame instead of stopping.
-    pub reregister: bool,
+    #[arg(long)]
+    quiet: bool,
+    /// What a fault that needs the operator does: `pause` (ask at the terminal: resume or
+    /// abort) or `fail` (stop, resumable). Default: `pause` when stdin is a terminal.
+    #[arg(long, value_parser = ["pause", "fail"])]
+    on_fault: Option<String>,
+    /// Resume `--campaign` although the configuration or robot model changed since it was
+    /// created (the changed keys are journalled).
+    #[arg(long, requires = "campaign")]
+    accept_changed_config: bool,
+    /// Resume `--campaign` even if the tracker or the robot moved since its last session:
+    /// re-register the tracker frame (points of the old frame measured again at their
+    /// joints, a new frame segment fitted to them) instead of stopping.
+    #[arg(long, requires = "campaign")]
+    reregister: bool,
 }
 
-/// The runtime of the campaign front ends (two workers: the engine and the store/front end).
-pub(crate) fn runtime() -> Result<tokio::runtime::Runtime, Failure> {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .map_err(other)
+impl RunArgs {
+    /// `--on-fault`, or `pause` when a person can answer at the terminal.
+    fn fault_policy(&self) -> FaultPolicy {
+        match self.on_fault.as_deref() {
+            Some("pause") => FaultPolicy::Pause,
+            Some(_) => FaultPolicy::Fail,
+            None if std::io::stdin().is_terminal() => FaultPolicy::Pause,
+            None => FaultPolicy::Fail,
+        }
+    }
 }
 
 /// Run a campaign headless (or with terminal prompts for a manual stage).
-pub fn run(opts: RunOptions) -> Result<(), Failure> {
+pub fn run(opts: RunArgs) -> Result<(), Failure> {
+    let on_fault = opts.fault_policy();
     let cfg = load_cell_config(&opts.config).map_err(input)?;
     let store_path = opts.store.clone().unwrap_or_else(|| cfg.store.clone());
     let rt = runtime()?;
@@ -76,7 +92,7 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
             Err(e) => return Err(input(e)),
         };
         let mut ctx = session.ctx;
-        ctx.on_fault = opts.on_fault;
+        ctx.on_fault = on_fault;
         if opts.reregister {
             ctx.control.apply(&CampaignCommand::Reregister);
         }
@@ -116,7 +132,7 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
             Display::Quiet
         } else if manual {
             Display::Lines { every: 1 }
-        } else if opts.on_fault == FaultPolicy::Pause {
+        } else if on_fault == FaultPolicy::Pause {
             Display::Lines {
                 every: (total / 10).max(1),
             }
@@ -124,7 +140,7 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
             Display::Bar
         };
         let printer = tokio::spawn(print_events(control.events.subscribe(), total, display));
-        if opts.on_fault == FaultPolicy::Pause {
+        if on_fault == FaultPolicy::Pause {
             tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
         }
         // SIGINT, SIGTERM and SIGHUP abort: the engine stops the robot and stores `aborted`
@@ -209,88 +225,4 @@ fn print_stored_result(
         write_model(store_path, id, path)?;
     }
     poor_is_exit_3(&report, &format!("campaign {id}'s stored result"))
-}
-
-/// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
-pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), Failure> {
-    let cfg = load_cell_config(config).map_err(input)?;
-    let addr: std::net::SocketAddr = listen
-        .parse()
-        .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;
-    let api_cfg = cfg.api.clone();
-    access::check_exposure(addr, &api_cfg)?;
-    let tls = match &api_cfg.tls {
-        Some((cert, key)) => Some(api::tls::server_config(cert, key).map_err(input)?),
-        None => None,
-    };
-    let scheme = if tls.is_some() {
-        Scheme::Https
-    } else {
-        Scheme::Http
-    };
-    let store_path = store.unwrap_or_else(|| cfg.store.clone());
-    let rt = runtime()?;
-    rt.block_on(async move {
-        let daemon = Arc::new(Daemon::new(cfg, &store_path).map_err(input)?);
-        let listener = std::net::TcpListener::bind(addr)
-            .with_context(|| format!("cannot listen on {addr}"))
-            .map_err(other)?;
-        let bound = listener.local_addr().map_err(other)?;
-        let (tokens, one_time) = access::accepted_tokens(&api_cfg)?;
-        println!("listening on {}://{bound}", scheme.as_str());
-        if let Some(token) = one_time {
-            println!("open {}://{bound}/?token={token}", scheme.as_str());
-        }
-        tracing::info!(store = %store_path.display(), "campaign store");
-        let mut signals = StopSignals::install().map_err(other)?;
-        let app = api::router(
-            Arc::clone(&daemon),
-            access::gate(tokens, scheme, bound, &api_cfg),
-        );
-        let handle = axum_server::Handle::new();
-        let server = api::serve(listener, app, tls, handle.clone());
-        tokio::pin!(server);
-        tokio::select! {
-            r = &mut server => r.map_err(other)?,
-            _ = signals.next() => {
-                tracing::info!("stopping: aborting the loaded campaign");
-                daemon.shutdown().await;
-                handle.graceful_shutdown(Some(std::time::Duration::from_secs(5)));
-                let _ = tokio::time::timeout(std::time::Duration::from_secs(6), server).await;
-            }
-        }
-        Ok(())
-    })
-}
-
-/// `cellcal import`: a CSV data set as a new, fully measured campaign.
-pub fn import(store: &Path, robot: &Path, data: &Path, model: &str) -> Result<(), Failure> {
-    let m = load_robot(robot).map_err(input)?;
-    let text = std::fs::read_to_string(data)
-        .with_context(|| format!("{}: cannot read", data.display()))
-        .map_err(input)?;
-    let rows = parse_csv(&text, m.dof(), Required::default())
-        .with_context(|| data.display().to_string())
-        .map_err(input)?;
-    let mut s = Store::open(store).map_err(input)?;
-    let now = cellcal::wall_clock::now_unix_ms();
-    let id = s
-        .import_observations(
-            &NewCampaign {
-                name: format!("import {}", data.display()),
-                created_at_ms: now,
-                model: model.to_owned(),
-                seed: 0,
-                config_toml: String::new(),
-                robot_toml: std::fs::read_to_string(robot).unwrap_or_default(),
-            },
-            &rows,
-        )
-        .map_err(input)?;
-    println!(
-        "imported {} poses as campaign {id} into {}",
-        rows.len(),
-        store.display()
-    );
-    Ok(())
 }

@@ -1,0 +1,92 @@
+//! `cellcal serve`: the campaign daemon of one cell and its REST API.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{anyhow, Context};
+
+use cellcal::api::{self, Scheme};
+use cellcal::config::load_cell_config;
+use cellcal::daemon::Daemon;
+
+use super::{access, input, other, runtime, Failure};
+use crate::signals::StopSignals;
+
+/// Arguments of `cellcal serve`.
+#[derive(clap::Args)]
+pub struct ServeArgs {
+    /// Cell configuration file (TOML).
+    #[arg(long, default_value = "config/cell.sim.toml")]
+    config: PathBuf,
+    /// Address to listen on (`127.0.0.1:0` picks a free port; the line `listening on
+    /// http://ADDR` tells which).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    listen: String,
+    /// Store file (default: `store` of the configuration).
+    #[arg(long)]
+    store: Option<PathBuf>,
+    /// Log lines on stderr: `text` (human) or `json` (one object a line). Level from
+    /// `RUST_LOG` (default `info`): campaign loads and state changes, device faults, every
+    /// request answered 4xx/5xx; never a token.
+    #[arg(long, value_parser = ["text", "json"], default_value = "text")]
+    pub log_format: String,
+}
+
+/// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
+pub fn run(a: ServeArgs) -> Result<(), Failure> {
+    let ServeArgs {
+        config,
+        listen,
+        store,
+        log_format: _,
+    } = a;
+    let (config, listen) = (config.as_path(), listen.as_str());
+    let cfg = load_cell_config(config).map_err(input)?;
+    let addr: std::net::SocketAddr = listen
+        .parse()
+        .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;
+    let api_cfg = cfg.api.clone();
+    access::check_exposure(addr, &api_cfg)?;
+    let tls = match &api_cfg.tls {
+        Some((cert, key)) => Some(api::tls::server_config(cert, key).map_err(input)?),
+        None => None,
+    };
+    let scheme = if tls.is_some() {
+        Scheme::Https
+    } else {
+        Scheme::Http
+    };
+    let store_path = store.unwrap_or_else(|| cfg.store.clone());
+    let rt = runtime()?;
+    rt.block_on(async move {
+        let daemon = Arc::new(Daemon::new(cfg, &store_path).map_err(input)?);
+        let listener = std::net::TcpListener::bind(addr)
+            .with_context(|| format!("cannot listen on {addr}"))
+            .map_err(other)?;
+        let bound = listener.local_addr().map_err(other)?;
+        let (tokens, one_time) = access::accepted_tokens(&api_cfg)?;
+        println!("listening on {}://{bound}", scheme.as_str());
+        if let Some(token) = one_time {
+            println!("open {}://{bound}/?token={token}", scheme.as_str());
+        }
+        tracing::info!(store = %store_path.display(), "campaign store");
+        let mut signals = StopSignals::install().map_err(other)?;
+        let app = api::router(
+            Arc::clone(&daemon),
+            access::gate(tokens, scheme, bound, &api_cfg),
+        );
+        let handle = axum_server::Handle::new();
+        let server = api::serve(listener, app, tls, handle.clone());
+        tokio::pin!(server);
+        tokio::select! {
+            r = &mut server => r.map_err(other)?,
+            _ = signals.next() => {
+                tracing::info!("stopping: aborting the loaded campaign");
+                daemon.shutdown().await;
+                handle.graceful_shutdown(Some(std::time::Duration::from_secs(5)));
+                let _ = tokio::time::timeout(std::time::Duration::from_secs(6), server).await;
+            }
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,107 @@
+//! `cellcal sim`: the simulated cell (tracker, robot, stage) on its own, until a stop signal.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Context};
+
+use cellcal::model::checked_toml::parse_checked;
+use cellcal::model::load_robot;
+
+use super::{input, other, runtime, Failure};
+use crate::signals;
+
+/// The part of a cell configuration file that `cellcal sim` reads.
+#[derive(serde::Deserialize, serde::Serialize)]
+struct SimFile {
+    #[serde(default)]
+    sim: cellcal::sim::SimWorldConfig,
+}
+
+/// The robot model path: top-level `robot = "PATH"` (or `[robot] model = "PATH"`), relative to
+/// the config file; else the TX60 file relative to the working directory.
+fn sim_robot_path(table: &toml::Table, dir: &Path, file: &Path) -> Result<PathBuf, Failure> {
+    let v = match table.get("robot") {
+        None => None,
+        Some(toml::Value::String(s)) => Some(s.as_str()),
+        Some(toml::Value::Table(t)) => match t.get("model") {
+            None => None,
+            Some(toml::Value::String(s)) => Some(s.as_str()),
+            Some(_) => {
+                return Err(input(anyhow!(
+                    "{}: key `robot.model` must be a path string",
+                    file.display()
+                )))
+            }
+        },
+        Some(_) => {
+            return Err(input(anyhow!(
+                "{}: key `robot` must be a path string",
+                file.display()
+            )))
+        }
+    };
+    Ok(match v {
+        Some(p) => dir.join(p),
+        None => PathBuf::from("config/robots/staubli_tx60.toml"),
+    })
+}
+
+/// Arguments of `cellcal sim`.
+#[derive(clap::Args)]
+pub struct SimCellArgs {
+    /// Cell configuration file (TOML); only `[sim]` and the top-level `robot` are read.
+    #[arg(long)]
+    config: PathBuf,
+}
+
+/// Start the simulated cell of the configuration's `[sim]`, print its addresses, wait for a
+/// stop signal.
+pub fn run(a: SimCellArgs) -> Result<(), Failure> {
+    let config = a.config.as_path();
+    use std::io::Write;
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("{}: cannot read", config.display()))
+        .map_err(input)?;
+    let table: toml::Table = toml::from_str(&text)
+        .with_context(|| format!("{}: invalid TOML", config.display()))
+        .map_err(input)?;
+    // every number finite and every array its exact length, in the whole file
+    let mut cfg = parse_checked::<SimFile>(&text, config).map_err(input)?.sim;
+    let dir = config.parent().unwrap_or(Path::new("."));
+    if !matches!(cfg.errors.as_str(), "paper" | "random" | "none" | "") {
+        cfg.errors = dir.join(&cfg.errors).to_string_lossy().into_owned();
+    }
+    let robot_path = sim_robot_path(&table, dir, config)?;
+    let robot = load_robot(&robot_path).map_err(input)?;
+    let rt = runtime()?;
+    let result = rt.block_on(async move {
+        let mut signals = signals::StopSignals::install().map_err(other)?;
+        let stop = async move {
+            signals.next().await;
+        };
+        let cell = cellcal::sim::start_cell(robot, cfg, stop)
+            .await
+            .with_context(|| format!("{}: [sim]", config.display()))
+            .map_err(input)?;
+        let mut out = std::io::stdout().lock();
+        let mut lines = vec![
+            format!("tracker {}", cell.tracker_addr),
+            format!("robot {}", cell.robot_addr),
+            format!("stage {}", cell.stage_path.as_deref().unwrap_or("manual")),
+        ];
+        if let Some(g) = &cell.gauge_path {
+            lines.push(format!("gauge {g}"));
+        }
+        for l in lines {
+            writeln!(out, "{l}").map_err(other)?;
+        }
+        out.flush().map_err(other)?;
+        drop(out);
+        let mut stopping = cell.stopping();
+        let _ = stopping.wait_for(|v| *v).await;
+        cell.stop().await;
+        Ok(())
+    });
+    rt.shutdown_timeout(std::time::Duration::from_millis(500));
+    result
+}

@@ -1,0 +1,220 @@
+//! `cellcal simulate-data`: a simulated measurement campaign (CSV + truth JSON) for dry runs
+//! and tests.
+
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Context};
+use nalgebra::Vector3;
+
+use cellcal::dataset::{parse_stage_axis, parse_vec3, write_csv};
+use cellcal::model::load_robot;
+use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
+use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
+
+use super::{input, other, Failure};
+
+#[derive(clap::Args)]
+/// Arguments of `cellcal simulate-data`.
+pub struct SimArgs {
+    /// Robot model file (TOML), the nominal model.
+    #[arg(long)]
+    robot: PathBuf,
+    /// Output CSV.
+    #[arg(long)]
+    out: PathBuf,
+    /// Output truth JSON (default: OUT with .truth.json).
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// Total poses.
+    #[arg(long, default_value_t = 300)]
+    poses: usize,
+    /// Identification poses (the rest verify).
+    #[arg(long, default_value_t = 100)]
+    ident: usize,
+    /// RNG seed.
+    #[arg(long, default_value_t = 4802)]
+    seed: u64,
+    /// True errors: `paper` (METHOD.md §7), `random`, or a JSON/TOML file of name = value.
+    #[arg(long, default_value = "paper")]
+    errors: String,
+    /// Seed of `--errors random`.
+    #[arg(long, default_value_t = 1)]
+    error_seed: u64,
+    /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a vector X,Y,Z (normalised).
+    #[arg(long, value_parser = parse_stage_axis, default_value = "+y", allow_hyphen_values = true)]
+    stage_axis: Vector3<f64>,
+    /// Stage travel (mm).
+    #[arg(long, default_value_t = 10.0)]
+    stage_travel_mm: f64,
+    /// Stage axis misalignment, rotation vector X,Y,Z (mrad).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    stage_misalignment_mrad: Option<Vector3<f64>>,
+    /// Systematic cross-travel deviation (mm per mm of travel).
+    #[arg(long, default_value_t = 0.0)]
+    stage_cross_mm_per_mm: f64,
+    /// Stage repeatability σ (mm).
+    #[arg(long, default_value_t = 0.0)]
+    stage_repeatability_mm: f64,
+    /// True ball position in the flange frame X,Y,Z (mm).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tool_mm: Option<Vector3<f64>>,
+    /// True base translation (robot base origin in the measurement frame) X,Y,Z (mm).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    base_translation_mm: Option<Vector3<f64>>,
+    /// True base rotation vector X,Y,Z (deg).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    base_rotvec_deg: Option<Vector3<f64>>,
+    /// Tracker position in the measurement frame X,Y,Z (mm); default (2550,0,0), or the origin when a base is given.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    tracker_pos_mm: Option<Vector3<f64>>,
+    /// Joint jitter σ (rad).
+    #[arg(long, default_value_t = 1.2746e-5)]
+    joint_jitter_rad: f64,
+    /// No tracker noise and no joint jitter.
+    #[arg(long)]
+    no_noise: bool,
+    /// Fraction of poses that are gross outliers.
+    #[arg(long, default_value_t = 0.0)]
+    outliers: f64,
+    /// Gross outlier size (mm).
+    #[arg(long, default_value_t = 1.0)]
+    outlier_mm: f64,
+    /// Workspace box centre X,Y,Z (mm, robot base frame).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    box_center_mm: Option<Vector3<f64>>,
+    /// Workspace box edge (mm).
+    #[arg(long, default_value_t = 1000.0)]
+    box_size_mm: f64,
+}
+
+fn load_errors(spec: &str, dof: usize, seed: u64) -> anyhow::Result<truth::ErrorTable> {
+    match spec {
+        "paper" => {
+            if dof != 6 {
+                return Err(anyhow!("--errors paper needs a six-joint robot"));
+            }
+            Ok(truth::paper_errors())
+        }
+        "random" => Ok(truth::random_errors(dof, seed)),
+        path => {
+            let text =
+                std::fs::read_to_string(path).with_context(|| format!("{path}: cannot read"))?;
+            let table: truth::ErrorTable = if path.ends_with(".json") {
+                serde_json::from_str(&text).with_context(|| path.to_owned())?
+            } else {
+                toml::from_str(&text).with_context(|| path.to_owned())?
+            };
+            Ok(table)
+        }
+    }
+}
+
+/// Simulate the campaign, write the CSV and the truth JSON.
+pub fn run(a: &SimArgs) -> Result<(), Failure> {
+    let nominal = load_robot(&a.robot).map_err(input)?;
+    if a.ident == 0 || a.ident > a.poses {
+        return Err(input(anyhow!("--ident must be between 1 and --poses")));
+    }
+    if !(0.0..=0.5).contains(&a.outliers) {
+        return Err(input(anyhow!(
+            "--outliers must be a fraction between 0 and 0.5"
+        )));
+    }
+    let errors = load_errors(&a.errors, nominal.dof(), a.error_seed).map_err(input)?;
+    let mut true_model = truth::apply_errors(&nominal, &errors)
+        .map_err(|e| input(anyhow!("--errors {}: {e}", a.errors)))?;
+    let has_base = a.base_translation_mm.is_some() || a.base_rotvec_deg.is_some();
+    if let Some(t) = a.tool_mm {
+        true_model.tool = t;
+    }
+    if let Some(t) = a.base_translation_mm {
+        true_model.base_translation = t;
+    }
+    if let Some(r) = a.base_rotvec_deg {
+        true_model.base_rotation = from_rotation_vector(&(r * std::f64::consts::PI / 180.0));
+    }
+    let tracker_pos = a.tracker_pos_mm.unwrap_or(if has_base {
+        Vector3::zeros()
+    } else {
+        Vector3::new(2550.0, 0.0, 0.0)
+    });
+    let mut cfg = SimConfig {
+        poses: a.poses,
+        ident: a.ident,
+        seed: a.seed,
+        tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
+        joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
+        stage_travel_mm: a.stage_travel_mm,
+        stage_axis: a.stage_axis,
+        stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
+        stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
+        stage_repeatability_mm: a.stage_repeatability_mm,
+        outlier_fraction: a.outliers,
+        outlier_mm: a.outlier_mm,
+        ..SimConfig::default()
+    };
+    if let Some(c) = a.box_center_mm {
+        cfg.workspace.center_mm = c;
+    }
+    cfg.workspace.size_mm = Vector3::repeat(a.box_size_mm);
+    let sim = simulate::simulate(&nominal, &true_model, &cfg).map_err(input)?;
+    let comment = format!(
+        "cellcal simulate-data: robot {}, seed {}, errors {}, stage axis {:?} travel {} mm\nP2 = P1 + travel * R * u; q in rad; positions in mm (measurement frame)",
+        nominal.name,
+        a.seed,
+        a.errors,
+        cfg.stage_axis.as_slice(),
+        cfg.stage_travel_mm
+    );
+    std::fs::write(
+        &a.out,
+        write_csv(&sim.observations, nominal.dof(), &comment),
+    )
+    .with_context(|| format!("{}: cannot write", a.out.display()))
+    .map_err(other)?;
+    let truth_path = a
+        .truth
+        .clone()
+        .unwrap_or_else(|| a.out.with_extension("truth.json"));
+    let doc = serde_json::json!({
+        "robot": nominal.name,
+        "seed": a.seed,
+        "errors": errors,
+        "true_mdh": true_model.joints.iter().map(|j| [j.theta, j.d, j.a, j.alpha, j.beta]).collect::<Vec<_>>(),
+        "base": {
+            "translation_mm": true_model.base_translation.as_slice(),
+            "rotation_vector_rad": to_rotation_vector(&true_model.base_rotation).as_slice(),
+        },
+        "tool": { "translation_mm": true_model.tool.as_slice() },
+        "noise": {
+            "tracker_position_mm": tracker_pos.as_slice(),
+            "tracker_sigma": if a.no_noise { "none".to_owned() } else { "(15 um + 6 um/m * range)/2 per axis".to_owned() },
+            "joint_jitter_rad": cfg.joint_jitter_rad,
+        },
+        "stage": {
+            "axis": cfg.stage_axis.as_slice(),
+            "travel_mm": cfg.stage_travel_mm,
+            "misalignment_rad": cfg.stage_misalignment_rad.as_slice(),
+            "cross_mm_per_mm": cfg.stage_cross_mm_per_mm,
+            "repeatability_mm": cfg.stage_repeatability_mm,
+        },
+        "outlier_poses": sim.outliers.iter().map(|i| i.to_string()).collect::<Vec<_>>(),
+        "poses": a.poses,
+        "ident": a.ident,
+    });
+    std::fs::write(
+        &truth_path,
+        serde_json::to_string_pretty(&doc).map_err(other)?,
+    )
+    .with_context(|| format!("{}: cannot write", truth_path.display()))
+    .map_err(other)?;
+    println!(
+        "wrote {} poses ({} ident, {} verify) to {} and the truth to {}",
+        a.poses,
+        a.ident,
+        a.poses - a.ident,
+        a.out.display(),
+        truth_path.display()
+    );
+    Ok(())
+}
