@@ -497,6 +497,7 @@ fn malformed_bytes(m: Malformed, rep: &Reply) -> Vec<u8> {
     }
 }
 
+/// Answer one command: an injected entry fault first, then the command's reply (or replies).
 async fn handle_command(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -505,11 +506,33 @@ async fn handle_command(
 ) -> std::io::Result<Flow> {
     let id = command.id();
     debug!("emscon server: command {command:?}");
+    if let Some(flow) = answer_entry_fault(ctx, conn, out, id).await? {
+        return Ok(flow);
+    }
+    match command {
+        Command::Initialize => initialize(ctx, conn, out, id).await,
+        Command::GetReflectors => send_reflectors(ctx, conn, out, id).await,
+        Command::StartMeasurement => start_measurement(ctx, conn, out).await,
+        c => {
+            let rep = immediate_reply(ctx, conn, c);
+            emit_reply(ctx, conn, out, rep).await
+        }
+    }
+}
+
+/// An injected fault on entry to `command`: swallowed, connection closing, or a forced status
+/// (`None`: answer normally).
+async fn answer_entry_fault(
+    ctx: &Ctx,
+    conn: &mut Conn,
+    out: &mut Out<'_>,
+    id: i32,
+) -> std::io::Result<Option<Flow>> {
     match entry_fault(ctx, id) {
-        Entry::Normal => {}
+        Entry::Normal => Ok(None),
         Entry::Silent => {
             warn!("emscon server: swallowing command {id}");
-            return Ok(Flow::Continue);
+            Ok(Some(Flow::Continue))
         }
         Entry::Closing => {
             warn!("emscon server: TPConnectionClosing, closing");
@@ -518,84 +541,91 @@ async fn handle_command(
             ))
             .await?;
             out.flush_batch().await?;
-            return Ok(Flow::Close);
+            Ok(Some(Flow::Close))
         }
         Entry::Forced(st) => {
             warn!("emscon server: forcing status {st} on command {id}");
-            return emit_reply(ctx, conn, out, Reply::failed(id, st)).await;
+            emit_reply(ctx, conn, out, Reply::failed(id, st))
+                .await
+                .map(Some)
         }
     }
-    let wrong = || Reply::failed(id, status::WRONG_PARAMETER);
-    let rep = match command {
-        Command::GetSystemStatus => {
-            let init = ctx.tracker().initialized;
-            Reply {
-                command: id,
-                status: status::ALL_OK,
-                body: ReplyBody::SystemStatus(SystemStatus {
-                    last_result_status: conn.last_status,
-                    tracker_processor_status: if init {
-                        TPS_INITIALIZED
-                    } else {
-                        TPS_COMPENSATION_SET
-                    },
-                    laser_status: 3,
-                    adm_status: 2,
-                    version: ctx.options.version,
-                    weather_monitor_status: conn.settings.weather_monitor_status,
-                    flags: 0,
-                    serial_number: ctx.backend.serial_number(),
-                }),
-            }
-        }
-        Command::SetUnits(u) => {
-            let scale = match u.length {
-                0 => Some(0.001),
-                1 => Some(1.0),
-                2 => Some(1000.0),
-                _ => None,
-            };
-            match scale {
-                Some(s)
-                    if (0..=2).contains(&u.angle)
-                        && u.temperature == 0
-                        && (0..=1).contains(&u.pressure)
-                        && u.humidity == 0 =>
-                {
-                    conn.units = u;
-                    conn.scale = s;
-                    Reply::ok(id)
-                }
-                _ => wrong(),
-            }
-        }
-        Command::GetUnits => Reply {
+}
+
+/// Initialize: after the configured delay, the reply and then the initialisation status change.
+async fn initialize(
+    ctx: &Ctx,
+    conn: &mut Conn,
+    out: &mut Out<'_>,
+    id: i32,
+) -> std::io::Result<Flow> {
+    let delay = ctx.faults().initialize_delay_ms;
+    tokio::time::sleep(Duration::from_millis(delay)).await;
+    ctx.tracker().initialized = true;
+    let flow = emit_reply(ctx, conn, out, Reply::ok(id)).await?;
+    if flow == Flow::Continue {
+        out.packet(&ServerPacket::StatusChange(
+            status_change::INITIALIZATION_STATUS_CHANGED,
+        ))
+        .await?;
+    }
+    Ok(flow)
+}
+
+/// GetReflectors: one reply per reflector (surface offset in the connection's units), each
+/// carrying the total; a failed reply when there is none.
+async fn send_reflectors(
+    ctx: &Ctx,
+    conn: &mut Conn,
+    out: &mut Out<'_>,
+    id: i32,
+) -> std::io::Result<Flow> {
+    let list = ctx.backend.reflectors();
+    if list.is_empty() {
+        return emit_reply(ctx, conn, out, Reply::failed(id, status::ALL_OK)).await;
+    }
+    let total = i32::try_from(list.len()).unwrap_or(i32::MAX);
+    let mut flow = Flow::Continue;
+    for mut r in list {
+        r.total = total;
+        r.surface_offset *= conn.scale;
+        let rep = Reply {
             command: id,
             status: status::ALL_OK,
-            body: ReplyBody::Units(conn.units),
-        },
-        Command::Initialize => {
-            let delay = ctx.faults().initialize_delay_ms;
-            tokio::time::sleep(Duration::from_millis(delay)).await;
-            ctx.tracker().initialized = true;
-            let flow = emit_reply(ctx, conn, out, Reply::ok(id)).await?;
-            if flow == Flow::Continue {
-                out.packet(&ServerPacket::StatusChange(
-                    status_change::INITIALIZATION_STATUS_CHANGED,
-                ))
-                .await?;
-            }
-            return Ok(flow);
+            body: ReplyBody::Reflector(r),
+        };
+        flow = emit_reply(ctx, conn, out, rep).await?;
+        if flow == Flow::Close {
+            break;
         }
+    }
+    Ok(flow)
+}
+
+/// The single reply of a command answered at once (settings, queries, beam moves).
+fn immediate_reply(ctx: &Ctx, conn: &mut Conn, command: Command) -> Reply {
+    let id = command.id();
+    let wrong = || Reply::failed(id, status::WRONG_PARAMETER);
+    let ok_with = |body| Reply {
+        command: id,
+        status: status::ALL_OK,
+        body,
+    };
+    match command {
+        Command::GetSystemStatus => ok_with(ReplyBody::SystemStatus(system_status(ctx, conn))),
+        Command::SetUnits(u) => {
+            if set_units(conn, u) {
+                Reply::ok(id)
+            } else {
+                wrong()
+            }
+        }
+        Command::GetUnits => ok_with(ReplyBody::Units(conn.units)),
         Command::SetEnvironmentParams(e) => {
             conn.environment = e;
             Reply::ok(id)
         }
-        Command::GetEnvironmentParams => Reply {
-            command: id,
-            status: status::ALL_OK,
-            body: ReplyBody::Environment(conn.environment),
-        },
+        Command::GetEnvironmentParams => ok_with(ReplyBody::Environment(conn.environment)),
         Command::SetMeasurementMode(m) if m == MEAS_MODE_STATIONARY => Reply::ok(id),
         Command::SetMeasurementMode(_) => wrong(),
         Command::SetCoordinateSystemType(c) if c == COORD_SYS_RHR => Reply::ok(id),
@@ -612,14 +642,10 @@ async fn handle_command(
                 wrong()
             }
         }
-        Command::GetStationaryModeParams => Reply {
-            command: id,
-            status: status::ALL_OK,
-            body: ReplyBody::StationaryModeParams {
-                meas_time_ms: conn.meas_time_ms,
-                use_adm: conn.use_adm,
-            },
-        },
+        Command::GetStationaryModeParams => ok_with(ReplyBody::StationaryModeParams {
+            meas_time_ms: conn.meas_time_ms,
+            use_adm: conn.use_adm,
+        }),
         Command::SetReflector(r) => {
             if ctx.backend.reflectors().iter().any(|x| x.id == r) {
                 conn.reflector_id = r;
@@ -628,87 +654,92 @@ async fn handle_command(
                 wrong()
             }
         }
-        Command::GetReflector => Reply {
-            command: id,
-            status: status::ALL_OK,
-            body: ReplyBody::ReflectorId(conn.reflector_id),
-        },
-        Command::GetReflectors => {
-            let list = ctx.backend.reflectors();
-            let total = i32::try_from(list.len()).unwrap_or(i32::MAX);
-            if list.is_empty() {
-                Reply::failed(id, status::ALL_OK)
-            } else {
-                let mut flow = Flow::Continue;
-                for mut r in list {
-                    r.total = total;
-                    r.surface_offset *= conn.scale;
-                    let rep = Reply {
-                        command: id,
-                        status: status::ALL_OK,
-                        body: ReplyBody::Reflector(r),
-                    };
-                    flow = emit_reply(ctx, conn, out, rep).await?;
-                    if flow == Flow::Close {
-                        break;
-                    }
-                }
-                return Ok(flow);
-            }
-        }
+        Command::GetReflector => ok_with(ReplyBody::ReflectorId(conn.reflector_id)),
         Command::SetSystemSettings(s) => {
             conn.settings = s;
             Reply::ok(id)
         }
-        Command::GetSystemSettings => Reply {
-            command: id,
-            status: status::ALL_OK,
-            body: ReplyBody::SystemSettings(conn.settings),
-        },
+        Command::GetSystemSettings => ok_with(ReplyBody::SystemSettings(conn.settings)),
         Command::SetStatisticMode { stationary, .. } if (0..=1).contains(&stationary) => {
             conn.extended = stationary == 1;
             Reply::ok(id)
         }
         Command::SetStatisticMode { .. } => wrong(),
-        Command::GetMeasurementStatusInfo => {
-            let found = ctx.reflector_found();
-            let init = ctx.tracker().initialized;
-            let mut bits = MeasurementStatusInfo::TRACKER_FOUND
-                | MeasurementStatusInfo::TRACKER_COMPENSATION_FOUND
-                | MeasurementStatusInfo::ADM_FOUND
-                | MeasurementStatusInfo::ADM_COMPENSATION_FOUND
-                | MeasurementStatusInfo::IN_FACE1
-                | MeasurementStatusInfo::NIVEL_IN_WORKING_RANGE;
-            if found {
-                bits |= MeasurementStatusInfo::REFLECTOR_FOUND;
-            }
-            if init {
-                bits |= MeasurementStatusInfo::INITIALIZED;
-            }
-            Reply {
-                command: id,
-                status: status::ALL_OK,
-                body: ReplyBody::MeasurementStatusInfo {
-                    last_result_status: conn.last_status,
-                    info: MeasurementStatusInfo(bits),
-                },
-            }
-        }
-        Command::GetObjectTemperature => Reply {
-            command: id,
-            status: status::ALL_OK,
-            body: ReplyBody::ObjectTemperature(ctx.backend.meteo().temperature_c),
-        },
+        Command::GetMeasurementStatusInfo => ok_with(ReplyBody::MeasurementStatusInfo {
+            last_result_status: conn.last_status,
+            info: measurement_status(ctx),
+        }),
+        Command::GetObjectTemperature => ok_with(ReplyBody::ObjectTemperature(
+            ctx.backend.meteo().temperature_c,
+        )),
         c @ (Command::FindReflector { .. }
         | Command::GoLastMeasuredPoint
         | Command::GoPosition { .. }) => search(ctx, conn, &c),
-        Command::StartMeasurement => return start_measurement(ctx, conn, out).await,
         Command::StopMeasurement
         | Command::ChangeFace
         | Command::GoBirdBath
         | Command::ClearCommandQueue(_) => Reply::ok(id),
+        // answered by their own functions in `handle_command`
+        Command::Initialize | Command::GetReflectors | Command::StartMeasurement => {
+            Reply::failed(id, status::WRONG_PARAMETER)
+        }
+    }
+}
+
+/// The simulated tracker's system status as this connection sees it.
+fn system_status(ctx: &Ctx, conn: &Conn) -> SystemStatus {
+    SystemStatus {
+        last_result_status: conn.last_status,
+        tracker_processor_status: if ctx.tracker().initialized {
+            TPS_INITIALIZED
+        } else {
+            TPS_COMPENSATION_SET
+        },
+        laser_status: 3,
+        adm_status: 2,
+        version: ctx.options.version,
+        weather_monitor_status: conn.settings.weather_monitor_status,
+        flags: 0,
+        serial_number: ctx.backend.serial_number(),
+    }
+}
+
+/// Take `u` as the connection's units when the simulator supports them (length mm/m/µm, any
+/// angle unit, °C, mbar or hPa, % humidity); `false` leaves them as they were.
+fn set_units(conn: &mut Conn, u: Units) -> bool {
+    let scale = match u.length {
+        0 => 0.001,
+        1 => 1.0,
+        2 => 1000.0,
+        _ => return false,
     };
-    emit_reply(ctx, conn, out, rep).await
+    let supported = (0..=2).contains(&u.angle)
+        && u.temperature == 0
+        && (0..=1).contains(&u.pressure)
+        && u.humidity == 0;
+    if supported {
+        conn.units = u;
+        conn.scale = scale;
+    }
+    supported
+}
+
+/// The measurement status bits: tracker, compensations, ADM, face 1 and level always; the
+/// reflector when the beam is locked on one; initialised after Initialize.
+fn measurement_status(ctx: &Ctx) -> MeasurementStatusInfo {
+    let mut bits = MeasurementStatusInfo::TRACKER_FOUND
+        | MeasurementStatusInfo::TRACKER_COMPENSATION_FOUND
+        | MeasurementStatusInfo::ADM_FOUND
+        | MeasurementStatusInfo::ADM_COMPENSATION_FOUND
+        | MeasurementStatusInfo::IN_FACE1
+        | MeasurementStatusInfo::NIVEL_IN_WORKING_RANGE;
+    if ctx.reflector_found() {
+        bits |= MeasurementStatusInfo::REFLECTOR_FOUND;
+    }
+    if ctx.tracker().initialized {
+        bits |= MeasurementStatusInfo::INITIALIZED;
+    }
+    MeasurementStatusInfo(bits)
 }
 
 /// FindReflector, GoLastMeasuredPoint, GoPosition: the beam goes to the target and locks when
