@@ -245,6 +245,95 @@ pub async fn start_cell(
     cfg: SimWorldConfig,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<RunningSimCell, SimError> {
+    check_world_config(&robot, &cfg)?;
+    let truth = true_model(&robot, &cfg)?;
+    let stage_sim = stage_simulator(&cfg)?;
+    let source = match &stage_sim {
+        Some(sim) => StageSource::Zaber {
+            sim: sim.clone(),
+            microsteps_per_mm: cfg.stage_microsteps_per_mm,
+        },
+        None => StageSource::Manual { position_mm: 0.0 },
+    };
+    let world: SharedWorld = Arc::new(Mutex::new(World::new(robot, truth, &cfg, source)?));
+    let tracker_faults = tracker_faults(&cfg);
+    lock_world(&world).attach_tracker_faults(tracker_faults.clone());
+    let robot_faults = robot_faults(&cfg);
+
+    let tracker_listener = bind(cfg.tracker_port, "tracker").await?;
+    let robot_listener = bind(cfg.robot_port, "robot").await?;
+    let tracker_addr = local_addr(&tracker_listener, "tracker")?;
+    let robot_addr = local_addr(&robot_listener, "robot")?;
+    let stage_pty = match &stage_sim {
+        Some(sim) => {
+            Some(
+                zaber::pty::spawn_stage_pty(sim.clone()).map_err(|source| SimError::Io {
+                    what: "stage: cannot open a pty".into(),
+                    source,
+                })?,
+            )
+        }
+        None => None,
+    };
+    let (gauge_pty, gauge_faults) = if cfg.gauge {
+        let (pty, faults) = gauge_on_pty(&world)?;
+        (Some(pty), Some(faults))
+    } else {
+        (None, None)
+    };
+    let stage_path = stage_pty.as_ref().map(|p| p.path());
+    let gauge_path = gauge_pty.as_ref().map(|p| p.path());
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let tracker_options = emscon::ServerOptions {
+        measuring_time_scale: cfg.measure_time_scale,
+        ..emscon::ServerOptions::default()
+    };
+    let tasks = vec![
+        serve_tracker(
+            tracker_listener,
+            Arc::new(SimTrackerBackend::new(world.clone())),
+            tracker_faults.clone(),
+            tracker_options,
+            stop_rx.clone(),
+        ),
+        serve_robot(
+            robot_listener,
+            Arc::new(SimRobotBackend::new(world.clone())),
+            robot_faults.clone(),
+            stop_rx.clone(),
+        ),
+        // the ptys close when the cell stops
+        tokio::spawn({
+            let stop = stop_rx.clone();
+            async move {
+                stopped(stop).await;
+                drop(stage_pty);
+                drop(gauge_pty);
+            }
+        }),
+        stop_on(shutdown, stop_tx.clone()),
+    ];
+    info!(%tracker_addr, %robot_addr, ?stage_path, ?gauge_path, "simulated cell listening");
+    Ok(RunningSimCell {
+        tracker_addr,
+        robot_addr,
+        stage_path,
+        gauge_path,
+        world,
+        tracker_faults,
+        robot_faults,
+        stage_sim,
+        gauge_faults,
+        config: cfg,
+        stop_tx,
+        tasks,
+    })
+}
+
+/// What the simulated cell cannot run with: another joint count than the controller's six, a
+/// stage without range or scale, a beam-break probability outside [0, 1].
+fn check_world_config(robot: &RobotModel, cfg: &SimWorldConfig) -> Result<(), SimError> {
     if robot.dof() != 6 {
         return Err(SimError::Config(format!(
             "the simulated robot controller drives 6 joints, the model has {}",
@@ -261,47 +350,44 @@ pub async fn start_cell(
             "faults.tracker.beam_break_probability must be in [0, 1]".into(),
         ));
     }
-    let truth = true_model(&robot, &cfg)?;
-    let k = cfg.stage_microsteps_per_mm;
-    let resolution = match cfg.stage_mode {
-        StageMode::Zaber => sim_stage_resolution(k)?,
-        StageMode::Manual => 0,
-    };
-    let stage_sim = (cfg.stage_mode == StageMode::Zaber).then(|| {
-        let sim = StageSim::new(StageSimConfig {
-            resolution,
-            limit_min: 0,
-            limit_max: (cfg.stage_max_mm * k).round() as i64,
-            speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
-            homed: false,
-            move_overhead: Duration::from_millis(cfg.stage_settle_ms),
-            ..StageSimConfig::default()
-        });
-        {
-            let s = &cfg.faults.stage;
-            let mut f = sim.faults();
-            f.reject = s.reject;
-            f.reject_reason = s.reject_reason.clone();
-            f.stall = s.stall;
-            f.fault = s.fault;
-            f.overshoot = s.overshoot;
-            f.lose_home = s.lose_home;
-        }
-        sim
-    });
-    let source = match &stage_sim {
-        Some(sim) => StageSource::Zaber {
-            sim: sim.clone(),
-            microsteps_per_mm: k,
-        },
-        None => StageSource::Manual { position_mm: 0.0 },
-    };
-    let world: SharedWorld = Arc::new(Mutex::new(World::new(robot, truth, &cfg, source)?));
+    Ok(())
+}
 
-    let tf = &cfg.faults.tracker;
-    let tracker_faults = emscon::FaultConfig::shared();
+/// The motorised stage's simulator with the configured range, speed and faults (`None`: a
+/// manual micrometer).
+fn stage_simulator(cfg: &SimWorldConfig) -> Result<Option<StageSim>, SimError> {
+    if cfg.stage_mode != StageMode::Zaber {
+        return Ok(None);
+    }
+    let k = cfg.stage_microsteps_per_mm;
+    let sim = StageSim::new(StageSimConfig {
+        resolution: sim_stage_resolution(k)?,
+        limit_min: 0,
+        limit_max: (cfg.stage_max_mm * k).round() as i64,
+        speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
+        homed: false,
+        move_overhead: Duration::from_millis(cfg.stage_settle_ms),
+        ..StageSimConfig::default()
+    });
     {
-        let mut f = tracker_faults.lock().unwrap_or_else(|p| p.into_inner());
+        let s = &cfg.faults.stage;
+        let mut f = sim.faults();
+        f.reject = s.reject;
+        f.reject_reason = s.reject_reason.clone();
+        f.stall = s.stall;
+        f.fault = s.fault;
+        f.overshoot = s.overshoot;
+        f.lose_home = s.lose_home;
+    }
+    Ok(Some(sim))
+}
+
+/// The emScon server's fault table from `[sim.faults.tracker]`.
+fn tracker_faults(cfg: &SimWorldConfig) -> emscon::SharedFaults {
+    let tf = &cfg.faults.tracker;
+    let faults = emscon::FaultConfig::shared();
+    {
+        let mut f = faults.lock().unwrap_or_else(|p| p.into_inner());
         f.beam_break_before_measure = tf.beam_break_before_measure;
         f.beam_break_during_measure = tf.beam_break_during_measure;
         f.beam_break_status = tf.beam_break_status;
@@ -309,114 +395,84 @@ pub async fn start_cell(
         f.no_reply = tf.no_reply;
         f.initialize_delay_ms = tf.initialize_delay_ms;
     }
-    lock_world(&world).attach_tracker_faults(tracker_faults.clone());
+    faults
+}
+
+/// The robotlink server's fault table from `[sim.faults.robot]`.
+fn robot_faults(cfg: &SimWorldConfig) -> robotlink::FaultHandle {
     let rf = &cfg.faults.robot;
-    let robot_faults = robotlink::FaultConfig::handle();
+    let faults = robotlink::FaultConfig::handle();
     {
-        let mut f = robot_faults.lock().unwrap_or_else(|p| p.into_inner());
+        let mut f = faults.lock().unwrap_or_else(|p| p.into_inner());
         f.never_settle = rf.never_settle;
         f.slow_settle = rf.slow_settle;
         f.slow_settle_extra = Duration::from_millis(rf.slow_settle_extra_ms);
         f.disconnect_during_move = rf.disconnect_during_move;
     }
+    faults
+}
 
-    let tracker_listener = bind(cfg.tracker_port, "tracker").await?;
-    let robot_listener = bind(cfg.robot_port, "robot").await?;
-    let local = |l: &TcpListener, what: &str| {
-        l.local_addr().map_err(|source| SimError::Io {
-            what: format!("{what}: local address"),
-            source,
-        })
-    };
-    let tracker_addr = local(&tracker_listener, "tracker")?;
-    let robot_addr = local(&robot_listener, "robot")?;
+fn local_addr(l: &TcpListener, what: &str) -> Result<SocketAddr, SimError> {
+    l.local_addr().map_err(|source| SimError::Io {
+        what: format!("{what}: local address"),
+        source,
+    })
+}
 
-    let stage_pty = match &stage_sim {
-        Some(sim) => {
-            Some(
-                zaber::pty::spawn_stage_pty(sim.clone()).map_err(|source| SimError::Io {
-                    what: "stage: cannot open a pty".into(),
-                    source,
-                })?,
-            )
-        }
-        None => None,
-    };
-    let (gauge_pty, gauge_faults) = if cfg.gauge {
-        let w = world.clone();
-        let sim = GaugeSim::new(Arc::new(move || lock_world(&w).stage_true_mm()));
-        let faults = sim.faults.clone();
-        let pty = zaber::pty::spawn_gauge_pty(sim).map_err(|source| SimError::Io {
-            what: "gauge: cannot open a pty".into(),
-            source,
-        })?;
-        (Some(pty), Some(faults))
-    } else {
-        (None, None)
-    };
-    let stage_path = stage_pty.as_ref().map(|p| p.path());
-    let gauge_path = gauge_pty.as_ref().map(|p| p.path());
+/// The RS-232 gauge on a pty, reading the world's true stage position, and its fault table.
+fn gauge_on_pty(
+    world: &SharedWorld,
+) -> Result<(zaber::pty::PtyDevice, Arc<Mutex<GaugeFaults>>), SimError> {
+    let w = world.clone();
+    let sim = GaugeSim::new(Arc::new(move || lock_world(&w).stage_true_mm()));
+    let faults = sim.faults.clone();
+    let pty = zaber::pty::spawn_gauge_pty(sim).map_err(|source| SimError::Io {
+        what: "gauge: cannot open a pty".into(),
+        source,
+    })?;
+    Ok((pty, faults))
+}
 
-    let (stop_tx, stop_rx) = watch::channel(false);
-    let mut tasks = Vec::new();
-    let tracker_backend: Arc<dyn emscon::TrackerBackend> =
-        Arc::new(SimTrackerBackend::new(world.clone()));
-    let tfaults = tracker_faults.clone();
-    let tracker_options = emscon::ServerOptions {
-        measuring_time_scale: cfg.measure_time_scale,
-        ..emscon::ServerOptions::default()
-    };
-    let rx = stop_rx.clone();
-    tasks.push(tokio::spawn(async move {
-        if let Err(e) = emscon::serve_with_options(
-            tracker_listener,
-            tracker_backend,
-            tfaults,
-            tracker_options,
-            stopped(rx),
-        )
-        .await
-        {
+/// The simulated tracker's emScon server task, until the cell stops.
+fn serve_tracker(
+    listener: TcpListener,
+    backend: Arc<dyn emscon::TrackerBackend>,
+    faults: emscon::SharedFaults,
+    options: emscon::ServerOptions,
+    stop: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let served = emscon::serve_with_options(listener, backend, faults, options, stopped(stop));
+        if let Err(e) = served.await {
             warn!(error = %e, "sim tracker server ended");
         }
-    }));
-    let robot_backend: Arc<dyn robotlink::RobotBackend> =
-        Arc::new(SimRobotBackend::new(world.clone()));
-    let rfaults = robot_faults.clone();
-    let rx = stop_rx.clone();
-    tasks.push(tokio::spawn(async move {
-        if let Err(e) = robotlink::serve(robot_listener, robot_backend, rfaults, stopped(rx)).await
-        {
+    })
+}
+
+/// The simulated controller's robotlink server task, until the cell stops.
+fn serve_robot(
+    listener: TcpListener,
+    backend: Arc<dyn robotlink::RobotBackend>,
+    faults: robotlink::FaultHandle,
+    stop: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        if let Err(e) = robotlink::serve(listener, backend, faults, stopped(stop)).await {
             warn!(error = %e, "sim robot server ended");
         }
-    }));
-    let rx = stop_rx.clone();
-    tasks.push(tokio::spawn(async move {
-        stopped(rx).await;
-        drop(stage_pty);
-        drop(gauge_pty);
-    }));
-    let tx = stop_tx.clone();
-    let mut rx = stop_rx.clone();
-    tasks.push(tokio::spawn(async move {
+    })
+}
+
+/// The task that stops the cell when `shutdown` completes (or ends once it stopped otherwise).
+fn stop_on(
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    stop_tx: watch::Sender<bool>,
+) -> JoinHandle<()> {
+    let mut rx = stop_tx.subscribe();
+    tokio::spawn(async move {
         tokio::select! {
-            _ = shutdown => { let _ = tx.send(true); }
+            _ = shutdown => { let _ = stop_tx.send(true); }
             _ = rx.wait_for(|v| *v) => {}
         }
-    }));
-    info!(%tracker_addr, %robot_addr, ?stage_path, ?gauge_path, "simulated cell listening");
-    Ok(RunningSimCell {
-        tracker_addr,
-        robot_addr,
-        stage_path,
-        gauge_path,
-        world,
-        tracker_faults,
-        robot_faults,
-        stage_sim,
-        gauge_faults,
-        config: cfg,
-        stop_tx,
-        tasks,
     })
 }
