@@ -345,8 +345,41 @@ fn jog_line(points: &[(f64, Vector3<f64>)]) -> Option<(Vector3<f64>, Vec<f64>)> 
 
 /// Compute the tool frame from the labelled setup measurements (tracker frame).
 pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFrameError> {
+    check_finite(meas)?;
+    let home_ball = mean_home_ball(meas)?;
+    let axes = jog_axes(meas)?;
+    let r = axes.rotation;
+    // flange origin: sphere through home and the rotations
+    let sphere_pts: Vec<Vector3<f64>> = meas
+        .iter()
+        .filter(|m| m.mark.on_sphere())
+        .map(|m| m.p1)
+        .collect();
+    let sphere = fit_sphere(&sphere_pts)?;
+    let c = sphere.centre;
+    let stage = stage_axis_in_flange(meas, &r)?;
+    Ok(ToolFrame {
+        x_axis: r.column(0).into_owned(),
+        y_axis: r.column(1).into_owned(),
+        z_axis: r.column(2).into_owned(),
+        origin_mm: c,
+        tool_mm: r.transpose() * (home_ball - c),
+        stage_axis: stage.axis,
+        stage_travel_mm: stage.travel_mm,
+        stage_pairs: stage.pairs,
+        home_ball_mm: home_ball,
+        sphere,
+        jog_axes_angle_rad: axes.angle_rad,
+        jog_scale: axes.scale,
+        jog_rms_mm: axes.rms_mm,
+        rotation_angle_rms_rad: rotation_angle_rms(meas, &r, &c, &home_ball),
+    })
+}
+
+/// Every point and every commanded offset/angle finite, else the first bad measurement.
+fn check_finite(meas: &[SetupMeasurement]) -> Result<(), ToolFrameError> {
+    let bad = |v: &Vector3<f64>| v.iter().any(|x| !x.is_finite());
     for (index, m) in meas.iter().enumerate() {
-        let bad = |v: &Vector3<f64>| v.iter().any(|x| !x.is_finite());
         let bad_mark = match m.mark {
             SetupMark::Home => false,
             SetupMark::JogX { offset_mm } | SetupMark::JogY { offset_mm } => !offset_mm.is_finite(),
@@ -359,6 +392,11 @@ pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFram
             });
         }
     }
+    Ok(())
+}
+
+/// The mean P1 of the home measurements.
+fn mean_home_ball(meas: &[SetupMeasurement]) -> Result<Vector3<f64>, ToolFrameError> {
     let home: Vec<Vector3<f64>> = meas
         .iter()
         .filter(|m| m.mark == SetupMark::Home)
@@ -367,9 +405,24 @@ pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFram
     if home.is_empty() {
         return Err(ToolFrameError::NoHome);
     }
-    let home_ball = home.iter().sum::<Vector3<f64>>() / home.len() as f64;
+    Ok(home.iter().sum::<Vector3<f64>>() / home.len() as f64)
+}
 
-    // jog axes
+/// The flange x and y axes measured by the jogs, orthonormalised into a rotation.
+struct JogAxes {
+    /// Columns x, y, z = x × y of the flange frame in the tracker frame.
+    rotation: Matrix3<f64>,
+    /// Angle between the two jog lines before orthonormalisation.
+    angle_rad: f64,
+    /// Measured mm per commanded mm along x and y.
+    scale: [f64; 2],
+    /// RMS distance of the jog points from their lines.
+    rms_mm: f64,
+}
+
+/// Lines through home and the jogs along x and y → the flange axes (symmetric
+/// orthonormalisation, z = x × y); refused when the lines are closer than 30° to parallel.
+fn jog_axes(meas: &[SetupMeasurement]) -> Result<JogAxes, ToolFrameError> {
     let jog = |name: &'static str, pick: fn(&SetupMark) -> Option<f64>| {
         let pts: Vec<(f64, Vector3<f64>)> = meas
             .iter()
@@ -390,27 +443,29 @@ pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFram
     })?;
     let (sx, sy) = (gx.norm(), gy.norm());
     let (xh, yh) = (gx / sx, gy / sy);
-    let jog_axes_angle_rad = xh.cross(&yh).norm().atan2(xh.dot(&yh));
-    if jog_axes_angle_rad.sin() < 0.5 {
+    let angle_rad = xh.cross(&yh).norm().atan2(xh.dot(&yh));
+    if angle_rad.sin() < 0.5 {
         return Err(ToolFrameError::DegenerateAxes {
-            angle_deg: jog_axes_angle_rad.to_degrees(),
+            angle_deg: angle_rad.to_degrees(),
         });
     }
-    let r = project_so3(&Matrix3::from_columns(&[xh, yh, xh.cross(&yh).normalize()]));
-    let jog_res: Vec<f64> = rx.iter().chain(&ry).copied().collect();
-    let jog_rms_mm = (jog_res.iter().map(|v| v * v).sum::<f64>() / jog_res.len() as f64).sqrt();
+    let residuals: Vec<f64> = rx.iter().chain(&ry).copied().collect();
+    Ok(JogAxes {
+        rotation: project_so3(&Matrix3::from_columns(&[xh, yh, xh.cross(&yh).normalize()])),
+        angle_rad,
+        scale: [sx, sy],
+        rms_mm: (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt(),
+    })
+}
 
-    // flange origin: sphere through home and the rotations
-    let sphere_pts: Vec<Vector3<f64>> = meas
-        .iter()
-        .filter(|m| m.mark.on_sphere())
-        .map(|m| m.p1)
-        .collect();
-    let sphere = fit_sphere(&sphere_pts)?;
-    let c = sphere.centre;
-    let tool_mm = r.transpose() * (home_ball - c);
-
-    // rotation-angle consistency about the measured axes
+/// RMS of (measured − commanded) rotation angle about the measured flange x and y axes, seen
+/// from the sphere centre `c` (`None` without a usable rotation).
+fn rotation_angle_rms(
+    meas: &[SetupMeasurement],
+    r: &Matrix3<f64>,
+    c: &Vector3<f64>,
+    home_ball: &Vector3<f64>,
+) -> Option<f64> {
     let v0 = home_ball - c;
     let mut sq = 0.0;
     let mut count = 0usize;
@@ -430,9 +485,21 @@ pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFram
         sq += (measured - commanded).powi(2);
         count += 1;
     }
-    let rotation_angle_rms_rad = (count > 0).then(|| (sq / count as f64).sqrt());
+    (count > 0).then(|| (sq / count as f64).sqrt())
+}
 
-    // stage axis in the flange frame
+/// The stage axis in the flange frame: the mean of every P2 − P1 taken back through its
+/// measurement's flange motion and the measured flange rotation `r`.
+struct StageAxis {
+    axis: Vector3<f64>,
+    travel_mm: f64,
+    pairs: usize,
+}
+
+fn stage_axis_in_flange(
+    meas: &[SetupMeasurement],
+    r: &Matrix3<f64>,
+) -> Result<StageAxis, ToolFrameError> {
     let mut sum = Vector3::zeros();
     let mut travel = 0.0;
     let mut pairs = 0usize;
@@ -450,22 +517,10 @@ pub fn solve_tool_frame(meas: &[SetupMeasurement]) -> Result<ToolFrame, ToolFram
     if sum.norm() <= 1e-9 {
         return Err(ToolFrameError::ZeroStageTravel);
     }
-
-    Ok(ToolFrame {
-        x_axis: r.column(0).into_owned(),
-        y_axis: r.column(1).into_owned(),
-        z_axis: r.column(2).into_owned(),
-        origin_mm: c,
-        tool_mm,
-        stage_axis: sum.normalize(),
-        stage_travel_mm: travel / pairs as f64,
-        stage_pairs: pairs,
-        home_ball_mm: home_ball,
-        sphere,
-        jog_axes_angle_rad,
-        jog_scale: [sx, sy],
-        jog_rms_mm,
-        rotation_angle_rms_rad,
+    Ok(StageAxis {
+        axis: sum.normalize(),
+        travel_mm: travel / pairs as f64,
+        pairs,
     })
 }
 
