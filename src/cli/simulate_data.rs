@@ -7,8 +7,8 @@ use anyhow::{anyhow, Context};
 use nalgebra::Vector3;
 
 use cellcal::dataset::{parse_stage_axis, parse_vec3, write_csv};
-use cellcal::model::load_robot;
 use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
+use cellcal::model::{load_robot, RobotModel};
 use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
 
 use super::{input, other, Failure};
@@ -121,42 +121,14 @@ pub fn run(a: &SimArgs) -> Result<(), Failure> {
         )));
     }
     let errors = load_errors(&a.errors, nominal.dof(), a.error_seed).map_err(input)?;
-    let mut true_model = truth::apply_errors(&nominal, &errors)
-        .map_err(|e| input(anyhow!("--errors {}: {e}", a.errors)))?;
+    let true_model = true_robot(a, &nominal, &errors)?;
     let has_base = a.base_translation_mm.is_some() || a.base_rotvec_deg.is_some();
-    if let Some(t) = a.tool_mm {
-        true_model.tool = t;
-    }
-    if let Some(t) = a.base_translation_mm {
-        true_model.base_translation = t;
-    }
-    if let Some(r) = a.base_rotvec_deg {
-        true_model.base_rotation = from_rotation_vector(&(r * std::f64::consts::PI / 180.0));
-    }
     let tracker_pos = a.tracker_pos_mm.unwrap_or(if has_base {
         Vector3::zeros()
     } else {
         Vector3::new(2550.0, 0.0, 0.0)
     });
-    let mut cfg = SimConfig {
-        poses: a.poses,
-        ident: a.ident,
-        seed: a.seed,
-        tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
-        joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
-        stage_travel_mm: a.stage_travel_mm,
-        stage_axis: a.stage_axis,
-        stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
-        stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
-        stage_repeatability_mm: a.stage_repeatability_mm,
-        outlier_fraction: a.outliers,
-        outlier_mm: a.outlier_mm,
-        ..SimConfig::default()
-    };
-    if let Some(c) = a.box_center_mm {
-        cfg.workspace.center_mm = c;
-    }
-    cfg.workspace.size_mm = Vector3::repeat(a.box_size_mm);
+    let cfg = sim_config(a, tracker_pos);
     let sim = simulate::simulate(&nominal, &true_model, &cfg).map_err(input)?;
     let comment = format!(
         "cellcal simulate-data: robot {}, seed {}, errors {}, stage axis {:?} travel {} mm\nP2 = P1 + travel * R * u; q in rad; positions in mm (measurement frame)",
@@ -176,7 +148,88 @@ pub fn run(a: &SimArgs) -> Result<(), Failure> {
         .truth
         .clone()
         .unwrap_or_else(|| a.out.with_extension("truth.json"));
-    let doc = serde_json::json!({
+    let doc = truth_json(
+        a,
+        &nominal,
+        &true_model,
+        &errors,
+        &cfg,
+        tracker_pos,
+        &sim.outliers,
+    );
+    std::fs::write(
+        &truth_path,
+        serde_json::to_string_pretty(&doc).map_err(other)?,
+    )
+    .with_context(|| format!("{}: cannot write", truth_path.display()))
+    .map_err(other)?;
+    println!(
+        "wrote {} poses ({} ident, {} verify) to {} and the truth to {}",
+        a.poses,
+        a.ident,
+        a.poses - a.ident,
+        a.out.display(),
+        truth_path.display()
+    );
+    Ok(())
+}
+
+/// The simulated true robot: the nominal model with the error table, and the given tool and
+/// base.
+fn true_robot(
+    a: &SimArgs,
+    nominal: &RobotModel,
+    errors: &truth::ErrorTable,
+) -> Result<RobotModel, Failure> {
+    let mut true_model = truth::apply_errors(nominal, errors)
+        .map_err(|e| input(anyhow!("--errors {}: {e}", a.errors)))?;
+    if let Some(t) = a.tool_mm {
+        true_model.tool = t;
+    }
+    if let Some(t) = a.base_translation_mm {
+        true_model.base_translation = t;
+    }
+    if let Some(r) = a.base_rotvec_deg {
+        true_model.base_rotation = from_rotation_vector(&(r * std::f64::consts::PI / 180.0));
+    }
+    Ok(true_model)
+}
+
+/// The simulation settings of the arguments (noise off with `--no-noise`).
+fn sim_config(a: &SimArgs, tracker_pos: Vector3<f64>) -> SimConfig {
+    let mut cfg = SimConfig {
+        poses: a.poses,
+        ident: a.ident,
+        seed: a.seed,
+        tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
+        joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
+        stage_travel_mm: a.stage_travel_mm,
+        stage_axis: a.stage_axis,
+        stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
+        stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
+        stage_repeatability_mm: a.stage_repeatability_mm,
+        outlier_fraction: a.outliers,
+        outlier_mm: a.outlier_mm,
+        ..SimConfig::default()
+    };
+    if let Some(c) = a.box_center_mm {
+        cfg.workspace.center_mm = c;
+    }
+    cfg.workspace.size_mm = Vector3::repeat(a.box_size_mm);
+    cfg
+}
+
+/// The truth JSON: errors, true MDH, base, tool, noise, stage and outliers of the simulation.
+fn truth_json(
+    a: &SimArgs,
+    nominal: &RobotModel,
+    true_model: &RobotModel,
+    errors: &truth::ErrorTable,
+    cfg: &SimConfig,
+    tracker_pos: Vector3<f64>,
+    outliers: &[usize],
+) -> serde_json::Value {
+    serde_json::json!({
         "robot": nominal.name,
         "seed": a.seed,
         "errors": errors,
@@ -198,23 +251,8 @@ pub fn run(a: &SimArgs) -> Result<(), Failure> {
             "cross_mm_per_mm": cfg.stage_cross_mm_per_mm,
             "repeatability_mm": cfg.stage_repeatability_mm,
         },
-        "outlier_poses": sim.outliers.iter().map(|i| i.to_string()).collect::<Vec<_>>(),
+        "outlier_poses": outliers.iter().map(|i| i.to_string()).collect::<Vec<_>>(),
         "poses": a.poses,
         "ident": a.ident,
-    });
-    std::fs::write(
-        &truth_path,
-        serde_json::to_string_pretty(&doc).map_err(other)?,
-    )
-    .with_context(|| format!("{}: cannot write", truth_path.display()))
-    .map_err(other)?;
-    println!(
-        "wrote {} poses ({} ident, {} verify) to {} and the truth to {}",
-        a.poses,
-        a.ident,
-        a.poses - a.ident,
-        a.out.display(),
-        truth_path.display()
-    );
-    Ok(())
+    })
 }
