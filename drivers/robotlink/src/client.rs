@@ -639,8 +639,8 @@ impl RobotClient {
 }
 
 /// Writes queued lines whole; on a write error or timeout the connection is closed.
-/// Runs as the connection's own task and ends with it; lines are dequeued whole, so nothing outside
-/// it can drop it mid-line.
+/// Cancel-safe in effect: it is the connection's own task and is never aborted (a runtime
+/// shutdown mid-line ends the connection anyway).
 async fn writer_task(mut wr: BoxWriter, mut rx: mpsc::UnboundedReceiver<Out>, link: Arc<Link>) {
     let timeout = link.request_timeout;
     while let Some(Out::Line(line)) = rx.recv().await {
@@ -668,8 +668,8 @@ async fn writer_task(mut wr: BoxWriter, mut rx: mpsc::UnboundedReceiver<Out>, li
 
 /// Reads server lines: replies to their slots, events to subscribers; ends the connection on
 /// EOF or a protocol violation.
-/// Runs as the connection's own task and is only aborted with the client, which closes the
-/// connection.
+/// Cancel-safe in effect: it is the connection's own task, aborted only with the client, whose
+/// drop closes the connection.
 async fn reader_task<R>(mut rd: LineReader<BufReader<R>>, link: Arc<Link>)
 where
     R: AsyncRead + Send + Unpin,
