@@ -236,6 +236,7 @@ pub struct Health {
 }
 
 /// Whether the daemon answers (no token needed).
+///
 /// Cancel-safe: no state.
 #[utoipa::path(get, path = "/api/health", tag = "daemon", security(()),
     responses((status = 200, description = "the daemon answers", body = Health)))]
@@ -273,6 +274,7 @@ pub struct WhoAmI {
 }
 
 /// The caller's name, role and allowed actions.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/whoami", tag = "daemon",
     responses((status = 200, description = "the caller", body = WhoAmI),
@@ -291,6 +293,7 @@ async fn whoami(caller: Caller) -> Json<WhoAmI> {
 }
 
 /// Every stored campaign.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns", tag = "campaigns",
     responses((status = 200, description = "every stored campaign", body = Vec<CampaignView>),
@@ -300,6 +303,7 @@ async fn list(State(d): State<Shared>) -> Result<Response, ApiError> {
 }
 
 /// Plan and store a new campaign and load it (nothing moves yet).
+///
 /// Cancel-safe: the creation runs in its own task, so a dropped request (client gone) still creates
 /// and loads the campaign, or fails, as a whole.
 #[utoipa::path(post, path = "/api/campaigns", tag = "campaigns",
@@ -329,6 +333,7 @@ async fn create(
 }
 
 /// One campaign: state, progress, open question.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -341,6 +346,7 @@ async fn one(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Resp
 }
 
 /// A command to a campaign; answers with the campaign after it.
+///
 /// Cancel-safe: the command is applied before any wait, so a dropped request (client gone) still
 /// applies it; only the reply is lost.
 #[utoipa::path(post, path = "/api/campaigns/{id}/commands", tag = "campaigns",
@@ -366,6 +372,7 @@ async fn command(
 }
 
 /// The stored event journal.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/events", tag = "events",
     params(("id" = i64, Path, description = "campaign id")),
@@ -381,6 +388,7 @@ async fn journal(
 }
 
 /// The `cellcal identify` JSON of a campaign.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -404,6 +412,7 @@ fn no_result_yet(id: i64) -> ApiError {
 }
 
 /// The corrected model of a campaign: the robot TOML `cellcal run --model-out` writes.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/model", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -427,6 +436,7 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
 }
 
 /// The calibration report of a campaign: one self-contained HTML page.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -442,6 +452,7 @@ async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<R
 }
 
 /// The question waiting for the technician; 204 when none.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/prompt", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -495,6 +506,7 @@ fn sse_event(item: Followed) -> Event {
 }
 
 /// Live events as Server-Sent Events.
+///
 /// Cancel-safe: a dropped stream ends its follower task; nothing else changes.
 #[utoipa::path(get, path = "/api/campaigns/{id}/stream", tag = "events",
     params(("id" = i64, Path, description = "campaign id"),
@@ -526,6 +538,7 @@ struct MeasurementsQuery {
 }
 
 /// A campaign's measured poses: JSON rows, or the identify CSV of `cellcal export`.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/measurements", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id"),
@@ -563,6 +576,7 @@ async fn measurements(
 }
 
 /// A campaign's stored plan.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/plan", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
@@ -575,6 +589,7 @@ async fn plan(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Res
 }
 
 /// The cell's devices: kind, address, simulated, connected (null when unknown), last fault.
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/devices", tag = "daemon",
     responses((status = 200, description = "tracker, robot and stage", body = DevicesView),
@@ -585,6 +600,7 @@ async fn devices(State(d): State<Shared>, caller: Caller) -> Result<Response, Ap
 }
 
 /// Prometheus metrics (OpenMetrics text); any role's token (Prometheus: `bearer_token`).
+///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/metrics", tag = "daemon",
     responses((status = 200, description = "poses measured, faults and retries by kind, campaign state, request latency by route",

@@ -78,6 +78,7 @@ pub fn document() -> String {
 }
 
 /// This description of the API (no token needed).
+///
 /// Cancel-safe: no state.
 #[utoipa::path(get, path = "/api/openapi.json", tag = "daemon", security(()),
     responses((status = 200, description = "the OpenAPI 3.1 document", body = serde_json::Value)))]
