@@ -1114,6 +1114,8 @@ fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
 
 /// Keep each technician question for `answer`, then journal and announce it as a `prompt`
 /// event (in that order, so a client that sees the event can answer it at once).
+/// Runs as the session's own task. Cancel-safe: the question is kept before the only await, and
+/// [`journal_event`] finishes on its blocking thread even if this task is dropped.
 async fn pump_prompts(
     mut prompts: mpsc::Receiver<PendingPrompt>,
     slot: Arc<StdMutex<Option<PendingPrompt>>>,

@@ -31,6 +31,9 @@ fn parse_answer(line: &str) -> Option<Answer> {
 
 #[async_trait]
 impl Prompter for TerminalPrompter {
+    /// Cancel-safe as the [`Prompter`] contract asks, with one cost: a dropped question's blocking
+    /// thread keeps reading stdin, so the next line typed answers it (and is dropped with it); the
+    /// engine drops a question only on abort, which ends the terminal run.
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
         tokio::task::spawn_blocking(move || {
             let stdin = std::io::stdin();
@@ -72,6 +75,8 @@ impl Prompter for TerminalPrompter {
 
 /// The operator at the terminal: when the campaign pauses for a fault, show why and wait for
 /// Enter (resume), `r` (resume and re-register a moved tracker frame) or `a` (abort).
+/// Cancel-safe: the command is applied without an await after the answer; a drop while waiting for
+/// the answer leaves its blocking thread reading stdin (that line is then ignored).
 pub async fn ask_on_pause(mut rx: broadcast::Receiver<Journalled>, control: Control) {
     loop {
         let reason = match rx.recv().await.map(|j| j.event) {
@@ -123,6 +128,7 @@ pub enum Display {
 }
 
 /// Print campaign events until the channel closes.
+/// Cancel-safe: it only receives and prints.
 pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize, display: Display) {
     let bar = if display == Display::Bar {
         ProgressBar::new(total as u64)

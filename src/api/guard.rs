@@ -277,6 +277,7 @@ fn unauthorized(message: &str, invalid_token: bool) -> Refusal {
 }
 
 /// Middleware: [`Gate::admit`] every request before routing.
+/// Cancel-safe: admission has no await; a drop only drops the inner handler (see each handler).
 pub async fn guard(State(gate): State<Arc<Gate>>, mut req: Request, next: Next) -> Response {
     match gate.admit(&mut req) {
         Ok(()) => next.run(req).await,
@@ -286,6 +287,7 @@ pub async fn guard(State(gate): State<Arc<Gate>>, mut req: Request, next: Next) 
 
 /// Middleware: an error response that is not JSON (axum's rejections: 405, 413, a path that
 /// does not parse, …) becomes `{"error": its text}` with the same status and headers.
+/// Cancel-safe: it only rewrites the response; a drop only drops the inner handler.
 pub async fn json_errors(req: Request, next: Next) -> Response {
     let method = req.method().clone();
     let res = next.run(req).await;

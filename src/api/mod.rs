@@ -113,6 +113,7 @@ struct Caller(Principal);
 impl<S: Send + Sync> FromRequestParts<S> for Caller {
     type Rejection = ApiError;
 
+    /// Cancel-safe: it only reads the request.
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
         parts
             .extensions
@@ -151,6 +152,7 @@ struct CampaignId(i64);
 impl<S: Send + Sync> FromRequestParts<S> for CampaignId {
     type Rejection = ApiError;
 
+    /// Cancel-safe: it only reads the request.
     async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
         let Path(raw) = Path::<String>::from_request_parts(parts, state)
             .await
@@ -234,6 +236,8 @@ pub struct Health {
 }
 
 /// Whether the daemon answers (no token needed).
+///
+/// Cancel-safe: no state.
 #[utoipa::path(get, path = "/api/health", tag = "daemon", security(()),
     responses((status = 200, description = "the daemon answers", body = Health)))]
 async fn health() -> Json<Health> {
@@ -270,6 +274,8 @@ pub struct WhoAmI {
 }
 
 /// The caller's name, role and allowed actions.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/whoami", tag = "daemon",
     responses((status = 200, description = "the caller", body = WhoAmI),
         (status = 401, description = "no or unknown token", body = ErrorBody)))]
@@ -287,6 +293,8 @@ async fn whoami(caller: Caller) -> Json<WhoAmI> {
 }
 
 /// Every stored campaign.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns", tag = "campaigns",
     responses((status = 200, description = "every stored campaign", body = Vec<CampaignView>),
         (status = 401, description = "no or unknown token", body = ErrorBody)))]
@@ -295,6 +303,9 @@ async fn list(State(d): State<Shared>) -> Result<Response, ApiError> {
 }
 
 /// Plan and store a new campaign and load it (nothing moves yet).
+///
+/// Cancel-safe: the creation runs in its own task, so a dropped request (client gone) still creates
+/// and loads the campaign, or fails, as a whole.
 #[utoipa::path(post, path = "/api/campaigns", tag = "campaigns",
     request_body(content = Option<CampaignOverrides>, content_type = "application/json",
         description = "overrides of the configuration's `[campaign]`; may be empty"),
@@ -322,6 +333,8 @@ async fn create(
 }
 
 /// One campaign: state, progress, open question.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "the campaign", body = CampaignView),
@@ -333,6 +346,9 @@ async fn one(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Resp
 }
 
 /// A command to a campaign; answers with the campaign after it.
+///
+/// Cancel-safe: the command is applied before any wait, so a dropped request (client gone) still
+/// applies it; only the reply is lost.
 #[utoipa::path(post, path = "/api/campaigns/{id}/commands", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     request_body(content = ClientCommand, content_type = "application/json"),
@@ -356,6 +372,8 @@ async fn command(
 }
 
 /// The stored event journal.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/events", tag = "events",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "`[{seq, at_ms, kind, event}]` in sequence order", body = Vec<serde_json::Value>),
@@ -370,6 +388,8 @@ async fn journal(
 }
 
 /// The `cellcal identify` JSON of a campaign.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "the `cellcal identify` JSON contract (see README)", body = serde_json::Value),
@@ -392,6 +412,8 @@ fn no_result_yet(id: i64) -> ApiError {
 }
 
 /// The corrected model of a campaign: the robot TOML `cellcal run --model-out` writes.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/model", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "a robot model file (TOML) with the identified absolute MDH values, base and tool, the nominal joint limits and a provenance header; every command loads it as `--robot`", body = String, content_type = "text/plain; charset=utf-8"),
@@ -414,6 +436,8 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
 }
 
 /// The calibration report of a campaign: one self-contained HTML page.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
@@ -428,6 +452,8 @@ async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<R
 }
 
 /// The question waiting for the technician; 204 when none.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/prompt", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "the open question", body = PromptView),
@@ -480,6 +506,8 @@ fn sse_event(item: Followed) -> Event {
 }
 
 /// Live events as Server-Sent Events.
+///
+/// Cancel-safe: a dropped stream ends its follower task; nothing else changes.
 #[utoipa::path(get, path = "/api/campaigns/{id}/stream", tag = "events",
     params(("id" = i64, Path, description = "campaign id"),
         ("Last-Event-ID" = Option<i64>, Header, description = "resume after this journal sequence number"),
@@ -510,6 +538,8 @@ struct MeasurementsQuery {
 }
 
 /// A campaign's measured poses: JSON rows, or the identify CSV of `cellcal export`.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/measurements", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id"),
         ("format" = Option<String>, Query, description = "`json` (default) or `csv`: the identify CSV with its setup header, exactly as `cellcal export` writes it")),
@@ -546,6 +576,8 @@ async fn measurements(
 }
 
 /// A campaign's stored plan.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/plan", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     responses((status = 200, description = "every planned pose in move order with its set, joint target (rad) and done mark", body = PlanView),
@@ -557,6 +589,8 @@ async fn plan(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Res
 }
 
 /// The cell's devices: kind, address, simulated, connected (null when unknown), last fault.
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/devices", tag = "daemon",
     responses((status = 200, description = "tracker, robot and stage", body = DevicesView),
         (status = 401, description = "no or unknown token", body = ErrorBody)))]
@@ -566,6 +600,8 @@ async fn devices(State(d): State<Shared>, caller: Caller) -> Result<Response, Ap
 }
 
 /// Prometheus metrics (OpenMetrics text); any role's token (Prometheus: `bearer_token`).
+///
+/// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/metrics", tag = "daemon",
     responses((status = 200, description = "poses measured, faults and retries by kind, campaign state, request latency by route",
             body = String, content_type = "application/openmetrics-text"),

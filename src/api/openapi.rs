@@ -78,6 +78,8 @@ pub fn document() -> String {
 }
 
 /// This description of the API (no token needed).
+///
+/// Cancel-safe: no state.
 #[utoipa::path(get, path = "/api/openapi.json", tag = "daemon", security(()),
     responses((status = 200, description = "the OpenAPI 3.1 document", body = serde_json::Value)))]
 pub(super) async fn serve_document() -> Json<serde_json::Value> {

@@ -78,6 +78,8 @@ pub fn report_page(html: String) -> Response {
 }
 
 /// The cockpit page (no token needed; it signs in with `?token=` or a typed token).
+///
+/// Cancel-safe: no state.
 #[utoipa::path(get, path = "/", tag = "web", security(()),
     responses((status = 200, description = "the page (also at `/index.html`)", body = String, content_type = "text/html")))]
 pub(super) async fn index() -> Response {
@@ -85,6 +87,8 @@ pub(super) async fn index() -> Response {
 }
 
 /// The page's script.
+///
+/// Cancel-safe: no state.
 #[utoipa::path(get, path = "/app.js", tag = "web", security(()),
     responses((status = 200, description = "the page's script", body = String, content_type = "text/javascript")))]
 pub(super) async fn app_js() -> Response {
@@ -92,6 +96,8 @@ pub(super) async fn app_js() -> Response {
 }
 
 /// The page's style sheet.
+///
+/// Cancel-safe: no state.
 #[utoipa::path(get, path = "/app.css", tag = "web", security(()),
     responses((status = 200, description = "the page's style sheet", body = String, content_type = "text/css")))]
 pub(super) async fn app_css() -> Response {

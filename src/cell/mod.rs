@@ -130,17 +130,27 @@ pub struct TrackerPoint {
 }
 
 /// A laser tracker.
+///
+/// Cancel-safety contract: the engine drops any of these futures when a campaign is aborted
+/// (`guarded` in `campaign::engine`) and on its own timeouts, so every method must be
+/// cancel-safe: a drop at any await may leave the device mid-command, but never a stream out
+/// of step (a late reply or result is dropped, or the connection is closed so the next call
+/// fails `Disconnected` and [`Tracker::reconnect`] recovers).
 #[async_trait]
 pub trait Tracker: Send + Sync {
     /// Connect if needed and configure for stationary measurement (units, mode, reflector).
+    /// Must be cancel-safe (see the trait): a dropped call leaves a setup to run again.
     async fn prepare(&mut self) -> Result<(), CellError>;
-    /// One stationary measurement of the reflector.
+    /// One stationary measurement of the reflector. Must be cancel-safe (see the trait): the
+    /// result of a dropped measurement must never be returned by a later call.
     async fn measure(&mut self) -> Result<TrackerPoint, CellError>;
     /// Re-acquire the target after a beam break: first where the ball should be
     /// (`predicted_mm`, tracker frame, when the caller knows it), then at the last measured
-    /// point, then by a search; `Ok` only with a reflector locked.
+    /// point, then by a search; `Ok` only with a reflector locked. Must be cancel-safe (see the
+    /// trait); a dropped call may leave the beam moving.
     async fn relock(&mut self, predicted_mm: Option<Vector3<f64>>) -> Result<(), CellError>;
-    /// Drop and re-establish the connection, then prepare again.
+    /// Drop and re-establish the connection, then prepare again. Must be cancel-safe (see the
+    /// trait): a dropped call leaves no connection or a complete one.
     async fn reconnect(&mut self) -> Result<(), CellError>;
     /// What the device said it is at its last successful connection (model, serial, firmware),
     /// for the campaign journal and the report; `None` before one or when it cannot say.
@@ -150,19 +160,31 @@ pub trait Tracker: Send + Sync {
 }
 
 /// A robot controller.
+///
+/// Cancel-safety contract: the engine drops any of these futures when a campaign is aborted
+/// (`guarded` in `campaign::engine`) and on its own timeouts, then calls [`Robot::stop`]; so
+/// every method must be cancel-safe: a drop never leaves the link out of step, and `stop`
+/// must reach the arm right after a dropped `move_joints` or `wait_settled` (dropping those
+/// does not stop the arm by itself).
 #[async_trait]
 pub trait Robot: Send + Sync {
-    /// Connect if needed, identify, power on and set the speed (percent of maximum).
+    /// Connect if needed, identify, power on and set the speed (percent of maximum). Must be
+    /// cancel-safe (see the trait); a dropped call may have switched power on.
     async fn prepare(&mut self, speed_pct: f64) -> Result<(), CellError>;
-    /// Start a joint move to `q_rad` (returns when accepted, not when finished).
+    /// Start a joint move to `q_rad` (returns when accepted, not when finished). Must be
+    /// cancel-safe (see the trait); a dropped call may still have started the move.
     async fn move_joints(&mut self, q_rad: &[f64]) -> Result<(), CellError>;
-    /// Wait until the robot has settled; returns the joints read after settling (rad).
+    /// Wait until the robot has settled; returns the joints read after settling (rad). Must be
+    /// cancel-safe (see the trait); a drop leaves the arm moving until [`Robot::stop`].
     async fn wait_settled(&mut self, timeout: Duration) -> Result<Vec<f64>, CellError>;
-    /// Current joints (rad).
+    /// Current joints (rad). Must be cancel-safe (see the trait).
     async fn joints(&mut self) -> Result<Vec<f64>, CellError>;
-    /// Stop any motion now.
+    /// Stop any motion now. Must be cancel-safe (see the trait) and work after any other
+    /// call was dropped; the engine bounds it with a timeout, so it may itself be dropped.
     async fn stop(&mut self) -> Result<(), CellError>;
     /// Drop and re-establish the connection; never switches power on (only `prepare` does).
+    /// Must be cancel-safe (see the trait): a dropped call leaves no connection or a complete
+    /// one.
     async fn reconnect(&mut self) -> Result<(), CellError>;
     /// What the device said it is at its last successful connection (model, serial, firmware),
     /// for the campaign journal and the report; `None` before one or when it cannot say.
@@ -172,13 +194,19 @@ pub trait Robot: Send + Sync {
 }
 
 /// The 1D stage carrying the target ball.
+///
+/// Cancel-safety contract: the engine drops these futures when a campaign is aborted
+/// (`guarded` in `campaign::engine`), so every method must be cancel-safe: a drop may leave a
+/// move or homing under way (or a question open), but the next call must not take a late
+/// reply or reading for its own.
 #[async_trait]
 pub trait Stage: Send + Sync {
     /// Whether a person moves it (prompts).
     fn is_manual(&self) -> bool;
-    /// Prepare (home a motorised stage).
+    /// Prepare (home a motorised stage). Must be cancel-safe (see the trait).
     async fn prepare(&mut self) -> Result<(), CellError>;
-    /// Move to `position_mm`; returns the read-back or confirmed position (mm).
+    /// Move to `position_mm`; returns the read-back or confirmed position (mm). Must be
+    /// cancel-safe (see the trait); a dropped call may leave the move under way.
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError>;
     /// What the engine is doing at the next [`Stage::move_to`] (a manual stage shows it with
     /// its question); a motorised stage ignores it.
@@ -272,8 +300,12 @@ pub enum Answer {
 }
 
 /// Asks the technician (terminal, web page, or a scripted answerer in headless runs).
+///
+/// Cancel-safety contract: the engine drops a pending `ask` when a campaign is aborted, so it
+/// must be cancel-safe: a dropped question is withdrawn or, if a front end still shows it,
+/// answering it does nothing (the answer is never given to a later question).
 #[async_trait]
 pub trait Prompter: Send + Sync {
-    /// Ask and wait for an answer.
+    /// Ask and wait for an answer. Must be cancel-safe (see the trait).
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError>;
 }

@@ -69,6 +69,7 @@ impl ScriptedPrompter {
 
 #[async_trait]
 impl Prompter for ScriptedPrompter {
+    /// Cancel-safe: no await, so it runs to completion or not at all.
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
         lock(&self.asked).push(prompt.clone());
         match &mut *lock(&self.script) {
@@ -124,6 +125,8 @@ impl ChannelPrompter {
 
 #[async_trait]
 impl Prompter for ChannelPrompter {
+    /// Cancel-safe as the [`Prompter`] contract asks: a dropped call drops the answer's receiver,
+    /// so an answer to that question (matched by `seq`) reaches nobody and never a later question.
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
         let (reply, rx) = oneshot::channel();
         let seq = self.seq.fetch_add(1, Ordering::Relaxed) + 1;

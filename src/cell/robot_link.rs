@@ -129,6 +129,7 @@ impl LinkRobot {
 
     /// A new connection that has said HELLO (v2, or v1 with an older server), and what the
     /// controller said it is.
+    /// Cancel-safe: a drop before it returns drops the new connection (the client closes on drop).
     async fn open(&self) -> Result<(RobotClient, String), CellError> {
         let client = RobotClient::connect(self.cfg.address.as_str(), self.cfg.client_config())
             .await

@@ -35,11 +35,13 @@ impl Default for ManualStageConfig {
 #[async_trait]
 pub trait GaugeReader: Send + Sync {
     /// One reading (mm).
+    /// Must be cancel-safe: a dropped reading must not be returned by the next call.
     async fn read_mm(&mut self) -> Result<f64, GaugeError>;
 }
 
 #[async_trait]
 impl<S: AsyncRead + AsyncWrite + Unpin + Send + Sync> GaugeReader for GaugeClient<S> {
+    /// Cancel-safe (see [`GaugeClient::read_mm`]).
     async fn read_mm(&mut self) -> Result<f64, GaugeError> {
         GaugeClient::read_mm(self).await
     }
@@ -76,6 +78,7 @@ impl std::fmt::Debug for ManualStage {
 }
 
 /// Ask `text` about setting the stage to `target`; `retry` says why the last answer was refused.
+/// Cancel-safe as the [`Prompter`] contract asks (no state changes of its own).
 async fn ask(
     prompter: &Arc<dyn Prompter>,
     with_gauge: bool,
@@ -164,6 +167,7 @@ impl Stage for ManualStage {
         true
     }
 
+    /// Cancel-safe: it only reads the gauge.
     async fn prepare(&mut self) -> Result<(), CellError> {
         if let Some(g) = self.gauge.as_mut() {
             let v = g
@@ -186,6 +190,8 @@ impl Stage for ManualStage {
         })
     }
 
+    /// Cancel-safe: a drop withdraws the question (see [`Prompter`]) or a gauge reading; the move's
+    /// prompt context is used up, so a repeated move asks without it (claiming nothing).
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
         // the context holds for this move only: a later move without one claims nothing
         let context = std::mem::take(&mut self.context);

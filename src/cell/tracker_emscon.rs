@@ -156,6 +156,7 @@ impl EmsconTracker {
         }
     }
 
+    /// Cancel-safe: the client is stored only once set up, so a drop leaves no connection.
     async fn connect_and_setup(&mut self) -> Result<(), CellError> {
         let client = Client::connect(self.cfg.address.as_str(), self.cfg.client_config())
             .await
@@ -176,6 +177,8 @@ impl EmsconTracker {
 
 #[async_trait]
 impl Tracker for EmsconTracker {
+    /// Cancel-safe (the emScon client is): a drop during the setup drops the connection (the client
+    /// is taken out for it), so the next call fails `Disconnected` or connects afresh.
     async fn prepare(&mut self) -> Result<(), CellError> {
         if let Some(c) = self.client.take() {
             if c.is_connected() {
@@ -196,6 +199,8 @@ impl Tracker for EmsconTracker {
         self.connect_and_setup().await
     }
 
+    /// Cancel-safe (the emScon client is): a dropped measurement closes the connection, so its
+    /// result never comes back as the next one.
     async fn measure(&mut self) -> Result<TrackerPoint, CellError> {
         let c = self.connected()?;
         let m = c.measure_stationary().await.map_err(|e| {
@@ -259,6 +264,7 @@ impl Tracker for EmsconTracker {
         }
     }
 
+    /// Cancel-safe: the new client is stored only once set up, so a drop leaves no connection.
     async fn reconnect(&mut self) -> Result<(), CellError> {
         if let Some(c) = self.client.take() {
             c.close().await;

@@ -275,6 +275,8 @@ impl Observer {
     }
 
     /// Note the journal entries after `*last`; `false` once the run's final state is among them.
+    /// Cancel-safe: no state changes before the only await (the journal read); the entries are then
+    /// noted without an await.
     async fn replay(&self, last: &mut i64) -> bool {
         let (id, after) = (self.id, *last);
         let readers = Arc::clone(&self.readers);

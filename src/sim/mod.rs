@@ -183,6 +183,8 @@ impl RunningSimCell {
     }
 
     /// Stop every server and pty and wait (bounded) for the tasks to end.
+    /// Cancel-safe: the stop signal goes out before the first await (and again when the handle
+    /// drops), so a dropped call only stops waiting for the tasks to end.
     pub async fn stop(mut self) {
         let _ = self.stop_tx.send(true);
         let tasks = std::mem::take(&mut self.tasks);
@@ -206,10 +208,12 @@ impl Drop for RunningSimCell {
     }
 }
 
+/// Cancel-safe: it only waits.
 async fn stopped(mut rx: watch::Receiver<bool>) {
     let _ = rx.wait_for(|v| *v).await;
 }
 
+/// Cancel-safe: a drop before it returns leaves no listener.
 async fn bind(port: u16, what: &str) -> Result<TcpListener, SimError> {
     TcpListener::bind(("127.0.0.1", port))
         .await
@@ -240,6 +244,8 @@ fn sim_stage_resolution(microsteps_per_mm: f64) -> Result<u32, SimError> {
 /// Start the simulated cell for `robot` (the nominal model): binds the tracker and robot
 /// listeners on 127.0.0.1, opens the ptys, and runs until `shutdown` completes or the returned
 /// handle is stopped or dropped. Must be called inside a Tokio runtime.
+/// Cancel-safe: a drop before it returns drops the listeners and ptys opened so far; the servers
+/// are spawned only after the last await.
 pub async fn start_cell(
     robot: RobotModel,
     cfg: SimWorldConfig,

@@ -23,6 +23,8 @@ impl SimTechnician {
 
 #[async_trait]
 impl Prompter for SimTechnician {
+    /// Cancel-safe as the [`Prompter`] contract asks: the micrometer moves only after the answer,
+    /// with no await after it.
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
         let expected = prompt.expected_mm;
         let stage = prompt.id.starts_with("stage");

@@ -12,6 +12,7 @@ mod common;
 mod compensate;
 mod deploy;
 mod frames;
+mod house;
 mod identifiability;
 mod model_out;
 mod paper;

@@ -232,8 +232,9 @@ enum Ctx {
 /// Async emScon TPI client (one outstanding command at a time; cheap to recreate).
 ///
 /// Every request method is cancel-safe: a dropped request never desynchronises the stream
-/// (a half-written command or a measurement in flight closes the connection, so the next call
-/// fails `Disconnected` and the caller reconnects; a sent command's late reply is dropped).
+/// (a half-written command, a measurement in flight or a GetReflectors still collecting its
+/// replies closes the connection, so the next call fails `Disconnected` and the caller
+/// reconnects; a sent command's late reply is dropped).
 pub struct Client {
     shared: SharedRef,
     op: tokio::sync::Mutex<OpState>,
@@ -285,6 +286,8 @@ fn route(shared: &SharedRef, item: Incoming) {
     }
 }
 
+/// Runs as the client's own task and is only aborted with the client (or by `close`), which closes
+/// the connection, so it has no cancel-safety contract to keep.
 async fn reader_loop<R: AsyncRead + Unpin>(
     mut rd: R,
     shared: SharedRef,
@@ -388,15 +391,19 @@ enum Wire {
     /// A measurement is under way: its result could later pass for another one's, so the
     /// connection is closed.
     Measuring,
+    /// A multi-reply command (GetReflectors) is under way: how many of its replies are still
+    /// to come is unknown, so the connection is closed.
+    Collecting,
 }
 
 impl Drop for Op<'_> {
-    /// A dropped request never desynchronises the stream: a half-written command closes the
-    /// connection, a sent one has its late reply marked to be dropped.
+    /// A dropped request never desynchronises the stream: a half-written command, a
+    /// measurement or a multi-reply command in flight closes the connection, a sent one has
+    /// its late reply marked to be dropped.
     fn drop(&mut self) {
         match self.wire {
             Wire::Idle => {}
-            Wire::Writing | Wire::Measuring => {
+            Wire::Writing | Wire::Measuring | Wire::Collecting => {
                 close_shared(self.shared, self.events, CloseReason::Io)
             }
             Wire::Awaiting(id) => self.st.mark_stale(id),
@@ -406,6 +413,8 @@ impl Drop for Op<'_> {
 }
 
 impl Op<'_> {
+    /// Not cancel-safe on its own: a drop mid-write leaves a partial command, which is why it marks
+    /// the op `Writing` first so that dropping the [`Op`] closes the connection.
     async fn send(&mut self, command: &Command) -> Result<(), EmsconError> {
         let bytes = command.to_bytes();
         self.wire = Wire::Writing;
@@ -430,6 +439,7 @@ impl Op<'_> {
         }
     }
 
+    /// Cancel-safe: it only receives from the routing channel, which keeps unread items.
     async fn recv(
         &mut self,
         deadline: Instant,
@@ -472,6 +482,8 @@ impl Op<'_> {
     }
 
     /// Sends `command` and waits for its reply (non-OK status is final).
+    /// Cancel-safe through the [`Op`] guard: a drop mid-write closes the connection, a drop while
+    /// awaiting the reply marks the command's late reply stale.
     async fn transact(
         &mut self,
         command: &Command,
@@ -490,6 +502,8 @@ impl Op<'_> {
         res
     }
 
+    /// Cancel-safe: it only reads routed packets; the caller's wire state says what a drop must
+    /// repair.
     async fn await_reply(
         &mut self,
         id: i32,
@@ -542,6 +556,7 @@ fn all_finite(values: &[f64]) -> bool {
 
 impl Client {
     /// Connects over TCP (timeout `config.connect_timeout`) and starts the reader task.
+    /// Cancel-safe: a drop before it returns leaves no connection and no reader task behind.
     pub async fn connect<A: ToSocketAddrs>(
         addr: A,
         config: ClientConfig,
@@ -557,6 +572,7 @@ impl Client {
     }
 
     /// Opens a fresh connection to the same server with the same configuration.
+    /// Cancel-safe like [`Client::connect`]; the old client is untouched.
     pub async fn reconnect(&self) -> Result<Client, EmsconError> {
         let addr = self.peer.ok_or(EmsconError::Disconnected)?;
         Client::connect(addr, self.config.clone()).await
@@ -606,6 +622,8 @@ impl Client {
     }
 
     /// Closes the connection; later calls return `Disconnected`.
+    /// Cancel-safe: a drop while waiting for the command slot or the shutdown changes nothing (the
+    /// connection is then closed by dropping the client).
     pub async fn close(&self) {
         if let Ok(mut st) = tokio::time::timeout(self.config.command_timeout, self.op.lock()).await
         {
@@ -615,6 +633,7 @@ impl Client {
         close_shared(&self.shared, &self.events, CloseReason::Dropped);
     }
 
+    /// Cancel-safe: no state changes before the only await (the command slot).
     async fn begin(&self) -> Result<Op<'_>, EmsconError> {
         let st = tokio::time::timeout(self.config.command_timeout, self.op.lock())
             .await
@@ -639,6 +658,8 @@ impl Client {
         })
     }
 
+    /// Cancel-safe (see [`Client`]): the [`Op`] guard repairs the stream whatever await it is
+    /// dropped at.
     async fn simple(
         &self,
         command: Command,
@@ -651,12 +672,14 @@ impl Client {
     }
 
     /// Sends any command and returns its (OK) reply; errors are mapped as for plain commands.
+    /// Cancel-safe (see [`Client`]).
     pub async fn command(&self, command: Command) -> Result<Reply, EmsconError> {
         self.simple(command, self.config.command_timeout, Ctx::Plain, "reply")
             .await
     }
 
     /// GetSystemStatus (1).
+    /// Cancel-safe (see [`Client`]).
     pub async fn system_status(&self) -> Result<SystemStatus, EmsconError> {
         let rep = self
             .simple(
@@ -673,6 +696,7 @@ impl Client {
     }
 
     /// SetUnits (5) with arbitrary units (results are only interpreted as mm by this client).
+    /// Cancel-safe (see [`Client`]); a dropped call may still have changed the units.
     pub async fn set_units(&self, units: Units) -> Result<(), EmsconError> {
         self.simple(
             Command::SetUnits(units),
@@ -685,11 +709,13 @@ impl Client {
     }
 
     /// SetUnits (5): millimetre, degree, °C, mbar, %RH.
+    /// Cancel-safe (see [`Client`]); a dropped call may still have changed the units.
     pub async fn set_units_mm_deg(&self) -> Result<(), EmsconError> {
         self.set_units(Units::MM_DEG).await
     }
 
     /// Initialize (7), with `config.initialize_timeout`.
+    /// Cancel-safe (see [`Client`]); a dropped call does not stop the tracker initialising.
     pub async fn initialize(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::Initialize,
@@ -702,6 +728,7 @@ impl Client {
     }
 
     /// SetEnvironmentParams (20).
+    /// Cancel-safe (see [`Client`]); a dropped call may still have applied the parameters.
     pub async fn set_environment(&self, env: Environment) -> Result<(), EmsconError> {
         self.simple(
             Command::SetEnvironmentParams(env),
@@ -714,6 +741,7 @@ impl Client {
     }
 
     /// SetMeasurementMode (24) = stationary.
+    /// Cancel-safe (see [`Client`]); a dropped call may still have switched the mode.
     pub async fn set_measurement_mode_stationary(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::SetMeasurementMode(MEAS_MODE_STATIONARY),
@@ -726,6 +754,9 @@ impl Client {
     }
 
     /// SetStationaryModeParams (28); remembers the measuring time for result timeouts.
+    /// Cancel-safe for the stream (see [`Client`]); a call dropped after the command went out may
+    /// leave the tracker on the new measuring time while result timeouts still use the old one, so
+    /// call it again before measuring.
     pub async fn set_stationary_params(
         &self,
         meas_time_ms: i32,
@@ -747,6 +778,7 @@ impl Client {
     }
 
     /// SetCoordinateSystemType (26) = RHR (Cartesian right-handed).
+    /// Cancel-safe (see [`Client`]); a dropped call may still have switched the system.
     pub async fn set_coordinate_system_rhr(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::SetCoordinateSystemType(COORD_SYS_RHR),
@@ -759,6 +791,7 @@ impl Client {
     }
 
     /// SetReflector (40).
+    /// Cancel-safe (see [`Client`]); a dropped call may still have selected the reflector.
     pub async fn set_reflector(&self, id: i32) -> Result<(), EmsconError> {
         self.simple(
             Command::SetReflector(id),
@@ -771,10 +804,13 @@ impl Client {
     }
 
     /// GetReflectors (42): collects one reply per reflector.
+    /// Cancel-safe: a drop once the command went out closes the connection, because the number of
+    /// its replies still to come is unknown (see [`Client`]).
     pub async fn reflectors(&self) -> Result<Vec<ReflectorInfo>, EmsconError> {
         let mut op = self.begin().await?;
         let deadline = Instant::now() + self.config.command_timeout;
         op.send(&Command::GetReflectors).await?;
+        op.wire = Wire::Collecting;
         let mut out = Vec::new();
         loop {
             let rep = match op
@@ -809,6 +845,7 @@ impl Client {
     }
 
     /// SetSystemSettings (47).
+    /// Cancel-safe (see [`Client`]); a dropped call may still have applied the settings.
     pub async fn set_system_settings(&self, settings: SystemSettings) -> Result<(), EmsconError> {
         self.simple(
             Command::SetSystemSettings(settings),
@@ -821,6 +858,7 @@ impl Client {
     }
 
     /// SetStatisticMode (80): `extended` = SingleMeasResult2 results.
+    /// Cancel-safe (see [`Client`]); a dropped call may still have switched the mode.
     pub async fn set_statistic_mode(&self, extended: bool) -> Result<(), EmsconError> {
         let mode = i32::from(extended);
         self.simple(
@@ -837,11 +875,13 @@ impl Client {
     }
 
     /// GetMeasurementStatusInfo (122) bitmask.
+    /// Cancel-safe (see [`Client`]).
     pub async fn measurement_status(&self) -> Result<MeasurementStatusInfo, EmsconError> {
         let mut op = self.begin().await?;
         Self::measurement_status_op(&mut op).await
     }
 
+    /// Cancel-safe through the [`Op`] guard (see [`Op::transact`]).
     async fn measurement_status_op(op: &mut Op<'_>) -> Result<MeasurementStatusInfo, EmsconError> {
         let timeout = op.cfg.command_timeout;
         let rep = op
@@ -859,6 +899,7 @@ impl Client {
     }
 
     /// FindReflector (63); failure codes in the beam-break set map to `TargetNotFound`.
+    /// Cancel-safe (see [`Client`]); a dropped call does not stop the search.
     pub async fn find_reflector(&self, approx_distance_mm: f64) -> Result<(), EmsconError> {
         self.simple(
             Command::FindReflector {
@@ -873,6 +914,7 @@ impl Client {
     }
 
     /// GoLastMeasuredPoint (62); failure codes in the beam-break set map to `TargetNotFound`.
+    /// Cancel-safe (see [`Client`]); a dropped call does not stop the beam moving.
     pub async fn go_last_measured_point(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::GoLastMeasuredPoint,
@@ -901,6 +943,7 @@ impl Client {
     }
 
     /// StopMeasurement (52).
+    /// Cancel-safe (see [`Client`]).
     pub async fn stop_measurement(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::StopMeasurement,
@@ -913,6 +956,7 @@ impl Client {
     }
 
     /// ClearCommandQueue (130) with `ES_CCQ_ClearOwnOnly`.
+    /// Cancel-safe (see [`Client`]).
     pub async fn clear_command_queue(&self) -> Result<(), EmsconError> {
         self.simple(
             Command::ClearCommandQueue(0),
@@ -926,6 +970,8 @@ impl Client {
 
     /// Stationary measurement: optional ReflectorFound check, StartMeasurement, then the RT
     /// and the result in either order (or the result alone); timeout = measuring time + margin.
+    /// Cancel-safe (see [`Client`]): a drop once StartMeasurement went out closes the connection,
+    /// so the abandoned result can never pass for the next one.
     pub async fn measure_stationary(&self) -> Result<Measurement, EmsconError> {
         let mut op = self.begin().await?;
         if self.config.check_reflector_before_measure {
@@ -956,6 +1002,8 @@ impl Client {
         res
     }
 
+    /// Cancel-safe: it only reads routed packets; `measure_stationary` marks the op `Measuring` so
+    /// that a drop closes the connection.
     async fn await_measurement(
         &self,
         op: &mut Op<'_>,
@@ -1066,6 +1114,8 @@ impl Client {
     /// The DEVICES.md §1.4 sequence: status; units mm/deg; Initialize only if the tracker
     /// processor is not initialised; stationary mode; params; RHR; reflector; unsolicited on.
     /// Returns the system status read at the end.
+    /// Cancel-safe per step (see [`Client`]); a drop leaves the tracker part-way through the setup,
+    /// so run it again from the start.
     pub async fn setup_stationary(
         &self,
         setup: &StationarySetup,

@@ -104,6 +104,7 @@ impl Ctx {
 }
 
 /// Runs the server until `shutdown` completes, with default [`ServerOptions`].
+/// Cancel-safe like [`serve_with_options`].
 pub async fn serve(
     listener: TcpListener,
     backend: Arc<dyn TrackerBackend>,
@@ -121,6 +122,8 @@ pub async fn serve(
 }
 
 /// Runs the server until `shutdown` completes; connected clients get status change 998.
+/// Cancel-safe: dropping it drops the listener and aborts every connection task, so clients see
+/// their socket close instead of status change 998.
 pub async fn serve_with_options(
     listener: TcpListener,
     backend: Arc<dyn TrackerBackend>,
@@ -191,6 +194,7 @@ pub async fn serve_with_options(
 }
 
 /// Refuses a second client: Error packet 10011, then close.
+/// Cancel-safe: the connection is being refused anyway; a drop only closes it sooner.
 async fn refuse(mut stream: TcpStream, ctx: &Ctx) {
     warn!("emscon server: refusing second client (10011)");
     let pkt = ServerPacket::Error(ErrorResponse {
@@ -228,6 +232,8 @@ impl Out<'_> {
         self.dribble = f.dribble;
     }
 
+    /// Not cancel-safe: a drop mid-write leaves a partial packet; it only runs inside a connection
+    /// task, which is dropped with its socket.
     async fn raw(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let timeout = self.ctx.options.write_timeout;
         let res = tokio::time::timeout(timeout, async {
@@ -253,6 +259,8 @@ impl Out<'_> {
         }
     }
 
+    /// Not cancel-safe: a drop mid-write leaves a partial packet (see [`Out::raw`]); only dropped
+    /// with the connection.
     async fn bytes(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         if self.coalesce {
             self.batch.extend_from_slice(bytes);
@@ -262,10 +270,14 @@ impl Out<'_> {
         }
     }
 
+    /// Not cancel-safe: a drop mid-write leaves a partial packet (see [`Out::raw`]); only dropped
+    /// with the connection.
     async fn packet(&mut self, p: &ServerPacket) -> std::io::Result<()> {
         self.bytes(&p.to_bytes()).await
     }
 
+    /// Not cancel-safe: the batch is taken before the write, so a drop loses it; only dropped with
+    /// the connection.
     async fn flush_batch(&mut self) -> std::io::Result<()> {
         if self.batch.is_empty() {
             return Ok(());
@@ -309,6 +321,8 @@ impl Default for Conn {
     }
 }
 
+/// Cancel-safe as a whole: it owns the socket, so a drop (server shutdown grace expired) closes the
+/// connection; inside, only the read is raced against shutdown, never a command.
 async fn handle_connection(
     stream: TcpStream,
     ctx: &Ctx,
@@ -361,6 +375,7 @@ async fn handle_connection(
     }
 }
 
+/// Not cancel-safe: a drop mid-write leaves a partial packet; only dropped with the connection.
 async fn bad_command(out: &mut Out<'_>, e: CodecError) -> std::io::Result<Flow> {
     warn!("emscon server: bad command packet: {e}");
     out.coalesce = false;
@@ -427,6 +442,8 @@ fn entry_fault(ctx: &Ctx, command: i32) -> Entry {
 }
 
 /// Sends a reply, applying malformed-packet and mid-packet-disconnect faults.
+/// Not cancel-safe: the reply status is recorded and fault budgets are spent before the write; only
+/// dropped with the connection.
 async fn emit_reply(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -498,6 +515,7 @@ fn malformed_bytes(m: Malformed, rep: &Reply) -> Vec<u8> {
 }
 
 /// Answer one command: an injected entry fault first, then the command's reply (or replies).
+/// Not cancel-safe: a drop leaves a command half answered; only dropped with the connection.
 async fn handle_command(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -522,6 +540,8 @@ async fn handle_command(
 
 /// An injected fault on entry to `command`: swallowed, connection closing, or a forced status
 /// (`None`: answer normally).
+/// Not cancel-safe: the fault is spent before its packet is written; only dropped with the
+/// connection.
 async fn answer_entry_fault(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -553,6 +573,8 @@ async fn answer_entry_fault(
 }
 
 /// Initialize: after the configured delay, the reply and then the initialisation status change.
+/// Not cancel-safe: a drop after the delay leaves the tracker initialised without a reply; only
+/// dropped with the connection.
 async fn initialize(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -574,6 +596,7 @@ async fn initialize(
 
 /// GetReflectors: one reply per reflector (surface offset in the connection's units), each
 /// carrying the total; a failed reply when there is none.
+/// Not cancel-safe: a drop leaves part of the reply list written; only dropped with the connection.
 async fn send_reflectors(
     ctx: &Ctx,
     conn: &mut Conn,
@@ -782,6 +805,7 @@ const FINE_WAIT: Duration = Duration::from_millis(2);
 /// Wait `d` of measuring time to within about 0.1 ms. Tokio timers round up to the next
 /// millisecond tick (a 1 ms sleep takes about 2 ms), so the last [`FINE_WAIT`] at most is a
 /// thread sleep on the blocking pool.
+/// Cancel-safe: it only waits (a thread sleep already started finishes on the blocking pool).
 async fn wait_measuring_time(d: Duration) {
     let deadline = Instant::now() + d;
     if d > FINE_WAIT {
@@ -807,6 +831,8 @@ struct MeasPlan {
     relock_after_ms: Option<u64>,
 }
 
+/// Not cancel-safe: a drop leaves the fault plan spent and the measurement half answered; only
+/// dropped with the connection.
 async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std::io::Result<Flow> {
     let id = cmd::START_MEASUREMENT;
     let plan = {
@@ -905,6 +931,8 @@ async fn start_measurement(ctx: &Ctx, conn: &mut Conn, out: &mut Out<'_>) -> std
     Ok(Flow::Continue)
 }
 
+/// Not cancel-safe: the beam is broken before the packets are written; only dropped with the
+/// connection.
 async fn beam_lost(
     ctx: &Ctx,
     out: &mut Out<'_>,

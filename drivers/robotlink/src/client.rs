@@ -305,6 +305,8 @@ impl Link {
     }
 
     /// One normal request: wait for the gate and the slot, send, await the reply.
+    /// Cancel-safe (see the module doc): the line is queued whole without an await, and a dropped
+    /// wait leaves the request in its slot so its late reply is dropped.
     async fn request(&self, req: Request, timeout: Duration) -> Result<Vec<String>, RobotError> {
         let _gate = self.gate.lock().await;
         self.wait_normal_slot(self.request_timeout).await?;
@@ -313,6 +315,8 @@ impl Link {
     }
 
     /// `STOP` by the negotiated version (see [`StopHandle::stop`]).
+    /// Cancel-safe: a drop either sent nothing or sent the whole `STOP`, whose late reply is
+    /// dropped.
     async fn stop(&self) -> Result<(), RobotError> {
         let _stop_gate = self.stop_gate.lock().await;
         let version = self.lock().version;
@@ -535,6 +539,8 @@ impl RobotClient {
     }
 
     /// `HELLO <proto_ver>`; on success the connection speaks `proto_ver`.
+    /// Cancel-safe (see the module doc); a call dropped after the server accepted leaves the
+    /// version unset, so `STOP` takes the conservative v1 path.
     async fn hello_version(&self, proto_ver: u32) -> Result<Identity, RobotError> {
         let d = self
             .request(Request::Hello { proto_ver }, self.config.request_timeout)
@@ -626,12 +632,15 @@ impl RobotClient {
         self.link.stop().await
     }
 
+    /// Cancel-safe (see the module doc).
     async fn request(&self, req: Request, timeout: Duration) -> Result<Vec<String>, RobotError> {
         self.link.request(req, timeout).await
     }
 }
 
 /// Writes queued lines whole; on a write error or timeout the connection is closed.
+/// Cancel-safe in effect: it is the connection's own task and is never aborted (a runtime
+/// shutdown mid-line ends the connection anyway).
 async fn writer_task(mut wr: BoxWriter, mut rx: mpsc::UnboundedReceiver<Out>, link: Arc<Link>) {
     let timeout = link.request_timeout;
     while let Some(Out::Line(line)) = rx.recv().await {
@@ -659,6 +668,8 @@ async fn writer_task(mut wr: BoxWriter, mut rx: mpsc::UnboundedReceiver<Out>, li
 
 /// Reads server lines: replies to their slots, events to subscribers; ends the connection on
 /// EOF or a protocol violation.
+/// Cancel-safe in effect: it is the connection's own task, aborted only with the client, whose
+/// drop closes the connection.
 async fn reader_task<R>(mut rd: LineReader<BufReader<R>>, link: Arc<Link>)
 where
     R: AsyncRead + Send + Unpin,

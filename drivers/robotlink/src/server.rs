@@ -264,6 +264,8 @@ pub async fn serve(
 }
 
 /// Serve `stream` if the one-client slot frees up within the grace period, else refuse it.
+/// Cancel-safe: a drop ends the session as [`serve_connection`] does; the one-client flag stays
+/// set, but it belongs to the [`serve`] call that dropped it.
 async fn session_or_refusal(
     mut stream: tokio::net::TcpStream,
     peer: std::net::SocketAddr,
@@ -292,6 +294,8 @@ async fn session_or_refusal(
 }
 
 /// Take the one-client slot, polling for up to [`REFUSE_GRACE`] while the previous session ends.
+/// Not cancel-safe: a drop right after the swap leaves the one-client flag set; only dropped with
+/// the whole [`serve`].
 async fn claim_client_slot(busy: &AtomicBool) -> bool {
     for _ in 0..(REFUSE_GRACE.as_millis() / 10) {
         if !busy.swap(true, Ordering::SeqCst) {
@@ -364,8 +368,8 @@ struct Conn<W> {
 /// Serve one client on any stream until it disconnects, sends a malformed line, or `stop` flips.
 /// Motion is always stopped when this returns.
 ///
-/// Cancel-safe for the arm: if the future is dropped the connection closes; call
-/// [`RobotBackend::stop`] yourself if you drop it while a motion may run.
+/// Cancel-safe: if the future is dropped the arm is stopped, the event monitor ends and the
+/// connection closes, just as when it returns.
 pub async fn serve_connection<S>(
     stream: S,
     backend: Arc<dyn RobotBackend>,
@@ -384,6 +388,10 @@ pub async fn serve_connection<S>(
         faults.clone(),
         power_cmd_off.clone(),
     ));
+    let mut ending = SessionEnd {
+        backend: Some(backend.clone()),
+        monitor,
+    };
     let mut session = Session {
         conn: Conn {
             out: Replier {
@@ -405,10 +413,33 @@ pub async fn serve_connection<S>(
     };
     session.run(&mut lines, &mut stop).await;
     drop(session);
-    backend.stop();
-    monitor.abort();
+    ending.now();
     let mut w = writer.lock().await;
     let _ = tokio::time::timeout(Duration::from_millis(200), w.shutdown()).await;
+}
+
+/// What ends a session however it ends, returned or dropped: the arm stops and the event
+/// monitor (which shares the write half, so would keep the connection open) is aborted.
+struct SessionEnd {
+    /// `None` once the arm has been stopped.
+    backend: Option<Arc<dyn RobotBackend>>,
+    monitor: JoinHandle<()>,
+}
+
+impl SessionEnd {
+    /// Stop the arm and the monitor now, once (dropping it later does nothing more).
+    fn now(&mut self) {
+        if let Some(backend) = self.backend.take() {
+            backend.stop();
+        }
+        self.monitor.abort();
+    }
+}
+
+impl Drop for SessionEnd {
+    fn drop(&mut self) {
+        self.now();
+    }
 }
 
 /// Resolves once `stop` holds `true`; never resolves if its sender is gone. Cancel-safe.
@@ -423,6 +454,8 @@ async fn stopped(stop: &mut watch::Receiver<bool>) {
     }
 }
 
+/// Cancel-safe: it is aborted by the session's end; an event line is written whole under the writer
+/// lock, and an abort mid-line closes that connection anyway.
 async fn monitor_task<W: AsyncWrite + Send + Unpin>(
     writer: SharedWriter<W>,
     backend: Arc<dyn RobotBackend>,
@@ -537,6 +570,8 @@ enum Input {
 
 impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
     /// Run until the peer leaves, sends a malformed line, a write fails or `stop` flips.
+    /// Cancel-safe as part of [`serve_connection`]: dropping it drops the in-flight request task
+    /// (aborted) and the session ends.
     async fn run<R>(&mut self, lines: &mut LineReader<R>, stop: &mut watch::Receiver<bool>)
     where
         R: tokio::io::AsyncBufRead + Unpin,
@@ -580,6 +615,8 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
     }
 
     /// Handle one received line according to the negotiated version.
+    /// Not cancel-safe: a drop mid-reply leaves half a line; only dropped with the session, which
+    /// closes the connection.
     async fn on_line(&mut self, line: String) -> Outcome {
         if self.inflight.is_some() && self.conn.version < 2 {
             // v1: strictly in order; the line waits for the executing request.
@@ -616,6 +653,7 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
 
     /// If the executing request has started writing its reply, let it finish (the peer may
     /// legitimately send its next request as soon as it has read that reply).
+    /// Cancel-safe: it only awaits the in-flight task, which a drop aborts with the session.
     async fn finish_replying(&mut self) -> Outcome {
         match self.inflight.take_if(|f| f.replying.load(Ordering::SeqCst)) {
             Some(mut f) => f.finished().await,
@@ -624,6 +662,8 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
     }
 
     /// `E_ARGS` (connection stays) or `E_SYNTAX` (connection closes) for an unparseable line.
+    /// Not cancel-safe: a drop mid-reply leaves half a line; only dropped with the session, which
+    /// closes the connection.
     async fn reject_line(&mut self, line: &str, e: codec::CodecError) -> Outcome {
         let seq = request_seq(line).unwrap_or(0);
         if e.is_args_error() {
@@ -643,6 +683,8 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
 
     /// v2 `STOP` while a request executes: halt the arm now, let the executing request answer
     /// (a `WAIT` with `E_STOPPED`), then answer the `STOP`.
+    /// Not cancel-safe: a drop after the halt leaves the `STOP` unanswered; only dropped with the
+    /// session, which closes the connection (and stops the arm).
     async fn stop_out_of_band(&mut self, seq: u32) -> Outcome {
         self.conn.halt();
         if let Some(mut f) = self.inflight.take() {
@@ -859,6 +901,7 @@ struct WaitJob {
 
 impl WaitJob {
     /// Poll every [`POLL`]; `cancel` firing (or its sender going away) ends it with `E_STOPPED`.
+    /// Cancel-safe: it only polls the arm, so a drop just stops watching it.
     async fn run(self, mut cancel: oneshot::Receiver<()>) -> Answer {
         let deadline = Instant::now() + Duration::from_millis(self.timeout_ms);
         let mut settled_since: Option<Instant> = None;
@@ -912,12 +955,16 @@ impl WaitJob {
 
 impl<W: AsyncWrite + Send + Unpin> Replier<W> {
     /// Write the reply to `seq`; [`Outcome::Close`] when the write failed.
+    /// Not cancel-safe: a drop mid-write leaves half a line; only dropped with the session, which
+    /// closes the connection.
     async fn reply(&self, seq: u32, answer: Answer, numeric: bool) -> Outcome {
         self.reply_marking(seq, answer, numeric, &AtomicBool::new(false))
             .await
     }
 
     /// [`Self::reply`], setting `replying` right before the first byte is written.
+    /// Not cancel-safe: a drop mid-write leaves half a line; only dropped with the session, which
+    /// closes the connection.
     async fn reply_marking(
         &self,
         seq: u32,
@@ -936,6 +983,8 @@ impl<W: AsyncWrite + Send + Unpin> Replier<W> {
     }
 
     /// Write an error reply (used right before closing).
+    /// Not cancel-safe: a drop mid-write leaves half a line; it is only written right before
+    /// closing.
     async fn error(&self, seq: u32, code: ErrorCode, text: &str) -> std::io::Result<()> {
         let body = ReplyBody::Err {
             code,
@@ -946,6 +995,8 @@ impl<W: AsyncWrite + Send + Unpin> Replier<W> {
 
     /// Write one reply line, applying the armed reply faults; the line is written whole under
     /// the writer lock so replies and events never interleave.
+    /// Not cancel-safe: the one-shot reply faults are spent before the write and a drop mid-write
+    /// leaves half a line; only dropped with the session, which closes the connection.
     async fn send(
         &self,
         seq: u32,

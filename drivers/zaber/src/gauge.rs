@@ -165,6 +165,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
     }
 
     /// Request one reading and return it in mm (unit and range checked).
+    /// Cancel-safe: a call dropped after its request went out leaves the client dirty, so the
+    /// next call first discards the late reading already received instead of taking it for its
+    /// own (a reading later than the 5 ms drain still could be: a device has no request ids).
     pub async fn read_mm(&mut self) -> Result<f64, GaugeError> {
         let io = self.io.as_mut().ok_or(GaugeError::Disconnected)?;
         if self.dirty {
@@ -182,6 +185,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
         }
         let t = self.cfg.reply_timeout;
         let req = self.cfg.request.as_bytes();
+        // Until this request's line is read, a drop leaves its reply to come: drain it next time.
+        self.dirty = true;
         let res = tokio::time::timeout(t, async {
             io.get_mut().write_all(req).await?;
             io.get_mut().flush().await?;
@@ -210,7 +215,10 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
                 self.dirty = true;
                 return Err(GaugeError::Protocol(why));
             }
-            Ok(Ok(LineRead::Line(l))) => l,
+            Ok(Ok(LineRead::Line(l))) => {
+                self.dirty = false;
+                l
+            }
         };
         trace!(line = line.as_str(), "gauge recv");
         let r = parse_reading(&line)?;

@@ -15,6 +15,8 @@ pub(crate) enum LineRead {
 
 /// Read up to a terminator byte from `terms` (`\n`, or `\r`/`\n` for gauges); a `\r`
 /// left at the end is stripped. Lines longer than `max` are reported as `Bad`.
+/// Not cancel-safe: bytes of a line already consumed are lost on a drop; callers mark their stream
+/// dirty and resynchronise on the next line.
 pub(crate) async fn read_line_until<R: AsyncBufRead + Unpin>(
     reader: &mut R,
     max: usize,
@@ -59,6 +61,7 @@ pub(crate) async fn read_line_until<R: AsyncBufRead + Unpin>(
 }
 
 /// Read one `\n`-terminated line.
+/// Not cancel-safe, like [`read_line_until`].
 pub(crate) async fn read_line<R: AsyncBufRead + Unpin>(
     reader: &mut R,
     max: usize,

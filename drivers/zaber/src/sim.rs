@@ -474,7 +474,19 @@ impl StageSim {
     }
 }
 
+/// What is left of a received line once DEL ([`crate::stage::DISCARD_PARTIAL`]) has
+/// discarded the incomplete command before it, as a device does.
+fn after_discard(line: String) -> String {
+    let del = char::from(crate::stage::DISCARD_PARTIAL);
+    match line.rfind(del) {
+        Some(i) => line.get(i + del.len_utf8()..).unwrap_or("").to_string(),
+        None => line,
+    }
+}
+
 /// Serve the simulated stage on `stream` until EOF or an I/O error.
+/// Cancel-safe in the sense that a drop ends the simulated device (its stream is dropped); a reply
+/// being written is cut short, as when a real device loses power.
 pub async fn serve_stage<S>(stream: S, sim: StageSim) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin + Send,
@@ -487,7 +499,7 @@ where
                 debug!(why, "stage sim: bad line ignored");
                 continue;
             }
-            LineRead::Line(l) => l,
+            LineRead::Line(l) => after_discard(l),
         };
         let (cmd, _) = match parse_command(&line) {
             Ok(c) => c,
@@ -594,6 +606,8 @@ impl GaugeSim {
 }
 
 /// Serve the simulated gauge on `stream` until EOF.
+/// Cancel-safe in the sense that a drop ends the simulated gauge (its stream is dropped); a reading
+/// being written is cut short.
 pub async fn serve_gauge<S>(stream: S, sim: GaugeSim) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin + Send,

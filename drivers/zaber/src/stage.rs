@@ -13,6 +13,10 @@ use crate::ascii::{
 use crate::lineio::{read_line, LineRead};
 use crate::product;
 
+/// DEL: a Zaber device discards the incomplete command it is receiving (ASCII protocol,
+/// "Delete"); sent before a command when the previous line may have been cut short.
+pub const DISCARD_PARTIAL: u8 = 0x7f;
+
 /// Typed stage error.
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
@@ -242,6 +246,10 @@ pub struct ZaberStage<S> {
     /// Set while a command is in flight and after a timeout or bad line: discard stale input
     /// before the next command (so a dropped command future cannot desynchronise the line).
     dirty: bool,
+    /// Set while a command line is being written: if the write was dropped (or timed out) part
+    /// way, the next command is preceded by DEL, which makes the device discard the partial
+    /// command instead of running it joined to the next one.
+    cut: bool,
     /// Identity and scale, once [`ZaberStage::identify`] ran.
     ident: Option<StageIdentity>,
 }
@@ -262,6 +270,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
             cfg,
             next_id: 0,
             dirty: false,
+            cut: false,
             ident: None,
         }
     }
@@ -321,6 +330,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
     }
 
     /// `get <name>` on `axis` (0 = device scope); the data, or `Rejected`.
+    /// Cancel-safe like [`ZaberStage::command`].
     async fn query(&mut self, axis: u8, name: &str) -> Result<String, StageError> {
         let r = self.command_at(axis, &format!("get {name}")).await?;
         if r.flag == ReplyFlag::Rejected {
@@ -329,6 +339,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         Ok(r.data)
     }
 
+    /// Cancel-safe like [`ZaberStage::command`].
     async fn query_u32(&mut self, axis: u8, name: &str) -> Result<u32, StageError> {
         let data = self.query(axis, name).await?;
         data.trim()
@@ -337,6 +348,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
     }
 
     /// Discard bytes already received (partial or stale lines) after an error.
+    /// Cancel-safe: it only consumes bytes already received, and the stage stays dirty until a
+    /// command completes.
     async fn discard_input(&mut self) {
         let Some(io) = self.io.as_mut() else { return };
         loop {
@@ -353,7 +366,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
 
     /// Send one command to the configured device/axis and return its reply (warnings unchecked).
     /// Cancel-safe: a dropped call leaves the client marked dirty, so the next command first
-    /// drains any late reply, and replies are matched by message id.
+    /// drains any late reply, and replies are matched by message id; a line cut short by the
+    /// drop is discarded on the device by a DEL before the next command.
     pub async fn command(&mut self, text: &str) -> Result<Reply, StageError> {
         let axis = self.cfg.axis;
         self.command_at(axis, text).await
@@ -365,6 +379,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         self.command_at(0, text).await
     }
 
+    /// Cancel-safe: it marks the stage dirty before the exchange, so a drop is repaired by the next
+    /// command (see [`ZaberStage::command`]).
     async fn command_at(&mut self, axis: u8, text: &str) -> Result<Reply, StageError> {
         if self.dirty {
             self.discard_input().await;
@@ -378,6 +394,9 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         r
     }
 
+    /// Not cancel-safe on its own: a drop mid-write leaves a partial line (`cut`, discarded with
+    /// DEL next time) and a drop while reading leaves a late reply (`dirty`, set by
+    /// [`ZaberStage::command_at`]).
     async fn exchange(&mut self, axis: u8, text: &str) -> Result<Reply, StageError> {
         let id = self.next_id;
         self.next_id = (self.next_id + 1) % 100;
@@ -392,12 +411,19 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         );
         let io = self.io.as_mut().ok_or(StageError::Disconnected)?;
         trace!(line = line.trim_end(), "zaber send");
+        let mut bytes = Vec::with_capacity(line.len() + 1);
+        if self.cut {
+            debug!("zaber: the last command line was cut short; discarding it with DEL");
+            bytes.push(DISCARD_PARTIAL);
+        }
+        bytes.extend_from_slice(line.as_bytes());
+        self.cut = true;
         let write = async {
-            io.get_mut().write_all(line.as_bytes()).await?;
+            io.get_mut().write_all(&bytes).await?;
             io.get_mut().flush().await
         };
         match tokio::time::timeout(self.cfg.reply_timeout, write).await {
-            Ok(Ok(())) => {}
+            Ok(Ok(())) => self.cut = false,
             Ok(Err(e)) => {
                 self.io = None;
                 return Err(StageError::Io(e));
@@ -445,6 +471,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
 
     /// Send a command and check the reply: F* → Fault, WL → UnexpectedLimit, WM → Displaced,
     /// RJ → Rejected (WR → NotHomed).
+    /// Cancel-safe like [`ZaberStage::command`].
     async fn checked(&mut self, text: &str) -> Result<Reply, StageError> {
         let r = self.command(text).await?;
         if let Some(e) = safety_error(&[r.warning]) {

@@ -481,3 +481,70 @@ async fn a_dropped_measurement_never_passes_its_result_off_as_the_next_one() {
         Err(e) => assert!(matches!(e, EmsconError::Disconnected), "{e:?}"),
     }
 }
+
+#[tokio::test]
+async fn a_dropped_get_reflectors_never_leaves_its_late_replies_to_the_next_command() {
+    use emscon::codec::{Command, FrameDecoder, Reply, ReplyBody, ServerPacket};
+    use emscon::types::ReflectorInfo;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let (a, mut b) = tokio::io::duplex(4096);
+    let c = emscon::Client::from_stream(a, fast_config());
+    let (rest_tx, rest_rx) = tokio::sync::oneshot::channel::<()>();
+    // A scripted tracker: GetReflectors answers one of three replies at once and the other
+    // two only when the test says so; every other command gets a plain OK.
+    let peer = tokio::spawn(async move {
+        let reflector = |id| {
+            ServerPacket::Reply(Reply {
+                command: cmd::GET_REFLECTORS,
+                status: 0,
+                body: ReplyBody::Reflector(ReflectorInfo {
+                    total: 3,
+                    id,
+                    target_type: 5,
+                    surface_offset: 0.0,
+                    name: format!("R{id}"),
+                }),
+            })
+            .to_bytes()
+        };
+        let mut rest_rx = Some(rest_rx);
+        let mut d = FrameDecoder::new();
+        let mut buf = [0u8; 256];
+        loop {
+            let n = b.read(&mut buf).await.unwrap();
+            if n == 0 {
+                return;
+            }
+            d.push(&buf[..n]);
+            while let Some(command) = d.next_packet::<Command>().unwrap() {
+                if command.id() == cmd::GET_REFLECTORS {
+                    b.write_all(&reflector(1)).await.unwrap();
+                    if let Some(rx) = rest_rx.take() {
+                        let _ = rx.await;
+                    }
+                    b.write_all(&reflector(2)).await.unwrap();
+                    b.write_all(&reflector(3)).await.unwrap();
+                } else {
+                    let rep = ServerPacket::Reply(Reply::ok(command.id())).to_bytes();
+                    b.write_all(&rep).await.unwrap();
+                }
+            }
+        }
+    });
+    // the caller gives up after the first reply (an abort)
+    let dropped = tokio::time::timeout(Duration::from_millis(150), c.reflectors()).await;
+    assert!(
+        dropped.is_err(),
+        "GetReflectors finished with one of three replies"
+    );
+    rest_tx.send(()).unwrap();
+    match c.set_reflector(1).await {
+        Ok(()) => {}
+        Err(e) => assert!(
+            matches!(e, EmsconError::Disconnected),
+            "the dropped GetReflectors' late replies desynchronised the next command: {e:?}"
+        ),
+    }
+    drop(c);
+    peer.await.unwrap();
+}

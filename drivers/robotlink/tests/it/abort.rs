@@ -299,3 +299,38 @@ async fn dropped_request_futures_never_desynchronise() {
     assert!(!c.is_closed());
     h.stop().await;
 }
+
+#[tokio::test]
+async fn a_dropped_server_session_stops_the_arm_and_closes_the_connection() {
+    // Dropping `serve_connection` (e.g. its task aborted at shutdown) must end the session as
+    // returning does: the arm stopped and the peer told by EOF, not left waiting.
+    let backend = std::sync::Arc::new(SimpleBackend::new(SimpleConfig {
+        max_joint_speed_deg_s: 20.0,
+        ..Default::default()
+    }));
+    let (a, b) = tokio::io::duplex(1024);
+    let (_keep, stop_rx) = tokio::sync::watch::channel(false);
+    let dynb: std::sync::Arc<dyn RobotBackend> = backend.clone();
+    let session = tokio::spawn(robotlink::serve_connection(
+        b,
+        dynb,
+        robotlink::FaultConfig::handle(),
+        stop_rx,
+    ));
+    let c = RobotClient::from_stream(a, Harness::config());
+    c.hello().await.unwrap();
+    c.power(true).await.unwrap();
+    c.move_joints(FAR, None).await.unwrap();
+    assert!(backend.is_moving());
+    session.abort();
+    let _ = session.await;
+    assert!(
+        !backend.is_moving(),
+        "the dropped session left the arm moving"
+    );
+    let ping = tokio::time::timeout(Duration::from_millis(500), c.ping()).await;
+    assert!(
+        matches!(ping, Ok(Err(RobotError::Disconnected))),
+        "the dropped session left the connection open: {ping:?}"
+    );
+}

@@ -125,3 +125,65 @@ async fn gauge_configurable_request_and_mitutoyo_format() {
     // Second request gets no answer.
     assert!(matches!(g.read_mm().await, Err(GaugeError::Timeout)));
 }
+
+#[tokio::test]
+async fn a_command_dropped_mid_write_is_discarded_not_joined_to_the_next() {
+    // An 8-byte pipe nobody reads yet: the move line is cut after 8 bytes when its future is
+    // dropped (an abort). The device must discard that partial line, not run it glued to the
+    // next command (or reject the next one).
+    let (a, b) = tokio::io::duplex(8);
+    let s = sim(true);
+    let mut st = ZaberStage::from_stream(a, stage_cfg());
+    {
+        let cut = std::pin::pin!(st.command("move abs 1000"));
+        let polled = futures_poll_once(cut).await;
+        assert!(polled.is_none(), "the whole line fitted the pipe");
+    }
+    tokio::spawn(serve_stage(b, s.clone()));
+    let p = st.position_mm().await.unwrap();
+    assert!(p.abs() < 1e-9, "the cut move ran: {p}");
+    assert!((st.move_abs_mm(7.0).await.unwrap() - 7.0).abs() <= 0.5 / STEPS_PER_MM);
+}
+
+/// Poll `f` once; its output if it was ready (the caller drops it).
+async fn futures_poll_once<F: std::future::Future + Unpin>(mut f: F) -> Option<F::Output> {
+    std::future::poll_fn(|cx| {
+        std::task::Poll::Ready(match std::pin::Pin::new(&mut f).poll(cx) {
+            std::task::Poll::Ready(v) => Some(v),
+            std::task::Poll::Pending => None,
+        })
+    })
+    .await
+}
+
+#[tokio::test]
+async fn a_dropped_gauge_reading_is_not_taken_for_the_next_one() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let value = std::sync::Arc::new(AtomicU64::new(1.0f64.to_bits()));
+    let source = value.clone();
+    let gauge = zaber::sim::GaugeSim::new(std::sync::Arc::new(move || {
+        f64::from_bits(source.load(Ordering::SeqCst))
+    }));
+    let (a, b) = tokio::io::duplex(256);
+    tokio::spawn(zaber::sim::serve_gauge(b, gauge));
+    let mut g = GaugeClient::from_stream(
+        a,
+        GaugeConfig {
+            reply_timeout: Duration::from_millis(200),
+            ..Default::default()
+        },
+    );
+    assert_eq!(g.read_mm().await.unwrap(), 1.0);
+    {
+        // the request goes out, then the caller gives up before the reading (an abort)
+        let dropped = std::pin::pin!(g.read_mm());
+        assert!(futures_poll_once(dropped).await.is_none());
+    }
+    tokio::time::sleep(Duration::from_millis(50)).await; // the late reading (1.0) arrives
+    value.store(2.0f64.to_bits(), Ordering::SeqCst);
+    assert_eq!(
+        g.read_mm().await.unwrap(),
+        2.0,
+        "the dropped request's reading was taken for the next one"
+    );
+}
