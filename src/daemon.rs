@@ -496,13 +496,17 @@ impl Daemon {
         let slot = lock(&self.slot);
         let l = slot.loaded.as_ref().filter(|l| l.id == v.row.id);
         let prompt = l.and_then(|l| {
-            lock(&l.pending).as_ref().map(|p| PromptView {
-                seq: p.seq,
-                id: p.prompt.id.clone(),
-                text: p.prompt.text.clone(),
-                expected_mm: p.prompt.expected_mm,
-                context: p.prompt.context.clone(),
-            })
+            let pending = lock(&l.pending);
+            pending
+                .as_ref()
+                .filter(|p| p.is_open())
+                .map(|p| PromptView {
+                    seq: p.seq,
+                    id: p.prompt.id.clone(),
+                    text: p.prompt.text.clone(),
+                    expected_mm: p.prompt.expected_mm,
+                    context: p.prompt.context.clone(),
+                })
         });
         CampaignView {
             id: v.row.id,
@@ -734,7 +738,7 @@ impl Daemon {
                 abort,
             } => {
                 let mut slot = lock(&l.pending);
-                match slot.take() {
+                match slot.take().filter(PendingPrompt::is_open) {
                     Some(p) if p.seq == seq => {
                         let answer = match (abort, value_mm) {
                             (true, _) => Answer::Abort,

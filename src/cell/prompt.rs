@@ -100,6 +100,12 @@ impl PendingPrompt {
     pub fn answer(self, answer: Answer) -> bool {
         self.reply.send(answer).is_ok()
     }
+
+    /// Whether the asker still waits for the answer: false once its question was dropped (an
+    /// abort, the end of the run), so a front end stops offering it.
+    pub fn is_open(&self) -> bool {
+        !self.reply.is_closed()
+    }
 }
 
 /// Sends prompts on an mpsc channel and waits for the answer on a oneshot.

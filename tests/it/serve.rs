@@ -466,6 +466,43 @@ fn technician_questions_are_answered_over_rest() {
     assert_eq!(code, 200);
 }
 
+/// Abort while a technician question is open: the question is withdrawn with the run (the
+/// campaign view offers none, an answer is refused), never left claiming someone waits for it.
+#[test]
+fn an_aborted_run_withdraws_its_open_question() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = fast_config(dir.path(), "manual", 20, 14);
+    let s = start(&cfg, &dir.path().join("c.db"));
+    let (id, path) = create_default(&s);
+    post(&s, &path, r#"{"command": "arm"}"#);
+    post(&s, &path, r#"{"command": "start"}"#);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let seq = loop {
+        let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+        if let Some(seq) = v["prompt"]["seq"].as_u64() {
+            break seq;
+        }
+        assert!(Instant::now() < deadline, "no question: {v}");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let (code, e) = post(&s, &path, r#"{"command": "abort"}"#);
+    assert_eq!(code, 200, "{e}");
+    let v = wait_for_state(&s, id, "aborted");
+    assert!(
+        v["prompt"].is_null(),
+        "a question still offered after the abort: {v}"
+    );
+    let (code, e) = post(
+        &s,
+        &path,
+        &format!(r#"{{"command": "answer", "seq": {seq}, "value_mm": 0.0}}"#),
+    );
+    assert_ne!(
+        code, 200,
+        "an answer to a withdrawn question was taken: {e}"
+    );
+}
+
 /// Create a campaign with `body`; its id.
 pub(crate) fn create(s: &Server, body: &str) -> i64 {
     let (code, v) = post(s, "/api/campaigns", body);
