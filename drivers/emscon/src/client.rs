@@ -823,6 +823,9 @@ impl Client {
                 .await
             {
                 Ok(r) => r,
+                // more replies may still come: the op stays `Collecting`, so its drop closes
+                // the connection
+                Err(e @ EmsconError::Timeout { .. }) => return Err(e),
                 Err(e) => {
                     op.wire = Wire::Idle;
                     op.st.mark_stale(cmd::GET_REFLECTORS);
@@ -994,6 +997,11 @@ impl Client {
         let res = self
             .await_measurement(&mut op, deadline, &mut rt_seen, sent_at, meas_time_ms)
             .await;
+        if matches!(res, Err(EmsconError::Timeout { .. })) {
+            // The measurement may still be under way: its late result could pass for the next
+            // measurement's. The op stays `Measuring`, so dropping it closes the connection.
+            return res;
+        }
         op.wire = Wire::Idle;
         if res.is_err() || !rt_seen {
             // A late StartMeasurement reply must not confuse the next command.

@@ -30,6 +30,11 @@ impl Sim {
     }
 
     pub async fn start_with(state: SimpleState) -> Sim {
+        Self::start_with_options(state, ServerOptions::default()).await
+    }
+
+    /// A simulator with `opts` (its busy grace shortened for the tests).
+    pub async fn start_with_options(state: SimpleState, opts: ServerOptions) -> Sim {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");
         let backend = Arc::new(SimpleBackend::new(state));
@@ -37,7 +42,7 @@ impl Sim {
         let (tx, rx) = oneshot::channel::<()>();
         let opts = ServerOptions {
             busy_grace: Duration::from_millis(150),
-            ..ServerOptions::default()
+            ..opts
         };
         let handle = tokio::spawn(serve_with_options(
             listener,

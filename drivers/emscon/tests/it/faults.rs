@@ -3,9 +3,11 @@
 use std::time::Duration;
 
 use emscon::types::{cmd, status, status_change};
-use emscon::{ClientConfig, EmsconError, Event, ForcedStatus, Malformed};
+use emscon::{
+    ClientConfig, EmsconError, Event, ForcedStatus, Malformed, ServerOptions, SimpleState,
+};
 
-use crate::common::{fast_config, Sim};
+use crate::common::{fast_config, setup, Sim};
 
 fn events_until_quiet(rx: &mut tokio::sync::broadcast::Receiver<Event>) -> Vec<Event> {
     let mut out = Vec::new();
@@ -205,7 +207,47 @@ async fn no_reply_times_out_then_client_recovers() {
             what: "StartMeasurement reply"
         })
     ));
-    c.measure_stationary().await.unwrap();
+    // a measurement that timed out may still be under way: the connection is closed, and a new
+    // one measures
+    assert!(!c.is_connected());
+    measure_on_a_new_connection(c).await;
+}
+
+/// Close `c` (as the cell's adapter does), connect again, set up and measure.
+async fn measure_on_a_new_connection(c: emscon::Client) {
+    c.close().await;
+    let c = c.reconnect().await.expect("reconnect");
+    c.setup_stationary(&setup()).await.expect("setup");
+    c.measure_stationary().await.expect("measure");
+}
+
+/// The tracker takes three times the measuring time the client expects, so the client gives up
+/// (20 ms + 20 ms margin) before the result comes (60 ms): the connection is closed at once, and
+/// the late result can never pass for the next measurement's (no reflector check before it here).
+#[tokio::test]
+async fn a_timed_out_measurement_closes_the_connection_before_its_late_result() {
+    let opts = ServerOptions {
+        measuring_time_scale: 3.0,
+        ..ServerOptions::default()
+    };
+    let sim = Sim::start_with_options(SimpleState::default(), opts).await;
+    let cfg = ClientConfig {
+        measure_margin: Duration::from_millis(20),
+        check_reflector_before_measure: false,
+        ..fast_config()
+    };
+    let c = sim.ready_client_with(cfg).await;
+    let first = c.measure_stationary().await;
+    assert!(
+        matches!(first, Err(EmsconError::Timeout { .. })),
+        "{first:?}"
+    );
+    assert!(!c.is_connected());
+    let next = c.measure_stationary().await;
+    assert!(
+        next.is_err(),
+        "a measurement on the old connection: {next:?}"
+    );
 }
 
 #[tokio::test]
@@ -219,7 +261,8 @@ async fn rt_without_result_times_out() {
             what: "measurement result"
         })
     ));
-    c.measure_stationary().await.unwrap();
+    assert!(!c.is_connected());
+    measure_on_a_new_connection(c).await;
 }
 
 #[tokio::test]
