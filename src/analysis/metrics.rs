@@ -50,27 +50,27 @@ fn percentile(sorted: &[f64], pct: f64) -> f64 {
     sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
 }
 
+/// One pose's position error (mm) and attitude error (rad, where measured).
+type PoseError = (Vector3<f64>, Option<f64>);
+
 /// Position and attitude errors per pose.
-pub fn pose_errors(
-    model: &RobotModel,
-    poses: &[Measured],
-    cfg: &ObsConfig,
-) -> Vec<(Vector3<f64>, Option<f64>)> {
-    let [errors] = errors_of([model], poses, None, cfg);
-    errors
+pub fn pose_errors(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Vec<PoseError> {
+    let [parts] = errors_of([model], poses, None, cfg);
+    parts.concat()
 }
 
 /// [`pose_errors`] of `N` models on the same poses: each pose's joint sines and cosines once
 /// for all models (from `trig`, the poses' [`JointTrig`], when given), each model's chain in
 /// the measurement frame into reused frames (no allocation per pose, the twists' sines once
 /// per model), over two fixed halves of the poses on two threads ([`split_map`]), so the
-/// errors are the same bit for bit on any machine.
+/// errors are the same bit for bit on any machine. Per model, the errors of each half in
+/// order (not joined: the metrics read them where they are).
 fn errors_of<const N: usize>(
     models: [&RobotModel; N],
     poses: &[Measured],
     trig: Option<&JointTrig>,
     cfg: &ObsConfig,
-) -> [Vec<(Vector3<f64>, Option<f64>)>; N] {
+) -> [Vec<Vec<PoseError>>; N] {
     let bases = models.map(|m| Pose {
         r: m.base_rotation,
         p: m.base_translation,
@@ -99,7 +99,13 @@ fn errors_of<const N: usize>(
         }
         out
     });
-    std::array::from_fn(|k| parts.iter().flat_map(|p| p[k].iter().copied()).collect())
+    let mut per_model: [Vec<Vec<PoseError>>; N] = std::array::from_fn(|_| Vec::new());
+    for part in parts {
+        for (k, errors) in part.into_iter().enumerate() {
+            per_model[k].push(errors);
+        }
+    }
+    per_model
 }
 
 /// The attitude error of one pose given the modelled flange rotation `r` (measurement frame).
@@ -118,7 +124,8 @@ fn attitude(m: &Measured, r: &Matrix3<f64>, cfg: &ObsConfig) -> Option<f64> {
 
 /// Metrics of `model` on `poses`.
 pub fn evaluate(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Metrics {
-    summarize(&pose_errors(model, poses, cfg))
+    let [parts] = errors_of([model], poses, None, cfg);
+    summarize(&parts)
 }
 
 /// Metrics of two models on the same poses (as [`evaluate`] gives each) in one pass: the
@@ -138,25 +145,28 @@ pub fn evaluate_pair(
     (summarize(&ea), summarize(&eb))
 }
 
-/// The metrics of per-pose position and attitude errors.
-fn summarize(errs: &[(Vector3<f64>, Option<f64>)]) -> Metrics {
-    let n = errs.len().max(1) as f64;
-    let mut norms: Vec<f64> = errs.iter().map(|(e, _)| e.norm()).collect();
+/// The metrics of per-pose position and attitude errors, given in consecutive parts.
+fn summarize(parts: &[Vec<PoseError>]) -> Metrics {
+    let errs = || parts.iter().flatten();
+    let count = parts.iter().map(Vec::len).sum::<usize>();
+    let n = count.max(1) as f64;
+    let mut norms: Vec<f64> = Vec::with_capacity(count);
+    norms.extend(errs().map(|(e, _)| e.norm()));
     let mut axial_mean = [0.0; 3];
     let mut axial_max = [0.0f64; 3];
-    for (e, _) in errs {
+    for (e, _) in errs() {
         for k in 0..3 {
             axial_mean[k] += e[k].abs() / n;
             axial_max[k] = axial_max[k].max(e[k].abs());
         }
     }
-    let atts: Vec<f64> = errs.iter().filter_map(|(_, a)| *a).collect();
-    let has_att = !atts.is_empty() && atts.len() == errs.len();
+    let atts: Vec<f64> = errs().filter_map(|(_, a)| *a).collect();
+    let has_att = !atts.is_empty() && atts.len() == count;
     let mean = norms.iter().sum::<f64>() / n;
     let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
     norms.sort_by(f64::total_cmp);
     Metrics {
-        poses: errs.len(),
+        poses: count,
         position_mean_mm: mean,
         position_max_mm: norms.last().copied().unwrap_or(0.0),
         position_rms_mm: rms,
