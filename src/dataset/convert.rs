@@ -134,3 +134,47 @@ fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured
 pub fn split(rows: &[Observation]) -> (Vec<Observation>, Vec<Observation>) {
     rows.iter().cloned().partition(|o| o.set == PoseSet::Ident)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn row(i: usize, set: PoseSet, travel_mm: f64) -> Observation {
+        let p1 = Vector3::new(i as f64, 2.0, 3.0);
+        Observation {
+            line: i + 2,
+            id: i.to_string(),
+            set,
+            q: vec![0.1 * i as f64; 6],
+            p1,
+            p2: Some(p1 + Vector3::new(0.0, travel_mm, 0.0)),
+            rotation: None,
+        }
+    }
+
+    #[test]
+    fn split_measured_is_split_then_to_measured() {
+        let sets = [
+            PoseSet::Verify,
+            PoseSet::Ident,
+            PoseSet::Ident,
+            PoseSet::Verify,
+        ];
+        let mut rows: Vec<Observation> = (0..12).map(|i| row(i, sets[i % 4], 10.0)).collect();
+        let (i, v) = split(&rows);
+        let want = (
+            to_measured(&i, ObsModel::Op, 10.0).unwrap(),
+            to_measured(&v, ObsModel::Op, 10.0).unwrap(),
+        );
+        assert_eq!(split_measured(&rows, ObsModel::Op, 10.0).unwrap(), want);
+        // an unusable identification row is reported before an earlier verification row
+        rows[0] = row(0, PoseSet::Verify, 30.0);
+        rows[6] = row(6, PoseSet::Ident, 30.0);
+        let e = split_measured(&rows, ObsModel::Op, 10.0).unwrap_err();
+        assert!(
+            matches!(e, ConvertError::BadTravel { line: 8, .. }),
+            "{e:?}"
+        );
+    }
+}

@@ -187,3 +187,45 @@ impl Folder {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn folded_blocks_give_the_sums_of_the_rows() {
+        let k = 5;
+        let held = vec![0, 2, 3];
+        // 23 rows in blocks of 8: two full blocks folded, the rest at the end
+        let rows: Vec<([f64; 3], f64)> = (0..23)
+            .map(|i| {
+                let x = i as f64;
+                ([x.sin(), 0.5 * x.cos(), 1.0 - 0.01 * x], 0.1 * x - 1.0)
+            })
+            .collect();
+        let mut folder = Folder::new(held.clone(), k, 8);
+        assert_eq!(folder.stride() % GEMM_TILE, 0);
+        for (j, r) in &rows {
+            let row = folder.rows(1);
+            row[..3].copy_from_slice(j);
+            row[3] = *r;
+        }
+        let sums = folder.finish();
+        let mut want = NormalSums::zeros(k);
+        for (j, r) in &rows {
+            want.sum_sq += r * r;
+            for (a, &ca) in held.iter().enumerate() {
+                want.g[ca] += j[a] * r;
+                for (b, &cb) in held.iter().enumerate() {
+                    want.h[(ca, cb)] += j[a] * j[b];
+                }
+            }
+        }
+        assert!((sums.sum_sq - want.sum_sq).abs() <= 1e-12 * want.sum_sq);
+        assert!((&sums.g - &want.g).norm() <= 1e-12 * want.g.norm());
+        assert!((&sums.h - &want.h).norm() <= 1e-12 * want.h.norm());
+        // columns not held stay zero
+        assert_eq!(sums.g[1], 0.0);
+        assert_eq!(sums.h.row(4).norm(), 0.0);
+    }
+}
