@@ -1,7 +1,8 @@
 //! Criterion benchmark of `cellcal identify`'s whole pipeline from the file, and of its phases,
 //! on a 10 000-pose OP data set (all poses ident, as `cellcal simulate-data --poses 10000
-//! --ident 10000` writes it): read + parse, split + convert, identify, the metrics before and
-//! after, and the whole of it (`calibrate` from the file). Run with
+//! --ident 10000` writes it): read + parse, split + convert (`split_measured`), identify (its
+//! joint table included), the metrics before and after (from the shared joint table, as
+//! `calibrate` does), and the whole of it (`calibrate` from the file). Run with
 //! `cargo bench --bench pipeline`.
 
 use std::hint::black_box;
