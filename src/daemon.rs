@@ -20,17 +20,24 @@ use std::sync::{Arc, Mutex as StdMutex};
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
+use crate::campaign::stored::{load_stored, stored_model_toml, StoredError};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
-use crate::cell::{Answer, ChannelPrompter, PendingPrompt};
+use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext};
 use crate::config::CellConfig;
+use crate::dataset::PoseSet;
+use crate::metrics::Metrics;
 use crate::store::{CampaignRow, EventRecord, JournalEntry, Store, StoreError, StoreReader};
+
+mod observe;
+use observe::{CellWatch, Observer};
+pub use observe::{DeviceView, DevicesView, FaultView};
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
 #[derive(Debug, thiserror::Error)]
@@ -53,6 +60,9 @@ pub enum DaemonError {
     /// A daemon task panicked or was cancelled.
     #[error("daemon task failed: {0}")]
     Task(String),
+    /// A stored campaign cannot be rebuilt (its stored configuration, model or result).
+    #[error(transparent)]
+    Stored(StoredError),
 }
 
 /// Campaign settings a client may change from the configuration's `[campaign]` defaults.
@@ -127,6 +137,10 @@ pub struct PromptView {
     pub text: String,
     /// Expected numeric answer (mm), if a number is asked for.
     pub expected_mm: Option<f64>,
+    /// What the engine is doing: pose n of N, P1 or P2, whether the robot stands still, why
+    /// the question is asked again.
+    #[serde(flatten)]
+    pub context: PromptContext,
 }
 
 /// A campaign as clients see it.
@@ -159,6 +173,53 @@ pub struct CampaignView {
     pub has_result: bool,
     /// The stored result's verdict (`ok`, `warning`, `poor`), if any.
     pub quality: Option<String>,
+}
+
+/// One measured pose as an identification row (what `cellcal export` writes as a CSV row).
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct MeasurementRow {
+    /// Plan pose index.
+    pub pose: usize,
+    /// `ident` or `verify`.
+    pub set: &'static str,
+    /// Joints read back after settling (rad).
+    pub q_rad: Vec<f64>,
+    /// Ball at stage position P1 (mm, the campaign's first tracker frame).
+    pub p1_mm: [f64; 3],
+    /// Ball at stage position P2 (mm), when measured.
+    pub p2_mm: Option<[f64; 3]>,
+}
+
+/// A campaign's stored plan.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct PlanView {
+    /// Campaign id.
+    pub campaign: i64,
+    /// Poses planned.
+    pub poses_total: usize,
+    /// Identification poses.
+    pub ident: usize,
+    /// Verification poses.
+    pub verify: usize,
+    /// Poses with a done mark.
+    pub done: usize,
+    /// Every pose, in move order.
+    pub poses: Vec<PlannedPoseView>,
+}
+
+/// One planned pose.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct PlannedPoseView {
+    /// Pose index (the pose id in exports and `measured` events).
+    pub index: usize,
+    /// `ident` or `verify`.
+    pub set: &'static str,
+    /// Position in the move order (0 first).
+    pub order: usize,
+    /// Commanded joint target (rad).
+    pub q_rad: Vec<f64>,
+    /// Measured and committed.
+    pub done: bool,
 }
 
 /// Internal tuning of a daemon (defaults for production; tests shrink them).
@@ -237,6 +298,8 @@ struct Loaded {
     run_start: i64,
     /// Cancelled when the engine has returned (its final state is journalled by then).
     ended: CancellationToken,
+    /// The engine's state in this run (`None` until it writes its first).
+    state: watch::Receiver<Option<String>>,
 }
 
 impl Loaded {
@@ -299,6 +362,8 @@ pub struct Daemon {
     writer: Arc<StdMutex<Store>>,
     readers: Arc<Readers>,
     slot: StdMutex<Slot>,
+    metrics: Arc<Metrics>,
+    cell: Arc<StdMutex<CellWatch>>,
 }
 
 fn lock<T>(m: &StdMutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -382,7 +447,20 @@ impl Daemon {
                 idle: StdMutex::new(vec![first]),
             }),
             slot: StdMutex::new(Slot::default()),
+            metrics: Arc::new(Metrics::new()),
+            cell: Arc::default(),
         })
+    }
+
+    /// The daemon's metrics (the API adds its request latencies and serves them).
+    pub fn metrics(&self) -> &Arc<Metrics> {
+        &self.metrics
+    }
+
+    /// The cell's devices: what the configuration says and what the running campaign's events
+    /// told (see [`observe`]). Never blocks.
+    pub fn devices(&self) -> DevicesView {
+        lock(&self.cell).view(&self.cfg)
     }
 
     /// Run `f` on a reader on a blocking thread. Cancel-safe: it only reads.
@@ -423,6 +501,7 @@ impl Daemon {
                 id: p.prompt.id.clone(),
                 text: p.prompt.text.clone(),
                 expected_mm: p.prompt.expected_mm,
+                context: p.prompt.context.clone(),
             })
         });
         CampaignView {
@@ -531,10 +610,21 @@ impl Daemon {
         .map_err(refusal)?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
-        let run_start = self.read(move |s| s.last_event_seq(campaign_id)).await?;
+        let (run_start, (done, total)) = self
+            .read(move |s| Ok((s.last_event_seq(campaign_id)?, s.pose_counts(campaign_id)?)))
+            .await?;
         let pending: Arc<StdMutex<Option<PendingPrompt>>> = Arc::default();
         let outcome: Arc<StdMutex<Option<String>>> = Arc::default();
         let ended = CancellationToken::new();
+        let state = self.observe_run(&session, run_start, ended.clone());
+        self.metrics.progress(done as u64, total as u64);
+        tracing::info!(
+            campaign = campaign_id,
+            poses_done = done,
+            poses_total = total,
+            resumed = session.resumed,
+            "campaign loaded"
+        );
         let pump = tokio::spawn(pump_prompts(
             prompts,
             Arc::clone(&pending),
@@ -572,12 +662,40 @@ impl Daemon {
             task,
             run_start,
             ended,
+            state,
         });
         Ok(campaign_id)
     }
 
-    /// Apply a client command to campaign `id` (loading a stored campaign to resume it).
-    /// Cancel-safe: a command is applied at once (a load runs in its own task).
+    /// Start the observer of a session's run (before its engine starts, so that it sees every
+    /// event): the run's state, device status, metrics and log lines ([`observe`]).
+    fn observe_run(
+        &self,
+        session: &crate::campaign::session::Session,
+        run_start: i64,
+        ended: CancellationToken,
+    ) -> watch::Receiver<Option<String>> {
+        let (state_tx, state_rx) = watch::channel(None);
+        let run = lock(&self.cell).run_loaded(&session.ctx.cfg, session.sim.as_ref());
+        let observer = Observer {
+            id: session.ctx.campaign_id,
+            run_start,
+            readers: Arc::clone(&self.readers),
+            metrics: Arc::clone(&self.metrics),
+            cell: Arc::clone(&self.cell),
+            state: state_tx,
+            run,
+        };
+        tokio::spawn(observer.run(session.ctx.control.events.subscribe(), ended));
+        state_rx
+    }
+
+    /// Apply a client command to campaign `id` (loading a stored campaign to resume it) and
+    /// answer with the campaign once the engine has taken it: the reply's `state` is the state
+    /// the command leads to (`arm` → `armed`, `start` → `running`, `abort` → `aborted`, …),
+    /// waiting at most [`COMMAND_SETTLE`] (a pause takes effect after the current pose, so a
+    /// slow pose may still answer `running`). Cancel-safe: a command is applied at once (a
+    /// load runs in its own task); a dropped call only stops the waiting.
     pub async fn command(
         self: &Arc<Self>,
         id: i64,
@@ -586,17 +704,29 @@ impl Daemon {
         if !matches!(cmd, ClientCommand::Abort | ClientCommand::Disarm) {
             self.ensure_loaded(id).await?;
         }
-        self.apply_to_loaded(id, cmd)?;
+        if let Some(wait) = self.apply_to_loaded(id, cmd)? {
+            wait.settle(COMMAND_SETTLE).await;
+        }
         self.get(id).await
     }
 
-    /// Apply `cmd` to campaign `id` if it is the running one; abort or disarm of a campaign
-    /// that is not running is a no-op (nothing moves anyway).
-    fn apply_to_loaded(&self, id: i64, cmd: ClientCommand) -> Result<(), DaemonError> {
+    /// Apply `cmd` to campaign `id` if it is the running one, returning how to wait for the
+    /// engine to take it; abort or disarm of a campaign that is not running is a no-op
+    /// (nothing moves anyway).
+    fn apply_to_loaded(
+        &self,
+        id: i64,
+        cmd: ClientCommand,
+    ) -> Result<Option<StateWait>, DaemonError> {
         let slot = lock(&self.slot);
         let Some(l) = slot.loaded.as_ref().filter(|l| l.id == id && l.running()) else {
-            return Ok(());
+            return Ok(None);
         };
+        let wait = settled_by(&cmd).map(|settled| StateWait {
+            state: l.state.clone(),
+            ended: l.ended.clone(),
+            settled,
+        });
         match cmd {
             ClientCommand::Answer {
                 seq,
@@ -642,7 +772,7 @@ impl Daemon {
             ClientCommand::Reregister => l.control.apply(&CampaignCommand::Reregister),
             ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
         }
-        Ok(())
+        Ok(wait)
     }
 
     /// Follow campaign `id`'s events: journal entries with a sequence number above `after`,
@@ -802,10 +932,105 @@ impl Daemon {
             .collect())
     }
 
+    /// The campaign's corrected model as robot-file TOML
+    /// ([`crate::campaign::stored::stored_model_toml`]), `None` before a result. Cancel-safe
+    /// (reads only).
+    pub async fn model(&self, id: i64) -> Result<Option<String>, DaemonError> {
+        self.read(move |s| Ok(stored_model_toml(s, id)))
+            .await?
+            .map_err(|e| match e {
+                StoredError::Store(StoreError::NoCampaign(id)) => DaemonError::NotFound(id),
+                e => DaemonError::Stored(e),
+            })
+    }
+
+    /// The campaign's measured poses as identification rows (segment 0's tracker frame, plan
+    /// order). Cancel-safe (reads only).
+    pub async fn measurements(&self, id: i64) -> Result<Vec<MeasurementRow>, DaemonError> {
+        let rows = self.read(move |s| s.observations(id)).await?;
+        rows.into_iter()
+            .map(|o| {
+                let pose = o.id.parse().map_err(|_| {
+                    DaemonError::Store(StoreError::Corrupt(format!(
+                        "campaign {id}: pose id `{}` is not a pose index",
+                        o.id
+                    )))
+                })?;
+                Ok(MeasurementRow {
+                    pose,
+                    set: o.set.as_str(),
+                    q_rad: o.q,
+                    p1_mm: o.p1.into(),
+                    p2_mm: o.p2.map(Into::into),
+                })
+            })
+            .collect()
+    }
+
+    /// The campaign's measurements as the identify CSV that `cellcal export` writes (setup
+    /// header included; the store named as this daemon was given it). A campaign that cannot
+    /// be rebuilt (an imported one without its robot model) is a conflict. Cancel-safe.
+    pub async fn measurements_csv(&self, id: i64) -> Result<String, DaemonError> {
+        let source = self.readers.path.display().to_string();
+        let csv = self
+            .read(move |s| match load_stored(s, id, None) {
+                Ok(c) => Ok(Ok(c.export_csv(&source))),
+                Err(StoredError::Store(e)) => Err(e),
+                Err(e) => Ok(Err(e.to_string())),
+            })
+            .await?;
+        csv.map_err(DaemonError::Conflict)
+    }
+
+    /// The campaign's stored plan: every pose in move order, its set, joints and done mark.
+    /// Cancel-safe (reads only).
+    pub async fn plan(&self, id: i64) -> Result<PlanView, DaemonError> {
+        let (plan, done) = self
+            .read(move |s| Ok((s.plan(id)?, s.done_poses(id)?)))
+            .await?;
+        let done: std::collections::HashSet<usize> = done.into_iter().collect();
+        let count = |set: PoseSet| plan.iter().filter(|p| p.set == set).count();
+        Ok(PlanView {
+            campaign: id,
+            poses_total: plan.len(),
+            ident: count(PoseSet::Ident),
+            verify: count(PoseSet::Verify),
+            done: done.len(),
+            poses: plan
+                .iter()
+                .map(|p| PlannedPoseView {
+                    index: p.index,
+                    set: p.set.as_str(),
+                    order: p.order,
+                    q_rad: p.q_rad.clone(),
+                    done: done.contains(&p.index),
+                })
+                .collect(),
+        })
+    }
+
     /// The campaign's latest result (the `cellcal identify` JSON), if any. Cancel-safe.
     pub async fn result(&self, id: i64) -> Result<Option<serde_json::Value>, DaemonError> {
         let text = self.read(move |s| s.latest_result(id)).await?;
         Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+    }
+
+    /// The calibration report of a campaign (one self-contained HTML page), `None` while it has
+    /// no result. Built on a blocking thread from a store reader (the campaign's identification
+    /// is rebuilt for the per-pose plots). Cancel-safe (reads only).
+    pub async fn report_html(&self, id: i64) -> Result<Option<String>, DaemonError> {
+        let name = self
+            .readers
+            .path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let at = crate::wall_clock::now_unix_ms();
+        self.read(move |s| {
+            let input = crate::campaign::report::campaign_report(s, id, &name, at)?;
+            Ok(input.map(|i| crate::report::html::render(&i)))
+        })
+        .await
     }
 
     /// Refuse new campaigns, wait for one being loaded, abort the loaded campaign (if running)
@@ -821,6 +1046,46 @@ impl Daemon {
             l.control.apply(&CampaignCommand::Abort);
             let _ = l.task.await;
         }
+    }
+}
+
+/// Longest wait of a command's reply for the engine to take the command.
+pub const COMMAND_SETTLE: Duration = Duration::from_secs(5);
+
+/// The engine states in which a command has been taken (`None`: nothing to wait for).
+fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
+    Some(match cmd {
+        ClientCommand::Arm => |s| s != "idle",
+        ClientCommand::Disarm => |s| s != "armed",
+        ClientCommand::Start => |s| !matches!(s, "idle" | "armed"),
+        // before a start there is nothing to pause
+        ClientCommand::Pause => |s| s != "running",
+        ClientCommand::Resume | ClientCommand::Reregister => |s| s != "paused",
+        ClientCommand::Abort => |s| matches!(s, "aborted" | "done" | "failed"),
+        ClientCommand::Answer { .. } => return None,
+    })
+}
+
+/// Waiting for the engine to take a command.
+struct StateWait {
+    state: watch::Receiver<Option<String>>,
+    ended: CancellationToken,
+    settled: fn(&str) -> bool,
+}
+
+impl StateWait {
+    /// Until the engine's state is one `settled` accepts, the run ends, or `limit` passes.
+    /// Cancel-safe (it only waits).
+    async fn settle(mut self, limit: Duration) {
+        let settled = self.settled;
+        let reached = self.state.wait_for(|s| s.as_deref().is_some_and(settled));
+        let _ = tokio::time::timeout(limit, async {
+            tokio::select! {
+                _ = reached => {}
+                _ = self.ended.cancelled() => {}
+            }
+        })
+        .await;
     }
 }
 
@@ -862,6 +1127,7 @@ async fn pump_prompts(
             id: p.prompt.id.clone(),
             text: p.prompt.text.clone(),
             expected_mm: p.prompt.expected_mm,
+            context: p.prompt.context.clone(),
         };
         *lock(&slot) = Some(p);
         // a store that cannot journal also stops the engine, which reports it

@@ -13,8 +13,12 @@
 //! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
 //! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
 //! - [`dataset`]: the identify CSV format and its conversion to observations.
-//! - [`report`]: the identify JSON contract and the printed summary.
+//! - [`report`]: the identify JSON contract, the printed summary, the corrected model file and the HTML report.
+//! - [`build_info`]: the version, git commit and build date of this binary.
+//! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
+//!   program says, and the compensate CSV files.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
+//! - [`metrics`]: the daemon's Prometheus metrics (`GET /metrics`).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
 //! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
 //!   results); the only module that knows SQL.
@@ -25,13 +29,16 @@
 pub mod analysis;
 pub mod api;
 pub mod auth;
+pub mod build_info;
 pub mod campaign;
 pub mod cell;
+pub mod compensate;
 pub mod config;
 pub mod daemon;
 pub mod dataset;
 pub mod identify;
 pub mod measure;
+pub mod metrics;
 pub mod model;
 pub mod plan;
 pub mod report;

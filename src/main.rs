@@ -24,7 +24,7 @@ use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
 #[derive(Parser)]
 #[command(
     name = "cellcal",
-    version,
+    version = cellcal::build_info::LONG_VERSION,
     about = "Robot calibration cell: identify MDH errors from laser-tracker data"
 )]
 struct Cli {
@@ -70,6 +70,10 @@ enum Command {
         /// Write the result (the `cellcal identify` JSON contract) here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Write the corrected model here: a robot TOML with the identified absolute values
+        /// that every command takes as `--robot` (as `GET /api/campaigns/{id}/model`).
+        #[arg(long)]
+        model_out: Option<PathBuf>,
         /// Store file (default: `store` of the configuration).
         #[arg(long)]
         store: Option<PathBuf>,
@@ -107,6 +111,11 @@ enum Command {
         /// Store file (default: `store` of the configuration).
         #[arg(long)]
         store: Option<PathBuf>,
+        /// Log lines on stderr: `text` (human) or `json` (one object a line). Level from
+        /// `RUST_LOG` (default `info`): campaign loads and state changes, device faults, every
+        /// request answered 4xx/5xx; never a token.
+        #[arg(long, value_parser = ["text", "json"], default_value = "text")]
+        log_format: String,
     },
     /// Make a random REST API token: prints it once (`token: …`) and the `[[api.tokens]]`
     /// entry (name, role, SHA-256) to paste into the cell configuration.
@@ -121,6 +130,11 @@ enum Command {
     },
     /// Write a stored campaign's measurements as an identify CSV (with its setup header).
     Export(cli::export::ExportArgs),
+    /// Joints for the real robot (the identified model): from tool targets in the measurement
+    /// frame, or from a program's joints computed on the nominal model.
+    Compensate(cli::compensate::CompensateArgs),
+    /// Write a stored campaign's calibration report: one self-contained HTML file with plots.
+    Report(cli::report::ReportArgs),
     /// Import an identify CSV as a new, fully measured campaign.
     Import {
         /// Store file.
@@ -222,12 +236,29 @@ fn other<E: Into<anyhow::Error>>(e: E) -> Failure {
     Failure(1, e.into())
 }
 
-fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+/// Log to stderr: `serve` at `info` unless `RUST_LOG` says otherwise (text or JSON lines),
+/// every other command only what `RUST_LOG` asks for.
+fn init_logging(command: &Command) {
+    use tracing_subscriber::EnvFilter;
+    let (default, json) = match command {
+        Command::Serve { log_format, .. } => ("info", log_format == "json"),
+        _ => ("error", false),
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    let logs = tracing_subscriber::fmt()
+        .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .init();
+        .with_ansi(std::io::stderr().is_terminal());
+    if json {
+        logs.json().init();
+    } else {
+        logs.init();
+    }
+}
+
+fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logging(&cli.command);
     let result = match cli.command {
         Command::Identify(args) => cli::identify::run(*args),
         Command::Significance {
@@ -242,6 +273,7 @@ fn main() -> ExitCode {
             config,
             arm,
             json,
+            model_out,
             store,
             campaign,
             quiet,
@@ -252,6 +284,7 @@ fn main() -> ExitCode {
             config,
             arm,
             json,
+            model_out,
             store,
             campaign,
             quiet,
@@ -268,9 +301,12 @@ fn main() -> ExitCode {
             config,
             listen,
             store,
+            log_format: _,
         } => run_cmd::serve(&config, &listen, store),
         Command::Token { name, role } => cli::token::run(&name, &role),
         Command::Export(args) => cli::export::run(args),
+        Command::Compensate(args) => cli::compensate::run(args),
+        Command::Report(args) => cli::report::run(args),
         Command::Import {
             store,
             robot,

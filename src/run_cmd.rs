@@ -8,6 +8,7 @@ use anyhow::{anyhow, Context};
 
 use cellcal::api::{self, Scheme};
 use cellcal::campaign::session::{open_session, Resume, SessionError};
+use cellcal::campaign::stored::stored_model_toml;
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
@@ -18,7 +19,7 @@ use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::{NewCampaign, Store};
 
 use crate::cli::access;
-use crate::cli::identify::poor_is_exit_3;
+use crate::cli::identify::{poor_is_exit_3, write_file};
 use crate::signals::StopSignals;
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 use crate::{input, other, Failure};
@@ -31,6 +32,8 @@ pub struct RunOptions {
     pub arm: bool,
     /// Write the result JSON here.
     pub json: Option<PathBuf>,
+    /// Write the corrected model (robot TOML) here.
+    pub model_out: Option<PathBuf>,
     /// Store file (default: the configuration's).
     pub store: Option<PathBuf>,
     /// Resume this campaign.
@@ -67,7 +70,9 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
         });
         let session = match open_session(cfg, &store_path, resume, prompter).await {
             Ok(s) => s,
-            Err(SessionError::Done(id)) => return print_stored_result(&store_path, id, opts.json.as_deref()),
+            Err(SessionError::Done(id)) => {
+                return print_stored_result(&store_path, id, opts.json.as_deref(), opts.model_out.as_deref())
+            }
             Err(e) => return Err(input(e)),
         };
         let mut ctx = session.ctx;
@@ -143,9 +148,10 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
                 print!("{}", summary_text(&report));
                 if let Some(path) = &opts.json {
                     let text = serde_json::to_string_pretty(&*report).map_err(other)?;
-                    std::fs::write(path, text)
-                        .with_context(|| format!("{}: cannot write", path.display()))
-                        .map_err(other)?;
+                    write_file(path, &text)?;
+                }
+                if let Some(path) = &opts.model_out {
+                    write_model(&store_path, id, path)?;
                 }
                 poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
             }
@@ -170,8 +176,23 @@ pub fn run(opts: RunOptions) -> Result<(), Failure> {
     result
 }
 
-/// A done campaign: nothing moves; print (and with `--json` write) its stored result.
-fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Result<(), Failure> {
+/// Write campaign `id`'s corrected model from the store to `path`.
+fn write_model(store_path: &Path, id: i64, path: &Path) -> Result<(), Failure> {
+    let store = Store::open(store_path).map_err(other)?;
+    let text = stored_model_toml(&store, id)
+        .map_err(other)?
+        .ok_or_else(|| other(anyhow!("campaign {id} has no stored result")))?;
+    write_file(path, &text)
+}
+
+/// A done campaign: nothing moves; print (and with `--json`, `--model-out` write) its stored
+/// result.
+fn print_stored_result(
+    store_path: &Path,
+    id: i64,
+    json: Option<&Path>,
+    model_out: Option<&Path>,
+) -> Result<(), Failure> {
     let text = Store::open(store_path)
         .and_then(|s| s.latest_result(id))
         .map_err(other)?
@@ -182,9 +203,10 @@ fn print_stored_result(store_path: &Path, id: i64, json: Option<&Path>) -> Resul
     eprintln!("campaign {id} is done: nothing moves. Its stored result:");
     print!("{}", summary_text(&report));
     if let Some(path) = json {
-        std::fs::write(path, &text)
-            .with_context(|| format!("{}: cannot write", path.display()))
-            .map_err(other)?;
+        write_file(path, &text)?;
+    }
+    if let Some(path) = model_out {
+        write_model(store_path, id, path)?;
     }
     poor_is_exit_3(&report, &format!("campaign {id}'s stored result"))
 }
@@ -219,7 +241,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         if let Some(token) = one_time {
             println!("open {}://{bound}/?token={token}", scheme.as_str());
         }
-        eprintln!("campaign store {}", store_path.display());
+        tracing::info!(store = %store_path.display(), "campaign store");
         let mut signals = StopSignals::install().map_err(other)?;
         let app = api::router(
             Arc::clone(&daemon),
@@ -231,7 +253,7 @@ pub fn serve(config: &Path, listen: &str, store: Option<PathBuf>) -> Result<(), 
         tokio::select! {
             r = &mut server => r.map_err(other)?,
             _ = signals.next() => {
-                eprintln!("stopping: aborting the loaded campaign");
+                tracing::info!("stopping: aborting the loaded campaign");
                 daemon.shutdown().await;
                 handle.graceful_shutdown(Some(std::time::Duration::from_secs(5)));
                 let _ = tokio::time::timeout(std::time::Duration::from_secs(6), server).await;

@@ -13,12 +13,15 @@ use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter};
 /// Asks the technician on the terminal; `a` (or end of input) aborts.
 pub struct TerminalPrompter;
 
+/// A typed answer: `a` aborts, an empty line confirms, else a reading in mm (`10.003` or
+/// `10,003`); `None` when it is none of these.
 fn parse_answer(line: &str) -> Option<Answer> {
     let t = line.trim();
     match t {
         "a" | "abort" | "A" => Some(Answer::Abort),
         "" => Some(Answer::Confirmed),
         _ => t
+            .replacen(',', ".", 1)
             .parse::<f64>()
             .ok()
             .filter(|v| v.is_finite())
@@ -37,7 +40,11 @@ impl Prompter for TerminalPrompter {
                 } else {
                     "Enter to confirm, or a to abort"
                 };
-                eprint!("\n{} [{hint}]: ", prompt.text);
+                eprint!(
+                    "\n[{}]\n{} [{hint}]: ",
+                    prompt.context.describe(),
+                    prompt.text
+                );
                 let _ = std::io::stderr().flush();
                 let mut line = String::new();
                 match stdin.lock().read_line(&mut line) {
@@ -46,7 +53,9 @@ impl Prompter for TerminalPrompter {
                 }
                 match parse_answer(&line) {
                     Some(Answer::Confirmed) if prompt.expected_mm.is_some() => {
-                        eprintln!("please type the reading in mm (e.g. 10.003), or a to abort");
+                        eprintln!(
+                            "please type the reading in mm (e.g. 10.003 or 10,003), or a to abort"
+                        );
                     }
                     Some(a) => return Ok(a),
                     None => eprintln!(
@@ -205,6 +214,8 @@ mod tests {
     #[test]
     fn answers() {
         assert_eq!(parse_answer("10.003\n"), Some(Answer::Number(10.003)));
+        assert_eq!(parse_answer("10,003\n"), Some(Answer::Number(10.003)));
+        assert_eq!(parse_answer("10,003,1"), None);
         assert_eq!(parse_answer("a\n"), Some(Answer::Abort));
         assert_eq!(parse_answer("\n"), Some(Answer::Confirmed));
         assert_eq!(parse_answer("ten"), None);

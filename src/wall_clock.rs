@@ -13,3 +13,39 @@ pub fn unix_ms(t: SystemTime) -> i64 {
 pub fn now_unix_ms() -> i64 {
     unix_ms(SystemTime::now())
 }
+
+/// `ms` since the Unix epoch as an ISO 8601 UTC time, `2024-05-01T12:34:56Z` (seconds cut).
+pub fn utc_text(ms: i64) -> String {
+    let secs = ms.div_euclid(1000);
+    let (days, day_secs) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // civil date from days since 1970-01-01 (H. Hinnant's algorithm, proleptic Gregorian)
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        day_secs / 3600,
+        day_secs % 3600 / 60,
+        day_secs % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_text_names_the_civil_date_and_time() {
+        assert_eq!(utc_text(0), "1970-01-01T00:00:00Z");
+        // 2000-02-29 (a leap day of a century leap year) 23:59:59.999
+        assert_eq!(utc_text(951_868_799_999), "2000-02-29T23:59:59Z");
+        assert_eq!(utc_text(1_700_000_000_000), "2023-11-14T22:13:20Z");
+        assert_eq!(utc_text(-1), "1969-12-31T23:59:59Z");
+    }
+}

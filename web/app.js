@@ -2,6 +2,7 @@
 'use strict';
 
 const TOKEN_KEY = 'cellcal.token';
+const SOUND_KEY = 'cellcal.sound';
 const TERMINAL = ['done', 'aborted', 'failed'];
 const $ = (id) => document.getElementById(id);
 
@@ -14,10 +15,17 @@ const ui = {
   answered: new Set(), // seqs answered from this page
   resultFor: null,     // campaign id whose result is on screen
   follow: null,        // {id, ctrl}
-  lastSeq: new Map(),  // campaign id → last journal seq seen
   samples: [],         // [{t, done}] for the time left
   refreshing: false,
   again: false,
+  historyFor: null,    // campaign id whose stored journal was read
+  seenSeq: 0,          // highest journal seq shown for the selected campaign
+  measured: [],        // [{done, total, pose, dev}] of the selected campaign ('measured' events)
+  drifts: [],          // [{after, drift_mm, max_mm}] of the selected campaign ('drift' events)
+  listKey: '',         // the campaign list as last drawn
+  plotTotal: null,     // poses_total the plot's x axis was drawn for
+  audio: null,         // the WebAudio context of the question beep
+  beeps: 0,
 };
 
 /** The token from `?token=` (moved to sessionStorage and removed from the address bar), or the stored one. */
@@ -86,6 +94,7 @@ async function signIn(token) {
   for (const el of document.querySelectorAll('[data-action]')) {
     el.hidden = !may(el.dataset.action);
   }
+  pollDevices();
   await refresh();
 }
 
@@ -97,30 +106,50 @@ function cell(row, text) {
   row.appendChild(td);
 }
 
+/** The campaign table; a row is chosen by click, or by Enter when it has the focus. */
 function renderList(list) {
+  const key = JSON.stringify([ui.selected, list]);
+  if (key === ui.listKey) return;
+  ui.listKey = key;
   const body = $('campaign-list').tBodies[0];
+  const focused = document.activeElement && document.activeElement.parentNode === body
+    ? document.activeElement.dataset.id : null;
   body.replaceChildren();
   for (const c of list) {
     const tr = document.createElement('tr');
     tr.dataset.id = c.id;
+    tr.tabIndex = 0;
     if (c.id === ui.selected) tr.className = 'selected';
     for (const t of [c.id, c.name, c.state, c.poses_done + ' / ' + c.poses_total, c.model,
       c.has_result ? (c.quality || 'yes') : '']) cell(tr, String(t));
     tr.addEventListener('click', () => select(c.id));
+    tr.addEventListener('keydown', (ev) => { if (ev.key === 'Enter') { ev.preventDefault(); select(c.id); } });
     body.appendChild(tr);
+    if (String(c.id) === focused) tr.focus();
   }
 }
 
 function select(id) {
   if (ui.selected !== id) {
     ui.selected = id;
-    ui.samples = [];
-    ui.resultFor = null;
-    $('result-view').hidden = true;
-    $('event-log').replaceChildren();
+    forgetCampaign();
     stopFollowing();
   }
   refresh();
+}
+
+/** Clear what the page shows of the previously selected campaign (its events are read again). */
+function forgetCampaign() {
+  ui.samples = [];
+  ui.resultFor = null;
+  ui.historyFor = null;
+  ui.seenSeq = 0;
+  ui.measured = [];
+  ui.drifts = [];
+  $('result-view').hidden = true;
+  $('event-log').replaceChildren();
+  renderDrift();
+  renderDeviation();
 }
 
 /** The campaign to show when none is chosen: the loaded one, else the newest. */
@@ -137,11 +166,15 @@ async function refresh() {
   try {
     const list = await api('GET', '/api/campaigns');
     list.sort((a, b) => a.id - b.id);
-    if (ui.selected === null || !list.some((c) => c.id === ui.selected)) ui.selected = defaultSelection(list);
+    if (ui.selected === null || !list.some((c) => c.id === ui.selected)) {
+      ui.selected = defaultSelection(list);
+      forgetCampaign();
+    }
     renderList(list);
     if (ui.selected !== null) {
       const view = await api('GET', '/api/campaigns/' + ui.selected);
       renderView(view);
+      if (ui.historyFor !== view.id) await readHistory(view.id);
       if (view.has_result && ui.resultFor !== view.id) await showResult(view.id);
       if (view.loaded) ensureFollowing(view.id);
     } else {
@@ -166,6 +199,7 @@ function renderView(v) {
   $('progress-bar').max = Math.max(total, 1);
   $('progress-bar').value = done;
   $('time-left').textContent = timeLeft(v);
+  if (total !== ui.plotTotal) { ui.plotTotal = total; renderDeviation(); }
   const state = v ? v.state : '';
   const terminal = state === 'done';
   $('cmd-arm').disabled = !v || v.armed || terminal;
@@ -199,16 +233,23 @@ function renderPrompt(v) {
   if (!q) {
     panel.hidden = true;
     ui.promptSeq = null;
+    document.title = 'cellcal — calibration cell';
     return;
   }
   if (q.seq === ui.promptSeq) return;
   ui.promptSeq = q.seq;
   panel.dataset.seq = q.seq;
-  const pose = Math.min(v.poses_done + 1, v.poses_total);
-  $('prompt-context').textContent = 'Pose ' + pose + ' of ' + v.poses_total + ' · question ' + q.seq + ' (' + q.id + ')'
-    + (q.expected_mm != null ? ' · expected about ' + q.expected_mm.toFixed(3) + ' mm' : '');
-  $('prompt-safe').textContent = 'Robot stopped — waiting for your answer, safe to approach the stage.';
-  $('prompt-text').textContent = q.text;
+  $('prompt-context').textContent = promptContext(q);
+  const safe = $('prompt-safe');
+  safe.textContent = q.robot_stopped === true
+    ? 'Robot stopped — safe to approach.'
+    : 'Robot state not known — check that the robot stands still before approaching.';
+  safe.className = q.robot_stopped === true ? 'safe' : 'safe unknown';
+  const retry = $('prompt-retry');
+  retry.textContent = q.retry_reason ? 'Not accepted: ' + q.retry_reason + '.' : '';
+  retry.hidden = !q.retry_reason;
+  $('prompt-text').textContent = q.retry_reason && q.text.startsWith(q.retry_reason)
+    ? q.text.slice(q.retry_reason.length).replace(/^[.\s]+/, '') : q.text;
   $('prompt-error').textContent = '';
   const numeric = q.expected_mm != null;
   const canAnswer = may('answer');
@@ -216,11 +257,48 @@ function renderPrompt(v) {
   $('prompt-value').hidden = !numeric || !canAnswer;
   document.querySelector('label[for=prompt-value]').hidden = !numeric || !canAnswer;
   $('prompt-confirm').hidden = !canAnswer;
+  $('prompt-hint').hidden = !canAnswer;
   panel.hidden = false;
+  cue(panel);
+  if (canAnswer) (numeric ? $('prompt-value') : $('prompt-confirm')).focus();
+}
+
+/** "Pose 3 of 20 · P2 · question 7": what the question is about, from the engine's context only. */
+function promptContext(q) {
+  const parts = [];
+  if (q.pose != null && q.poses_total != null) parts.push('Pose ' + q.pose + ' of ' + q.poses_total);
+  else if (q.step === 'drift') parts.push('Drift check at the reference pose');
+  else if (q.step === 'setup') parts.push('Setup (tool frame, base registration)');
+  else if (q.step === 'reregister') parts.push('Re-registering the tracker frame');
+  if (q.position) parts.push(q.position);
+  if (q.expected_mm != null) parts.push('set to ' + q.expected_mm.toFixed(3) + ' mm');
+  parts.push('question ' + q.seq);
+  return parts.join(' · ');
+}
+
+/** A question opened: flash the panel, bring it into view, mark the tab title, beep if asked. */
+function cue(panel) {
   panel.classList.remove('fresh');
   void panel.offsetWidth;
   panel.classList.add('fresh');
-  if (canAnswer) (numeric ? $('prompt-value') : $('prompt-confirm')).focus();
+  panel.scrollIntoView({ block: 'start' });
+  document.title = '▶ Question — cellcal';
+  if (!$('sound-toggle').checked) return;
+  try {
+    if (!ui.audio) ui.audio = new AudioContext();
+    const a = ui.audio;
+    if (a.state === 'suspended') a.resume();
+    const osc = a.createOscillator();
+    const gain = a.createGain();
+    osc.frequency.value = 880;
+    gain.gain.setValueAtTime(0.25, a.currentTime);
+    gain.gain.exponentialRampToValueAtTime(0.001, a.currentTime + 0.35);
+    osc.connect(gain).connect(a.destination);
+    osc.start();
+    osc.stop(a.currentTime + 0.35);
+    ui.beeps += 1;
+    panel.dataset.beeps = ui.beeps;
+  } catch (_) { /* no audio device: the visual cue stands */ }
 }
 
 /** A typed reading in mm: `10.003` or `10,003`; null when it is not a plain decimal number. */
@@ -329,8 +407,7 @@ function ensureFollowing(id) {
 
 async function followStream(f) {
   const headers = { Authorization: 'Bearer ' + ui.token };
-  const last = ui.lastSeq.get(f.id);
-  headers['Last-Event-ID'] = String(last === undefined ? 0 : last);
+  headers['Last-Event-ID'] = String(f.id === ui.selected ? ui.seenSeq : 0);
   let r;
   try {
     r = await fetch('/api/campaigns/' + f.id + '/stream', { headers, signal: f.ctrl.signal });
@@ -364,32 +441,172 @@ function onSse(id, block) {
     else if (field === 'data') data.push(value);
   }
   if (!data.length) return;
-  if (seq !== null && Number.isFinite(seq)) ui.lastSeq.set(id, seq);
-  if (id === ui.selected) logEvent(seq, kind, data.join('\n'));
+  const text = data.join('\n');
+  let d = text;
+  try { d = JSON.parse(text); } catch (_) { /* shown as text */ }
+  onEvent(id, Number.isFinite(seq) ? seq : null, kind, d);
   refresh();
 }
 
-function summary(kind, text) {
-  let d;
-  try { d = JSON.parse(text); } catch (_) { return text; }
+/** The stored journal of campaign `id` (what happened before this page looked). */
+async function readHistory(id) {
+  let list;
+  try { list = await api('GET', '/api/campaigns/' + id + '/events'); } catch (e) { say('events: ' + e.message); return; }
+  if (id !== ui.selected) return;
+  ui.historyFor = id;
+  for (const e of Array.isArray(list) ? list : []) onEvent(id, e.seq, e.kind, e.event);
+}
+
+/** One journalled event of campaign `id` (live or stored): the log, the drift table, the plot. */
+function onEvent(id, seq, kind, d) {
+  if (id !== ui.selected) return;
+  if (seq !== null) {
+    if (seq <= ui.seenSeq) return;
+    ui.seenSeq = seq;
+  }
+  logEvent(seq, kind, summary(kind, d));
+  if (typeof d !== 'object' || d === null) return;
+  if (kind === 'measured') {
+    ui.measured.push({ done: d.done, total: d.total, pose: d.pose, dev: d.deviation_mm });
+    renderDeviation();
+  } else if (kind === 'drift') {
+    const last = ui.measured[ui.measured.length - 1];
+    ui.drifts.push({ after: last ? last.done : 0, drift_mm: d.drift_mm, max_mm: d.max_mm });
+    renderDrift();
+  }
+}
+
+function summary(kind, d) {
+  if (typeof d !== 'object' || d === null) return String(d);
   switch (kind) {
-    case 'state': return (d.state && (d.state.state || d.state)) + '';
-    case 'measured': return 'pose ' + d.pose + ' measured (' + d.done + ' / ' + d.total + ')';
+    case 'state': return (d.state && (d.state.state || d.state)) + (d.state && d.state.reason ? ': ' + d.state.reason : '');
+    case 'measured': return 'pose ' + d.pose + ' measured (' + d.done + ' / ' + d.total + ')'
+      + (typeof d.deviation_mm === 'number' ? ', ' + d.deviation_mm.toFixed(3) + ' mm from the nominal model' : '');
     case 'prompt': return 'question ' + d.seq + ': ' + d.text;
     case 'note': return d.text;
     case 'fault': return d.device + ' ' + d.kind + ': ' + d.message + ' → ' + d.action;
-    case 'drift': return 'drift ' + Number(d.drift_mm).toFixed(4) + ' mm (max ' + d.max_mm + ')';
+    case 'drift': return 'drift ' + fmt(d.drift_mm, 4) + ' mm (max ' + d.max_mm + ')';
     case 'result': return 'result: quality ' + ((d.json && d.json.quality) || '—');
-    default: return text.length > 200 ? text.slice(0, 200) + '…' : text;
+    default: {
+      const text = JSON.stringify(d);
+      return text.length > 200 ? text.slice(0, 200) + '…' : text;
+    }
   }
 }
 
 function logEvent(seq, kind, text) {
   const li = document.createElement('li');
-  li.textContent = (seq !== null ? '#' + seq + ' ' : '') + kind + ': ' + summary(kind, text);
+  li.textContent = (seq !== null ? '#' + seq + ' ' : '') + kind + ': ' + text;
   const log = $('event-log');
   log.prepend(li);
   while (log.children.length > 500) log.lastElementChild.remove();
+}
+
+// ---- drift checks and the deviation plot ------------------------------------------------
+
+function renderDrift() {
+  const body = $('drift-checks').tBodies[0];
+  body.replaceChildren();
+  ui.drifts.forEach((c, i) => {
+    const tr = document.createElement('tr');
+    const over = !(c.drift_mm <= c.max_mm);
+    cell(tr, String(i + 1));
+    cell(tr, i === 0 ? 'reference' : String(c.after));
+    cell(tr, fmt(c.drift_mm, 4));
+    cell(tr, fmt(c.max_mm, 3));
+    cell(tr, over ? 'OVER' : 'ok');
+    if (over) tr.lastChild.className = 'over';
+    body.prepend(tr);
+  });
+  $('drift-note').textContent = ui.drifts.length ? '' : 'none yet';
+}
+
+const SVG = 'http://www.w3.org/2000/svg';
+
+function svg(parent, tag, attrs, text) {
+  const el = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, String(v));
+  if (text !== undefined) el.textContent = text;
+  parent.appendChild(el);
+  return el;
+}
+
+/** The smallest of 1, 2, 5 × 10^k at least `x`: the plot's top. */
+function niceCeil(x) {
+  const p = Math.pow(10, Math.floor(Math.log10(x)));
+  for (const m of [1, 2, 5, 10]) if (m * p >= x) return m * p;
+  return 10 * p;
+}
+
+/** Each measured pose's deviation from the nominal model (mm) against the measuring order. */
+function renderDeviation() {
+  const plot = $('deviation-plot');
+  plot.replaceChildren();
+  const W = 900; const H = 240; const L = 76; const R = 14; const T = 12; const B = 36;
+  const pts = ui.measured.filter((p) => typeof p.dev === 'number' && Number.isFinite(p.dev));
+  const total = Math.max(1, ui.view ? ui.view.poses_total : 0, ...ui.measured.map((p) => p.total || 0));
+  const top = niceCeil(Math.max(0.1, ...pts.map((p) => p.dev)));
+  const x = (done) => L + ((W - L - R) * (done - 1)) / Math.max(1, total - 1);
+  const y = (mm) => T + (H - T - B) * (1 - mm / top);
+  for (const f of [0, 0.5, 1]) {
+    svg(plot, 'line', { class: 'grid', x1: L, x2: W - R, y1: y(top * f), y2: y(top * f) });
+    svg(plot, 'text', { x: L - 6, y: y(top * f) + 4, 'text-anchor': 'end' }, (f ? (top * f).toPrecision(2) : '0') + ' mm');
+  }
+  svg(plot, 'line', { class: 'axis', x1: L, x2: L, y1: T, y2: H - B });
+  svg(plot, 'line', { class: 'axis', x1: L, x2: W - R, y1: H - B, y2: H - B });
+  svg(plot, 'text', { x: L, y: H - B + 16, 'text-anchor': 'middle' }, '1');
+  svg(plot, 'text', { x: W - R, y: H - B + 16, 'text-anchor': 'end' }, String(total));
+  svg(plot, 'text', { x: (L + W - R) / 2, y: H - 4, 'text-anchor': 'middle' }, 'pose (measuring order)');
+  if (pts.length > 1) {
+    svg(plot, 'polyline', { class: 'line', points: pts.map((p) => x(p.done) + ',' + y(p.dev)).join(' ') });
+  }
+  pts.forEach((p, i) => {
+    const dot = svg(plot, 'circle', { class: i === pts.length - 1 ? 'dot last' : 'dot', cx: x(p.done), cy: y(p.dev), r: 3.5 });
+    svg(dot, 'title', {}, 'pose ' + p.pose + ': ' + p.dev.toFixed(4) + ' mm');
+  });
+  plot.dataset.points = pts.length;
+  const note = $('deviation-summary');
+  if (!ui.measured.length) {
+    note.textContent = 'no pose measured yet';
+  } else if (!pts.length) {
+    note.textContent = 'no prediction to compare with: the base is not registered (setup.base_registration = false)';
+  } else {
+    const devs = pts.map((p) => p.dev);
+    const mean = devs.reduce((a, b) => a + b, 0) / devs.length;
+    note.textContent = pts.length + ' poses · last ' + devs[devs.length - 1].toFixed(3) + ' mm · mean '
+      + mean.toFixed(3) + ' mm · max ' + Math.max(...devs).toFixed(3) + ' mm';
+  }
+}
+
+// ---- device status ---------------------------------------------------------------------
+
+/** Read `GET /api/devices`; a daemon without that route shows every device as unknown. */
+async function pollDevices() {
+  if (!ui.me) return;
+  let d = null;
+  let note = '';
+  try {
+    d = await api('GET', '/api/devices');
+  } catch (e) {
+    note = e.status === 404 ? 'this daemon does not report device status' : 'device status: ' + e.message;
+  }
+  renderDevices(d, note);
+}
+
+function renderDevices(d, note) {
+  for (const name of ['tracker', 'robot', 'stage']) {
+    const dev = d && d[name] ? d[name] : null;
+    const cells = $('device-' + name).cells;
+    cells[1].textContent = dev ? String(dev.kind) + (dev.simulated ? ' (simulated)' : '') : '';
+    cells[2].textContent = dev && dev.address != null ? String(dev.address) : '';
+    const c = dev ? dev.connected : null;
+    cells[3].textContent = c === true ? 'yes' : c === false ? 'NO' : 'unknown';
+    cells[3].className = c === true ? 'yes' : c === false ? 'no' : '';
+    const f = dev ? dev.last_fault : null;
+    cells[4].textContent = !dev ? '' : !f ? 'none'
+      : f.kind + ': ' + f.message + (f.at_ms ? ' (' + new Date(f.at_ms).toLocaleTimeString() + ')' : '');
+  }
+  $('device-note').textContent = note;
 }
 
 // ---- result ----------------------------------------------------------------------------
@@ -493,7 +710,16 @@ function wire() {
       askAbort();
     }
   });
+  const sound = $('sound-toggle');
+  sound.checked = localStorage.getItem(SOUND_KEY) === '1';
+  sound.addEventListener('change', () => {
+    localStorage.setItem(SOUND_KEY, sound.checked ? '1' : '0');
+    if (sound.checked && !ui.audio) {
+      try { ui.audio = new AudioContext(); } catch (_) { /* no audio: the visual cue stands */ }
+    }
+  });
   setInterval(refresh, 1000);
+  setInterval(pollDevices, 3000);
 }
 
 wire();

@@ -325,6 +325,7 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
         .headers
         .insert(CONTENT_TYPE, HeaderValue::from_static("application/json"));
     let body = serde_json::json!({ "error": message }).to_string();
+    parts.extensions.insert(super::ErrorText(message));
     Response::from_parts(parts, Body::from(body))
 }
 

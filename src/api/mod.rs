@@ -2,7 +2,9 @@
 //! (`Content-Type: application/json`, at most 64 KiB); every error is `{"error": "..."}` with a
 //! 4xx/5xx status. [`guard`] checks `Host`, `Origin` and the bearer token of every request
 //! before routing; the routes check the caller's [`crate::auth::Role`] for what it asks.
-//! [`serve`] runs the router over plain HTTP or TLS ([`tls`]).
+//! [`serve`] runs the router over plain HTTP or TLS ([`tls`]). Every handler is cancel-safe: a
+//! dropped request only stops its own reads or waits (a command is applied before its reply
+//! waits for the engine; a creation or load runs in its own task).
 //!
 //! | method and path | what |
 //! |---|---|
@@ -18,8 +20,15 @@
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
 //! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
+//! | `GET /api/campaigns/{id}/model` | the corrected model: a robot TOML (`text/plain`) that `--robot` loads, 404 until identified |
+//! | `GET /api/campaigns/{id}/measurements` | the measured poses (`[MeasurementRow]`); `?format=csv`: the identify CSV `cellcal export` writes |
+//! | `GET /api/campaigns/{id}/plan` | the stored plan (`PlanView`): poses in move order, set, joints (rad), done marks |
+//! | `GET /api/devices` | tracker, robot, stage: kind, address, simulated, connected, last fault (`DevicesView`) |
+//! | `GET /metrics` | Prometheus metrics, OpenMetrics text ([`crate::metrics`]); a token of any role |
+//! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
 
 pub mod guard;
+mod observe;
 pub mod openapi;
 pub mod tls;
 pub mod web;
@@ -31,6 +40,7 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{DefaultBodyLimit, FromRequestParts, Path, Query, State};
+use axum::http::header::{CONTENT_DISPOSITION, CONTENT_TYPE};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::sse::{Event, KeepAlive, Sse};
@@ -44,7 +54,8 @@ pub use guard::{Gate, Scheme};
 
 use crate::auth::{Action, Principal};
 use crate::daemon::{
-    CampaignOverrides, CampaignView, ClientCommand, Daemon, DaemonError, Followed, PromptView,
+    CampaignOverrides, CampaignView, ClientCommand, Daemon, DaemonError, DevicesView, Followed,
+    MeasurementRow, PlanView, PromptView,
 };
 
 /// Largest accepted request body (bytes); larger ones get 413.
@@ -60,9 +71,10 @@ impl From<DaemonError> for ApiError {
             DaemonError::BadRequest(_) => StatusCode::BAD_REQUEST,
             DaemonError::NotFound(_) => StatusCode::NOT_FOUND,
             DaemonError::Conflict(_) => StatusCode::CONFLICT,
-            DaemonError::Session(_) | DaemonError::Store(_) | DaemonError::Task(_) => {
-                StatusCode::INTERNAL_SERVER_ERROR
-            }
+            DaemonError::Session(_)
+            | DaemonError::Store(_)
+            | DaemonError::Task(_)
+            | DaemonError::Stored(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
         ApiError(status, e.to_string())
     }
@@ -82,9 +94,16 @@ pub struct ErrorBody {
     pub error: String,
 }
 
+/// The message of an error response, left in its extensions for the request log.
+#[derive(Debug, Clone)]
+pub(crate) struct ErrorText(pub(crate) String);
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(ErrorBody { error: self.1 })).into_response()
+        let text = ErrorText(self.1.clone());
+        let mut r = (self.0, Json(ErrorBody { error: self.1 })).into_response();
+        r.extensions_mut().insert(text);
+        r
     }
 }
 
@@ -149,6 +168,7 @@ type Shared = Arc<Daemon>;
 
 /// The API's routes over `daemon`, behind `gate` (see [`guard`]), errors as JSON.
 pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
+    let metrics = Arc::clone(daemon.metrics());
     Router::new()
         .merge(web::routes())
         .route("/api/health", get(health))
@@ -160,11 +180,21 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .route("/api/campaigns/{id}/events", get(journal))
         .route("/api/campaigns/{id}/stream", get(stream))
         .route("/api/campaigns/{id}/result", get(result))
+        .route("/api/campaigns/{id}/model", get(model))
+        .route("/api/campaigns/{id}/report", get(report))
         .route("/api/campaigns/{id}/prompt", get(prompt))
+        .route("/api/campaigns/{id}/measurements", get(measurements))
+        .route("/api/campaigns/{id}/plan", get(plan))
+        .route("/api/devices", get(devices))
+        .route("/metrics", get(prometheus_metrics))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .layer(axum::middleware::from_fn_with_state(gate, guard::guard))
         .layer(axum::middleware::from_fn(guard::json_errors))
+        .layer(axum::middleware::from_fn_with_state(
+            metrics,
+            observe::observe,
+        ))
         .with_state(daemon)
 }
 
@@ -349,10 +379,51 @@ async fn journal(
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),
-        None => Err(ApiError(
-            StatusCode::NOT_FOUND,
-            format!("campaign {id} has no result yet"),
-        )),
+        None => Err(no_result_yet(id)),
+    }
+}
+
+/// 404 for a campaign that has not been identified (its result, model and report).
+fn no_result_yet(id: i64) -> ApiError {
+    ApiError(
+        StatusCode::NOT_FOUND,
+        format!("campaign {id} has no result yet"),
+    )
+}
+
+/// The corrected model of a campaign: the robot TOML `cellcal run --model-out` writes.
+#[utoipa::path(get, path = "/api/campaigns/{id}/model", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "a robot model file (TOML) with the identified absolute MDH values, base and tool, the nominal joint limits and a provenance header; every command loads it as `--robot`", body = String, content_type = "text/plain; charset=utf-8"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
+        (status = 500, description = "the stored campaign cannot be rebuilt", body = ErrorBody)))]
+async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    match d.model(id).await? {
+        Some(text) => Ok((
+            [(
+                axum::http::header::CONTENT_TYPE,
+                "text/plain; charset=utf-8",
+            )],
+            text,
+        )
+            .into_response()),
+        None => Err(no_result_yet(id)),
+    }
+}
+
+/// The calibration report of a campaign: one self-contained HTML page.
+#[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
+async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    match d.report_html(id).await? {
+        Some(html) => Ok(web::report_page(html)),
+        None => Err(no_result_yet(id)),
     }
 }
 
@@ -429,4 +500,81 @@ async fn stream(
     let followed = d.follow(id, after).await?;
     let events = ReceiverStream::new(followed).map(|item| Ok(sse_event(item)));
     Ok(Sse::new(events).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+}
+
+/// `?format=` of the measurements.
+#[derive(Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeasurementsQuery {
+    format: Option<String>,
+}
+
+/// A campaign's measured poses: JSON rows, or the identify CSV of `cellcal export`.
+#[utoipa::path(get, path = "/api/campaigns/{id}/measurements", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id"),
+        ("format" = Option<String>, Query, description = "`json` (default) or `csv`: the identify CSV with its setup header, exactly as `cellcal export` writes it")),
+    responses((status = 200, description = "the measured poses in plan order (P1/P2 in the campaign's first tracker frame)", body = Vec<MeasurementRow>),
+        (status = 400, description = "a bad id or format", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody),
+        (status = 409, description = "the campaign cannot be rebuilt for the CSV (an import without its robot model)", body = ErrorBody)))]
+async fn measurements(
+    State(d): State<Shared>,
+    CampaignId(id): CampaignId,
+    query: Result<Query<MeasurementsQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let query = query.map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.body_text()))?;
+    match query.0.format.as_deref() {
+        None | Some("json") => Ok(Json(d.measurements(id).await?).into_response()),
+        Some("csv") => {
+            let csv = d.measurements_csv(id).await?;
+            let disposition = format!("attachment; filename=\"campaign-{id}.csv\"");
+            Ok((
+                [
+                    (CONTENT_TYPE, "text/csv; charset=utf-8".to_owned()),
+                    (CONTENT_DISPOSITION, disposition),
+                ],
+                csv,
+            )
+                .into_response())
+        }
+        Some(f) => Err(ApiError(
+            StatusCode::BAD_REQUEST,
+            format!("format: `{f}` is neither `json` nor `csv`"),
+        )),
+    }
+}
+
+/// A campaign's stored plan.
+#[utoipa::path(get, path = "/api/campaigns/{id}/plan", tag = "campaigns",
+    params(("id" = i64, Path, description = "campaign id")),
+    responses((status = 200, description = "every planned pose in move order with its set, joint target (rad) and done mark", body = PlanView),
+        (status = 400, description = "the id is not a number", body = ErrorBody),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 404, description = "no such campaign", body = ErrorBody)))]
+async fn plan(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
+    Ok(Json(d.plan(id).await?).into_response())
+}
+
+/// The cell's devices: kind, address, simulated, connected (null when unknown), last fault.
+#[utoipa::path(get, path = "/api/devices", tag = "daemon",
+    responses((status = 200, description = "tracker, robot and stage", body = DevicesView),
+        (status = 401, description = "no or unknown token", body = ErrorBody)))]
+async fn devices(State(d): State<Shared>, caller: Caller) -> Result<Response, ApiError> {
+    caller.may(Action::Read)?;
+    Ok(Json(d.devices()).into_response())
+}
+
+/// Prometheus metrics (OpenMetrics text); any role's token (Prometheus: `bearer_token`).
+#[utoipa::path(get, path = "/metrics", tag = "daemon",
+    responses((status = 200, description = "poses measured, faults and retries by kind, campaign state, request latency by route",
+            body = String, content_type = "application/openmetrics-text"),
+        (status = 401, description = "no or unknown token", body = ErrorBody)))]
+async fn prometheus_metrics(State(d): State<Shared>, caller: Caller) -> Result<Response, ApiError> {
+    caller.may(Action::Read)?;
+    Ok((
+        [(CONTENT_TYPE, crate::metrics::CONTENT_TYPE)],
+        d.metrics().encode(),
+    )
+        .into_response())
 }

@@ -52,6 +52,31 @@ fn asset(content_type: &'static str, body: &'static str) -> Response {
     (headers, body).into_response()
 }
 
+/// A calibration report page ([`crate::report::html`]): no script may run and nothing may load
+/// (its style and SVG plots are inline); not cached (it holds a campaign's results).
+pub fn report_page(html: String) -> Response {
+    let headers = [
+        (
+            CONTENT_TYPE,
+            HeaderValue::from_static("text/html; charset=utf-8"),
+        ),
+        (CACHE_CONTROL, HeaderValue::from_static("no-store")),
+        (REFERRER_POLICY, HeaderValue::from_static("no-referrer")),
+        (
+            HeaderName::from_static("content-security-policy"),
+            HeaderValue::from_static(
+                "default-src 'none'; style-src 'unsafe-inline'; img-src data:; base-uri 'none'; \
+                 form-action 'none'; frame-ancestors 'none'",
+            ),
+        ),
+        (
+            HeaderName::from_static("x-content-type-options"),
+            HeaderValue::from_static("nosniff"),
+        ),
+    ];
+    (headers, html).into_response()
+}
+
 /// The cockpit page (no token needed; it signs in with `?token=` or a typed token).
 #[utoipa::path(get, path = "/", tag = "web", security(()),
     responses((status = 200, description = "the page (also at `/index.html`)", body = String, content_type = "text/html")))]

@@ -26,7 +26,10 @@ use std::time::Duration;
 use nalgebra::Vector3;
 
 use super::events::{CampaignEvent, CampaignState, Control, Journalled};
-use crate::cell::{CellError, DeviceKind, FaultKind, Robot, Stage, Tracker, TrackerPoint};
+use crate::cell::{
+    CellError, DeviceKind, FaultKind, PromptContext, Robot, Stage, StagePosition, Tracker,
+    TrackerPoint,
+};
 use crate::config::CellConfig;
 use crate::identify::solver::Options;
 use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
@@ -269,6 +272,43 @@ struct Run<'a> {
     aim: Option<frame::Aim>,
     /// The predicted position of the point being measured: where a re-lock looks first.
     aim_at: Option<Vector3<f64>>,
+    /// The controller reported the robot settled at its last target and no robot command was
+    /// sent since (false whenever that is not known).
+    robot_settled: bool,
+    /// What is being measured (the context of a technician question).
+    step: Step,
+}
+
+/// What the engine is measuring, as a technician question's context names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// The setup step (tool frame, base registration).
+    Setup,
+    /// A drift check at the reference pose (the frame reference included).
+    Drift,
+    /// Re-measuring stored points to re-register the tracker frame.
+    Reregister,
+    /// The `n`-th pose measured (from 1).
+    Pose(usize),
+}
+
+impl Step {
+    /// The `step` name of a prompt context.
+    fn name(self) -> &'static str {
+        match self {
+            Step::Setup => "setup",
+            Step::Drift => "drift",
+            Step::Reregister => "reregister",
+            Step::Pose(_) => "pose",
+        }
+    }
+}
+
+/// The deviation of a measured P1 from where the nominal model (registered base, measured
+/// tool) puts the ball: measured − predicted (mm, tracker frame).
+fn deviation(aim: Option<&frame::Aim>, m: &PoseMeasurement) -> Option<Vector3<f64>> {
+    let predicted = aim?.ball(&m.joints_rad, m.p1.stage_mm)?;
+    Some(Vector3::new(m.p1.x_mm, m.p1.y_mm, m.p1.z_mm) - predicted)
 }
 
 /// Retry a step after the operator fixed a fault: `Stop::Fault` pauses (or fails, per the
@@ -331,6 +371,9 @@ impl Run<'_> {
             (_, FaultKind::NotReady) => "wait",
             _ => "pause",
         };
+        if e.device == DeviceKind::Robot {
+            self.robot_settled = false;
+        }
         self.fault(e.device, e.kind, &e.message, action).await?;
         let abort = &self.ctx.control.abort;
         let r = match (action, e.device) {
@@ -517,6 +560,7 @@ impl Run<'_> {
             .settle_tolerance_deg
             .to_radians();
         let mut last = String::new();
+        self.robot_settled = false;
         for _ in 0..max {
             if !self.ctx.control.is_armed() {
                 return Err(Stop::Failed("the campaign is not armed: no motion".into()));
@@ -544,7 +588,10 @@ impl Run<'_> {
             };
             match r {
                 Ok(Ok(joints)) => match settle_error(q, &joints, tol) {
-                    None => return Ok(joints),
+                    None => {
+                        self.robot_settled = true;
+                        return Ok(joints);
+                    }
                     Some(why) => {
                         self.fault(DeviceKind::Robot, FaultKind::Device, &why, "repeat move")
                             .await?;
@@ -581,8 +628,10 @@ impl Run<'_> {
             return Ok(at);
         }
         self.stage_mm = None;
+        let context = self.prompt_context(mm);
         let r = {
             let stage = &mut self.dev.stage;
+            stage.set_prompt_context(context);
             guarded(&self.ctx.control.abort, stage.move_to(mm)).await?
         };
         match r {
@@ -601,8 +650,36 @@ impl Run<'_> {
         }
     }
 
+    /// The context of a question asked while the stage goes to `mm`: the step, the pose,
+    /// P1 or P2, and whether the robot is known to stand still.
+    fn prompt_context(&self, mm: f64) -> PromptContext {
+        let stage = &self.ctx.cfg.stage;
+        let s1 = stage.p1_mm;
+        let at = |x: f64| (mm - x).abs() <= stage.tolerance_mm;
+        let position = if at(s1) {
+            Some(StagePosition::P1)
+        } else if at(s1 + stage.travel_mm) {
+            Some(StagePosition::P2)
+        } else {
+            None
+        };
+        let pose = match self.step {
+            Step::Pose(n) => Some(n),
+            _ => None,
+        };
+        PromptContext {
+            step: Some(self.step.name().to_owned()),
+            pose,
+            poses_total: pose.map(|_| self.ctx.plan.poses.len()),
+            position,
+            robot_stopped: self.robot_settled,
+            retry_reason: None,
+        }
+    }
+
     /// Measure the drift reference at `q` (stage at P1); returns the point and its row id.
     async fn drift_point(&mut self, q: &[f64]) -> Result<(Vector3<f64>, i64), Stop> {
+        self.step = Step::Drift;
         let joints = self.move_to(q).await?;
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s = self.stage_to(s1).await?;
@@ -691,6 +768,7 @@ impl Run<'_> {
 
     async fn prepare(&mut self) -> Result<(), Stop> {
         self.stage_mm = None;
+        self.robot_settled = false;
         let speed = self.ctx.cfg.robot_controller.speed_pct;
         for device in [DeviceKind::Robot, DeviceKind::Tracker, DeviceKind::Stage] {
             let r = match device {
@@ -791,8 +869,10 @@ impl Run<'_> {
                 continue;
             }
             self.wait_unpaused().await?;
+            self.step = Step::Pose(count + 1);
             let m = with_operator!(self, self.measure_sane_pose(&entry, s1, s2).await);
             let p1_mm = [m.p1.x_mm, m.p1.y_mm, m.p1.z_mm];
+            let off = deviation(self.aim.as_ref(), &m);
             // durable before the robot moves again
             self.store(move |s| s.commit_pose(id, &m)).await?;
             count += 1;
@@ -802,6 +882,8 @@ impl Run<'_> {
                 done: count,
                 total,
                 p1_mm,
+                deviation_mm: off.map(|d| d.norm()),
+                deviation_xyz_mm: off.map(|d| [d.x, d.y, d.z]),
             })
             .await?;
             if every > 0 && since_drift >= every && count < total {
@@ -892,6 +974,8 @@ pub async fn run_campaign(
         router,
         aim: None,
         aim_at: None,
+        robot_settled: false,
+        step: Step::Setup,
     };
     match run.run_to_end().await {
         Ok(outcome) => Ok(outcome),
@@ -949,6 +1033,7 @@ impl Run<'_> {
     /// Stop the robot (bounded wait; the outcome does not depend on it). Cancel-safe: a
     /// dropped stop only means the robot was not told again.
     async fn stop_robot(&mut self) {
+        self.robot_settled = false;
         let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
     }
 

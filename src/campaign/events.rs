@@ -7,7 +7,7 @@ use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 use tokio_util::sync::CancellationToken;
 
-use crate::cell::{Answer, DeviceKind, FaultKind};
+use crate::cell::{Answer, DeviceKind, FaultKind, PromptContext};
 
 /// What an operator can tell the engine.
 #[derive(Debug, Clone, PartialEq)]
@@ -99,6 +99,11 @@ pub enum CampaignEvent {
         total: usize,
         /// P1 (mm, tracker frame).
         p1_mm: [f64; 3],
+        /// |P1 − predicted P1| (mm): the distance of the measured ball from where the nominal
+        /// model (registered base, measured tool) puts it; null without a base registration.
+        deviation_mm: Option<f64>,
+        /// P1 − predicted P1 (mm, tracker frame); null without a base registration.
+        deviation_xyz_mm: Option<[f64; 3]>,
     },
     /// A device fault and what the engine does about it.
     Fault {
@@ -133,6 +138,10 @@ pub enum CampaignEvent {
         text: String,
         /// Expected numeric answer (mm), if a number is asked for.
         expected_mm: Option<f64>,
+        /// What the engine is doing (`step`, `pose`, `poses_total`, `position`,
+        /// `robot_stopped`, `retry_reason`), flattened into the event.
+        #[serde(flatten)]
+        context: PromptContext,
     },
     /// Free-text progress note.
     Note {

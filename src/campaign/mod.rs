@@ -10,6 +10,7 @@ pub mod engine;
 pub mod events;
 pub mod feasibility;
 pub mod lock;
+pub mod report;
 pub mod session;
 pub mod stored;
 

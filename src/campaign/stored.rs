@@ -9,9 +9,11 @@ use nalgebra::Vector3;
 
 use super::engine::{campaign_identification, SetupResult};
 use crate::config::{parse_cell_config, ConfigError};
-use crate::dataset::{CsvSetup, Observation};
+use crate::dataset::{write_csv, CsvSetup, Observation};
 use crate::identify::IdentifyOptions;
 use crate::model::{parse_robot, RobotFileError, RobotModel};
+use crate::report::model_file::sha256_hex;
+use crate::report::{corrected_model_toml, BaseSource, IdentifyReport, ModelFileError};
 use crate::store::{Store, StoreError};
 
 /// Why a stored campaign cannot be identified.
@@ -39,6 +41,22 @@ pub enum StoredError {
     /// An imported campaign without a stored robot model.
     #[error("campaign {0} has no stored robot model: give one")]
     NoRobot(i64),
+    /// The stored result no longer parses.
+    #[error("campaign {id}: its stored result: {message}")]
+    Result {
+        /// Campaign id.
+        id: i64,
+        /// The parse error.
+        message: String,
+    },
+    /// The stored result does not fit the stored robot model.
+    #[error("campaign {id}: its corrected model: {source}")]
+    Model {
+        /// Campaign id.
+        id: i64,
+        /// What does not fit.
+        source: ModelFileError,
+    },
 }
 
 /// Everything the identification of a stored campaign takes.
@@ -56,6 +74,24 @@ pub struct StoredCampaign {
     pub rows: Vec<Observation>,
     /// The setup the identification uses, as the CSV header carries it.
     pub setup: CsvSetup,
+}
+
+impl StoredCampaign {
+    /// The identify CSV of this campaign exactly as `cellcal export` writes it (and
+    /// `GET /api/campaigns/{id}/measurements?format=csv` serves it): a comment naming the
+    /// campaign, `source` (the store) and the identify flags it used, the setup header, the rows.
+    pub fn export_csv(&self, source: &str) -> String {
+        let o = &self.opts;
+        let comment = format!(
+            "cellcal export: campaign {} from {source}\nidentified by the campaign as: --model {}{}{}\n{}",
+            self.id,
+            o.obs.model.name(),
+            if o.identify_base { " --identify-base" } else { "" },
+            if o.identify_tool { " --identify-tool" } else { "" },
+            self.setup.comment_lines()
+        );
+        write_csv(&self.rows, self.nominal.dof(), &comment)
+    }
 }
 
 /// Rebuild campaign `id`'s identification from `store`; `robot` replaces the stored robot model
@@ -99,4 +135,35 @@ pub fn load_stored(
         rows: store.observations(id)?,
         setup: csv_setup,
     })
+}
+
+/// Campaign `id`'s corrected model as robot-file TOML ([`crate::report::model_file`]) from its
+/// stored result and its stored nominal model and setup; `None` before it has a result. The
+/// same store gives the same bytes (`cellcal run --model-out`, `GET /api/campaigns/{id}/model`).
+pub fn stored_model_toml(store: &Store, id: i64) -> Result<Option<String>, StoredError> {
+    let Some(text) = store.latest_result(id)? else {
+        return Ok(None);
+    };
+    let report = IdentifyReport::from_json(&text).map_err(|e| StoredError::Result {
+        id,
+        message: e.to_string(),
+    })?;
+    let c = load_stored(store, id, None)?;
+    let row = store.campaign(id)?;
+    let base = BaseSource::of(c.opts.identify_base, c.setup.base_translation_mm.is_some());
+    let provenance = [
+        format!(
+            "Data: campaign {id} `{}` ({} poses), its result sha256 {}",
+            row.name,
+            c.rows.len(),
+            sha256_hex(text.as_bytes())
+        ),
+        format!(
+            "Nominal model: the campaign's stored robot model (sha256 {})",
+            sha256_hex(row.robot_toml.as_bytes())
+        ),
+    ];
+    corrected_model_toml(&report, &c.nominal, &provenance, base)
+        .map(Some)
+        .map_err(|source| StoredError::Model { id, source })
 }

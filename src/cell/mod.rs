@@ -170,6 +170,66 @@ pub trait Stage: Send + Sync {
     async fn prepare(&mut self) -> Result<(), CellError>;
     /// Move to `position_mm`; returns the read-back or confirmed position (mm).
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError>;
+    /// What the engine is doing at the next [`Stage::move_to`] (a manual stage shows it with
+    /// its question); a motorised stage ignores it.
+    fn set_prompt_context(&mut self, _context: PromptContext) {}
+}
+
+/// The two stage positions a pose is measured at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
+pub enum StagePosition {
+    /// The first stage position (`stage.p1_mm`).
+    P1,
+    /// The second stage position (`stage.p1_mm + stage.travel_mm`).
+    P2,
+}
+
+/// What the engine is doing when a question is asked, for the technician; null (or false) when
+/// not known (a front end must not claim what is not stated here).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, utoipa::ToSchema)]
+pub struct PromptContext {
+    /// What the stage move is for: `pose`, `drift` (drift check at the reference pose),
+    /// `setup` (tool frame, base registration) or `reregister`; null when not known.
+    pub step: Option<String>,
+    /// The pose being measured, counted from 1 in measuring order (n of `poses_total`).
+    pub pose: Option<usize>,
+    /// Poses planned in the campaign (N).
+    pub poses_total: Option<usize>,
+    /// The stage position asked for (`P1` or `P2`); null for any other position.
+    pub position: Option<StagePosition>,
+    /// The controller reported the robot settled at its target and the engine commands no
+    /// motion until this question is answered: safe to approach the stage.
+    pub robot_stopped: bool,
+    /// Why the previous answer to the same request was refused (out of tolerance, not a
+    /// number); null on the first ask.
+    pub retry_reason: Option<String>,
+}
+
+impl PromptContext {
+    /// One line for the technician: `pose 3 of 20 · P2 · robot stopped — safe to approach`
+    /// (only what is known; an unknown robot state says to check it).
+    pub fn describe(&self) -> String {
+        let mut parts = Vec::new();
+        match (self.step.as_deref(), self.pose, self.poses_total) {
+            (_, Some(n), Some(total)) => parts.push(format!("pose {n} of {total}")),
+            (_, Some(n), None) => parts.push(format!("pose {n}")),
+            (Some("drift"), ..) => parts.push("drift check at the reference pose".into()),
+            (Some("setup"), ..) => parts.push("setup".into()),
+            (Some("reregister"), ..) => parts.push("re-registering the tracker frame".into()),
+            _ => {}
+        }
+        match self.position {
+            Some(StagePosition::P1) => parts.push("P1".into()),
+            Some(StagePosition::P2) => parts.push("P2".into()),
+            None => {}
+        }
+        parts.push(if self.robot_stopped {
+            "robot stopped — safe to approach".into()
+        } else {
+            "robot state not known — check that it stands still before approaching".into()
+        });
+        parts.join(" · ")
+    }
 }
 
 /// A question to the technician.
@@ -181,6 +241,8 @@ pub struct Prompt {
     pub text: String,
     /// Expected numeric answer (mm), if a number is asked for.
     pub expected_mm: Option<f64>,
+    /// What the engine is doing (pose n of N, P1 or P2, robot stopped, why re-asked).
+    pub context: PromptContext,
 }
 
 /// The technician's answer.

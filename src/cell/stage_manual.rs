@@ -10,7 +10,7 @@ use tokio::io::{AsyncRead, AsyncWrite};
 use tracing::{info, warn};
 use zaber::{GaugeClient, GaugeError};
 
-use super::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, Stage};
+use super::{Answer, CellError, DeviceKind, FaultKind, Prompt, PromptContext, Prompter, Stage};
 
 /// Configuration of a [`ManualStage`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -62,6 +62,8 @@ pub struct ManualStage {
     prompter: Arc<dyn Prompter>,
     gauge: Option<Box<dyn GaugeReader>>,
     cfg: ManualStageConfig,
+    /// The engine's context for the next move's questions.
+    context: PromptContext,
 }
 
 impl std::fmt::Debug for ManualStage {
@@ -73,16 +75,23 @@ impl std::fmt::Debug for ManualStage {
     }
 }
 
+/// Ask `text` about setting the stage to `target`; `retry` says why the last answer was refused.
 async fn ask(
     prompter: &Arc<dyn Prompter>,
     with_gauge: bool,
     target: f64,
     text: String,
+    context: &PromptContext,
+    retry: Option<String>,
 ) -> Result<Answer, CellError> {
     let prompt = Prompt {
         id: "stage_move".into(),
         text,
         expected_mm: (!with_gauge).then_some(target),
+        context: PromptContext {
+            retry_reason: retry,
+            ..context.clone()
+        },
     };
     let a = prompter.ask(prompt).await?;
     if a == Answer::Abort {
@@ -105,6 +114,7 @@ impl ManualStage {
             prompter,
             gauge: None,
             cfg,
+            context: PromptContext::default(),
         }
     }
 
@@ -118,6 +128,7 @@ impl ManualStage {
             prompter,
             gauge: Some(gauge),
             cfg,
+            context: PromptContext::default(),
         }
     }
 
@@ -164,7 +175,13 @@ impl Stage for ManualStage {
         Ok(())
     }
 
+    fn set_prompt_context(&mut self, context: PromptContext) {
+        self.context = context;
+    }
+
     async fn move_to(&mut self, position_mm: f64) -> Result<f64, CellError> {
+        // the context holds for this move only: a later move without one claims nothing
+        let context = std::mem::take(&mut self.context);
         if !position_mm.is_finite() {
             return Err(stage_err(
                 FaultKind::Rejected,
@@ -173,9 +190,21 @@ impl Stage for ManualStage {
         }
         let tol = self.cfg.tolerance_mm;
         let request = self.request_text(position_mm);
-        let mut text = request.clone();
+        let mut retry: Option<String> = None;
         for attempt in 1..=self.cfg.max_tries.max(1) {
-            let answer = ask(&self.prompter, self.gauge.is_some(), position_mm, text).await?;
+            let text = match &retry {
+                Some(why) => format!("{why}. {request}"),
+                None => request.clone(),
+            };
+            let answer = ask(
+                &self.prompter,
+                self.gauge.is_some(),
+                position_mm,
+                text,
+                &context,
+                retry.take(),
+            )
+            .await?;
             let reading = match (self.gauge.as_mut(), answer) {
                 (Some(g), _) => g.read_mm().await.map_err(|e| {
                     stage_err(classify_gauge(&e), format!("gauge reading failed: {e}"))
@@ -183,7 +212,7 @@ impl Stage for ManualStage {
                 (None, Answer::Number(v)) if v.is_finite() => v,
                 (None, _) => {
                     warn!(attempt, "manual stage: no number given");
-                    text = format!("A number is needed (the micrometer reading in mm). {request}");
+                    retry = Some("A number is needed (the micrometer reading in mm)".into());
                     continue;
                 }
             };
@@ -207,10 +236,10 @@ impl Stage for ManualStage {
             } else {
                 "The reading"
             };
-            text = format!(
-                "{source} {reading:.3} mm, {:.3} mm from the requested {position_mm:.3} mm (tolerance {tol:.3} mm). {request}",
+            retry = Some(format!(
+                "{source} {reading:.3} mm, {:.3} mm from the requested {position_mm:.3} mm (tolerance {tol:.3} mm)",
                 off.abs()
-            );
+            ));
         }
         Err(stage_err(
             FaultKind::Rejected,

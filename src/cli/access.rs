@@ -25,8 +25,8 @@ pub fn check_exposure(addr: SocketAddr, api: &ApiSection) -> Result<(), Failure>
         )));
     }
     if api.tls.is_none() {
-        eprintln!(
-            "warning: serving plain HTTP on {addr}: tokens and commands cross the network unencrypted; \
+        tracing::warn!(
+            "serving plain HTTP on {addr}: tokens and commands cross the network unencrypted; \
              set [api] tls_cert and tls_key"
         );
     }

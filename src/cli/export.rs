@@ -7,20 +7,15 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use cellcal::campaign::stored::load_stored;
-use cellcal::dataset::write_csv;
 
-use super::identify::{campaign_id, open_store};
+use super::identify::StoredCampaignArgs;
 use crate::{input, other, Failure};
 
 /// Arguments of `cellcal export`.
 #[derive(clap::Args)]
 pub struct ExportArgs {
-    /// Store file.
-    #[arg(long)]
-    store: PathBuf,
-    /// Campaign id (default: the latest).
-    #[arg(long)]
-    campaign: Option<i64>,
+    #[command(flatten)]
+    source: StoredCampaignArgs,
     /// Output CSV.
     #[arg(long)]
     out: PathBuf,
@@ -28,23 +23,12 @@ pub struct ExportArgs {
 
 /// Run `cellcal export`.
 pub fn run(a: ExportArgs) -> Result<(), Failure> {
-    let s = open_store(&a.store)?;
-    let id = campaign_id(&s, &a.store, a.campaign)?;
+    let (s, id) = a.source.open()?;
     let c = load_stored(&s, id, None)
-        .with_context(|| a.store.display().to_string())
+        .with_context(|| a.source.store.display().to_string())
         .map_err(input)?;
-    let dof = c.nominal.dof();
-    let o = &c.opts;
-    let comment =
-        format!(
-        "cellcal export: campaign {id} from {}\nidentified by the campaign as: --model {}{}{}\n{}",
-        a.store.display(),
-        o.obs.model.name(),
-        if o.identify_base { " --identify-base" } else { "" },
-        if o.identify_tool { " --identify-tool" } else { "" },
-        c.setup.comment_lines()
-    );
-    std::fs::write(&a.out, write_csv(&c.rows, dof, &comment))
+    let csv = c.export_csv(&a.source.store.display().to_string());
+    std::fs::write(&a.out, csv)
         .with_context(|| format!("{}: cannot write", a.out.display()))
         .map_err(other)?;
     println!(

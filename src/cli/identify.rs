@@ -1,6 +1,6 @@
 //! `cellcal identify`: identify the MDH errors from a measurement CSV (`--data`, its setup
 //! header as defaults) or re-identify a stored campaign (`--store`, exactly as the campaign
-//! did); print the summary, write the JSON contract.
+//! did); print the summary, write the JSON contract and (`--report`) the HTML report.
 
 use std::path::{Path, PathBuf};
 
@@ -8,6 +8,7 @@ use anyhow::{anyhow, Context};
 use clap::ValueEnum;
 use nalgebra::Vector3;
 
+use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
 use cellcal::dataset::{
     parse_csv, parse_setup_header, parse_stage_axis, parse_vec3, CsvSetup, Observation, Required,
@@ -17,9 +18,14 @@ use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
 use cellcal::model::RobotModel;
-use cellcal::report::{calibrate, summary_text, IdentifyReport, Quality};
+use cellcal::report::html::{CampaignFacts, InputDigest, Provenance, ReportInput};
+use cellcal::report::model_file::sha256_hex;
+use cellcal::report::{
+    calibrate, corrected_model_toml, summary_text, BaseSource, IdentifyReport, Quality,
+};
 use cellcal::simulate::TrackerNoise;
 use cellcal::store::Store;
+use cellcal::wall_clock::now_unix_ms;
 
 use crate::{input, other, Failure};
 
@@ -108,6 +114,14 @@ pub struct IdentifyArgs {
     /// Write the JSON result here.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write the corrected model here: a robot TOML with the identified absolute values that
+    /// every command takes as `--robot` (and `compensate --identified`).
+    #[arg(long)]
+    model_out: Option<PathBuf>,
+    /// Write the calibration report here: one self-contained HTML file with plots (from
+    /// --data, the sections that need a campaign store say so).
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 /// What the data source gives before the flags apply.
@@ -124,28 +138,80 @@ struct Source {
     origin: String,
     /// Names the rows in error messages.
     label: String,
+    /// Where the data and the nominal model come from, for a corrected model's header.
+    provenance: Vec<String>,
+    /// The setup holds a registered base.
+    registered_base: bool,
+    /// What the report shows besides the identification (gathered only for --report).
+    report: ReportContext,
+}
+
+/// The campaign's facts (from a store) and the inputs' digests, for the HTML report.
+#[derive(Default)]
+struct ReportContext {
+    facts: Option<CampaignFacts>,
+    inputs: Vec<InputDigest>,
 }
 
 /// Run `cellcal identify`.
 pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
-    let source = match (&a.data, &a.store) {
+    let mut source = match (&a.data, &a.store) {
         (Some(data), _) => csv_source(&a, data)?,
         (None, Some(store)) => store_source(&a, store)?,
         (None, None) => return Err(input(anyhow!("give --data CSV or --store FILE"))),
     };
     let label = source.label.clone();
+    let provenance = source.provenance.clone();
+    let registered = source.registered_base;
+    let context = std::mem::take(&mut source.report);
     let (robot, opts, travel, rows) = resolve(&a, source)?;
-    let (report, _) = calibrate(&robot, &rows, &opts, travel)
+    let base = BaseSource::of(opts.identify_base, registered);
+    let (report, id) = calibrate(&robot, &rows, &opts, travel)
         .with_context(|| label.clone())
         .map_err(input)?;
     print!("{}", summary_text(&report));
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report).map_err(other)?;
-        std::fs::write(path, text)
-            .with_context(|| format!("{}: cannot write", path.display()))
-            .map_err(other)?;
+        write_file(path, &text)?;
+    }
+    if let Some(path) = &a.model_out {
+        let text = corrected_model_toml(&report, &robot, &provenance, base).map_err(other)?;
+        write_file(path, &text)?;
+    }
+    if let Some(path) = &a.report {
+        let provenance = Provenance::of_this_build(now_unix_ms(), context.inputs);
+        let title = format!("Calibration report: {label}");
+        let mut html = ReportInput::new(&title, &label, report.clone(), provenance)
+            .with_poses(&id, &rows, travel)
+            .with_significance(&robot);
+        html.campaign = context.facts;
+        super::report::write_report(path, &html)?;
     }
     poor_is_exit_3(&report, "the result")
+}
+
+/// Write `text` to `path` (exit 1 when it cannot).
+pub(crate) fn write_file(path: &Path, text: &str) -> Result<(), Failure> {
+    std::fs::write(path, text)
+        .with_context(|| format!("{}: cannot write", path.display()))
+        .map_err(other)
+}
+
+/// `NAME (sha256 HEX)` of a file read as `text`.
+pub(crate) fn file_id(path: &Path, text: &str) -> String {
+    format!(
+        "{} (sha256 {})",
+        path.display(),
+        sha256_hex(text.as_bytes())
+    )
+}
+
+/// The digest of the file at `path`, for the report (`what` names it).
+fn file_digest(what: &str, path: &Path) -> Result<InputDigest, Failure> {
+    let bytes = std::fs::read(path)
+        .with_context(|| format!("{}: cannot read", path.display()))
+        .map_err(input)?;
+    Ok(InputDigest::of(what, &path.display().to_string(), &bytes))
 }
 
 /// Exit 3 when the verdict is `poor` (after the result was printed and written).
@@ -175,6 +241,9 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
         .as_deref()
         .ok_or_else(|| input(anyhow!("--data needs --robot")))?;
     let robot = load_robot(robot_path).map_err(input)?;
+    let robot_text = std::fs::read_to_string(robot_path)
+        .with_context(|| format!("{}: cannot read", robot_path.display()))
+        .map_err(input)?;
     let model = a
         .model
         .ok_or_else(|| input(anyhow!("--data needs --model")))?
@@ -193,13 +262,28 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
     let rows = parse_csv(&text, robot.dof(), required)
         .with_context(|| label.clone())
         .map_err(input)?;
+    let provenance = vec![
+        format!("Data: {}", file_id(data, &text)),
+        format!("Nominal model: {}", file_id(robot_path, &robot_text)),
+    ];
+    let mut report = ReportContext::default();
+    if a.report.is_some() {
+        report.inputs = vec![
+            file_digest("robot model file", robot_path)?,
+            InputDigest::of("measurement CSV", &label, text.as_bytes()),
+        ];
+    }
     Ok(Source {
         robot,
         rows,
+        registered_base: setup.base_translation_mm.is_some()
+            || setup.base_rotation_vector_rad.is_some(),
         setup,
         campaign: None,
         origin: format!("the header of {label}"),
         label,
+        provenance,
+        report,
     })
 }
 
@@ -217,14 +301,62 @@ fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
         .with_context(|| store.display().to_string())
         .map_err(input)?;
     let origin = format!("campaign {id} in {}", store.display());
+    let mut provenance = vec![format!("Data: {origin}")];
+    if let Some(path) = &a.robot {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))
+            .map_err(input)?;
+        provenance.push(format!("Nominal model: {}", file_id(path, &text)));
+    } else {
+        provenance.push("Nominal model: the campaign's stored robot model".to_owned());
+    }
+    let mut report = ReportContext::default();
+    if a.report.is_some() {
+        let (facts, mut inputs) = campaign_facts(&s, id)
+            .with_context(|| store.display().to_string())
+            .map_err(input)?;
+        if let Some(r) = &a.robot {
+            inputs.push(file_digest(
+                "robot model file (--robot, replaces the stored one)",
+                r,
+            )?);
+        }
+        report = ReportContext {
+            facts: Some(facts),
+            inputs,
+        };
+    }
     Ok(Source {
         robot: c.nominal,
         rows: c.rows,
+        registered_base: c.setup.base_translation_mm.is_some(),
         setup: c.setup,
         campaign: Some(c.opts),
         label: origin.clone(),
         origin,
+        provenance,
+        report,
     })
+}
+
+/// `--store FILE [--campaign ID]`: a stored campaign (default: the store's latest).
+#[derive(clap::Args)]
+pub struct StoredCampaignArgs {
+    /// Store file.
+    #[arg(long)]
+    pub store: PathBuf,
+    /// Campaign id (default: the latest).
+    #[arg(long)]
+    pub campaign: Option<i64>,
+}
+
+impl StoredCampaignArgs {
+    /// The open store and the campaign's id.
+    pub fn open(&self) -> Result<(Store, i64), Failure> {
+        let s = open_store(&self.store)?;
+        let id = campaign_id(&s, &self.store, self.campaign)?;
+        Ok((s, id))
+    }
 }
 
 /// Open an existing store (a missing file is an error, not a new store).

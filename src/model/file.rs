@@ -8,7 +8,7 @@
 //! a_mm = 0
 //! alpha_deg = 90        # or alpha_rad
 //! beta_deg = 0          # or beta_rad; optional, default 0
-//! limits_deg = [-180, 180]
+//! limits_deg = [-180, 180]  # or limits_rad
 //! [base]                # optional: robot base -> measurement frame
 //! translation_mm = [0, 0, 0]
 //! rotation_vector_rad = [0, 0, 0]
@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::chain::{JointLimit, Mdh, RobotModel};
 use super::checked_toml::parse_checked;
-use super::rotation::from_rotation_vector;
+use super::rotation::{from_rotation_vector, log_so3};
 
 /// Why a TOML file (robot model, cell configuration) could not be loaded; always names the
 /// file and, where known, the key (`campaign.box_center_mm[0]`: number arrays are indexed from
@@ -78,7 +78,8 @@ struct JointEntry {
     alpha_rad: Option<f64>,
     beta_deg: Option<f64>,
     beta_rad: Option<f64>,
-    limits_deg: [f64; 2],
+    limits_deg: Option<[f64; 2]>,
+    limits_rad: Option<[f64; 2]>,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -148,17 +149,22 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
             alpha: angle(i, "alpha", j.alpha_deg, j.alpha_rad, true)?,
             beta: angle(i, "beta", j.beta_deg, j.beta_rad, false)?,
         });
-        let [lo, hi] = j.limits_deg;
-        if lo >= hi {
-            return Err(invalid(
-                format!("joints[{}].limits_deg", i + 1),
-                "must be [min, max] with min < max",
-            ));
+        let key = |unit: &str| format!("joints[{}].limits_{unit}", i + 1);
+        let (min, max, unit) = match (j.limits_deg, j.limits_rad) {
+            (Some(_), Some(_)) => {
+                return Err(invalid(
+                    key("deg|limits_rad"),
+                    "give degrees or radians, not both",
+                ))
+            }
+            (Some([lo, hi]), None) => (lo.to_radians(), hi.to_radians(), "deg"),
+            (None, Some([lo, hi])) => (lo, hi, "rad"),
+            (None, None) => return Err(invalid(key("deg|limits_rad"), "missing")),
+        };
+        if min >= max {
+            return Err(invalid(key(unit), "must be [min, max] with min < max"));
         }
-        limits.push(JointLimit {
-            min: lo.to_radians(),
-            max: hi.to_radians(),
-        });
+        limits.push(JointLimit { min, max });
     }
     let (base_rotation, base_translation) = match &file.base {
         Some(b) => (
@@ -179,6 +185,73 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
         base_translation,
         tool,
     })
+}
+
+/// A float in the shortest form that reads back to the same bits (TOML syntax).
+fn exact(v: f64) -> String {
+    format!("{v:?}")
+}
+
+/// `[a, b, …]` of [`exact`] floats.
+fn exact_array(v: &[f64]) -> String {
+    let items: Vec<String> = v.iter().map(|x| exact(*x)).collect();
+    format!("[{}]", items.join(", "))
+}
+
+/// The shortest decimal degrees that [`parse_robot`] turns back into exactly `rad`, if any.
+fn exact_degrees(rad: f64) -> Option<f64> {
+    let deg = rad.to_degrees();
+    (0..=17)
+        .filter_map(|digits| format!("{deg:.digits$}").parse::<f64>().ok())
+        .find(|d| d.to_radians() == rad)
+}
+
+/// The `limits_deg` line of a joint, or `limits_rad` when no decimal degrees give the limits
+/// back exactly.
+fn limits_line(l: &JointLimit) -> String {
+    match (exact_degrees(l.min), exact_degrees(l.max)) {
+        (Some(lo), Some(hi)) => format!("limits_deg = {}", exact_array(&[lo, hi])),
+        _ => format!("limits_rad = {}", exact_array(&[l.min, l.max])),
+    }
+}
+
+/// A robot model as robot-file TOML that [`parse_robot`] reads back to the same model:
+/// every float in shortest round-trip form (angles in rad, with degrees in a comment), the
+/// base rotation as a rotation vector ([`log_so3`], exact for small angles). `header` lines
+/// become `# ` comments at the top.
+pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    for line in header {
+        let _ = writeln!(out, "{}", format!("# {line}").trim_end());
+    }
+    let _ = writeln!(out, "name = {}", toml::Value::String(model.name.clone()));
+    for (m, l) in model.joints.iter().zip(&model.limits) {
+        let angle =
+            |stem: &str, v: f64| format!("{stem}_rad = {}  # {:.6} deg", exact(v), v.to_degrees());
+        let _ = writeln!(out, "\n[[joints]]");
+        let _ = writeln!(out, "{}", angle("theta", m.theta));
+        let _ = writeln!(out, "d_mm = {}", exact(m.d));
+        let _ = writeln!(out, "a_mm = {}", exact(m.a));
+        let _ = writeln!(out, "{}", angle("alpha", m.alpha));
+        let _ = writeln!(out, "{}", angle("beta", m.beta));
+        let _ = writeln!(out, "{}", limits_line(l));
+    }
+    let rv = log_so3(&model.base_rotation);
+    let _ = writeln!(out, "\n[base]");
+    let _ = writeln!(
+        out,
+        "translation_mm = {}",
+        exact_array(model.base_translation.as_slice())
+    );
+    let _ = writeln!(out, "rotation_vector_rad = {}", exact_array(rv.as_slice()));
+    let _ = writeln!(out, "\n[tool]");
+    let _ = writeln!(
+        out,
+        "translation_mm = {}",
+        exact_array(model.tool.as_slice())
+    );
+    out
 }
 
 #[cfg(test)]
@@ -273,5 +346,86 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("limits_deg"), "{e}");
+    }
+
+    /// A perturbed TX60 with odd floats everywhere.
+    fn perturbed() -> RobotModel {
+        let mut m = crate::model::tx60();
+        for (i, j) in m.joints.iter_mut().enumerate() {
+            let k = i as f64 + 1.0;
+            j.theta += 1.234_567_890_123e-4 * k;
+            j.d += 0.1 / 3.0 * k;
+            j.a -= 1e-7 * k;
+            j.alpha -= 2.0e-5 / k;
+            j.beta += 1e-20 * k;
+        }
+        m.base_translation = Vector3::new(2_512.345_678_901, -0.1, 1e-9);
+        m.base_rotation = from_rotation_vector(&Vector3::new(1e-9, -0.7, 2.9));
+        m.tool = Vector3::new(0.1, -35.7, 60.0 + 1.0 / 3.0);
+        m.limits[3].min = 1.0 / 7.0 - 3.0;
+        m
+    }
+
+    #[test]
+    fn written_model_reads_back_exactly() {
+        let m = perturbed();
+        let text = write_robot(&m, &["one".into(), String::new(), "two".into()]);
+        assert!(
+            text.starts_with("# one\n#\n# two\nname = \"Staubli TX60\"\n"),
+            "{text}"
+        );
+        let back = parse_robot(&text, Path::new("w.toml")).unwrap();
+        assert_eq!(back.name, m.name);
+        assert_eq!(back.joints, m.joints, "MDH bit for bit");
+        assert_eq!(back.limits, m.limits, "limits bit for bit");
+        assert_eq!(back.tool, m.tool);
+        assert_eq!(back.base_translation, m.base_translation);
+        assert!((back.base_rotation - m.base_rotation).amax() < 1e-15);
+        // limits from degrees stay the degrees they were written in; angles in rad, degrees
+        // in a comment
+        assert!(text.contains("limits_deg = [-127.5, 127.5]"), "{text}");
+        assert!(
+            text.contains("theta_rad = 3.1417161103788054  # 180.007074 deg"),
+            "{text}"
+        );
+        let rad = JointLimit {
+            min: -2.0,
+            max: 1.0,
+        };
+        let line = limits_line(&rad);
+        let written = if line.starts_with("limits_deg") {
+            exact_degrees(-2.0).unwrap().to_radians()
+        } else {
+            -2.0
+        };
+        assert_eq!(written, -2.0, "{line}");
+    }
+
+    #[test]
+    fn both_limit_units_or_none_rejected() {
+        let both = ONE.replace("[-10, 10]", "[-10, 10]\nlimits_rad = [-1, 1]");
+        let e = parse_robot(&both, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("joints[1].limits_deg|limits_rad: give degrees or radians"),
+            "{e}"
+        );
+        let none = ONE.replace("limits_deg = [-10, 10]\n", "");
+        let e = parse_robot(&none, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("joints[1].limits_deg|limits_rad: missing"),
+            "{e}"
+        );
+        let rad = ONE.replace("limits_deg = [-10, 10]", "limits_rad = [0.5, -0.5]");
+        let e = parse_robot(&rad, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("joints[1].limits_rad: must be [min, max]"),
+            "{e}"
+        );
     }
 }

@@ -6,13 +6,15 @@
 //! [`Frames::screws`]: in MDH the derivative with respect to joint `i` equals the derivative
 //! with respect to the θ_i offset. Each iteration's joint step is capped, so the solution stays
 //! on the branch of the start configuration; the result must lie inside the joint limits.
-//! Base and tool transforms are not applied: targets are flange poses in the robot base frame.
+//! Base and tool transforms are not applied: targets are flange poses (or a point of the flange
+//! frame, [`IkGoal::Point`]) in the robot base frame. [`solve_within_limits`] keeps every iterate
+//! inside the joint limits (projected steps) and returns the best pose it reaches.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 use super::kinematics::{forward, Frames, Pose};
 use super::rotation::{from_rotation_vector, log_so3};
-use super::RobotModel;
+use super::{JointLimit, RobotModel};
 
 /// Options of the inverse-kinematics iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -152,31 +154,101 @@ fn pose_error(target: &Pose, current: &Pose) -> (Vector3<f64>, Vector3<f64>) {
     )
 }
 
-/// The 6×n joint Jacobian of the flange (rows: velocity of the flange origin, then angular
-/// velocity scaled by `w` mm/rad), from the θ screws.
-fn jacobian(model: &RobotModel, f: &Frames, w: f64) -> DMatrix<f64> {
-    let n = model.dof();
-    let screws = f.screws(&model.joints);
-    let p = f.flange().p;
-    let mut j = DMatrix::zeros(6, n);
-    for i in 0..n {
-        let s = &screws[5 * i];
-        let v = s.point_rate(&p);
-        for k in 0..3 {
-            j[(k, i)] = v[k];
-            j[(3 + k, i)] = w * s.axis[k];
-        }
-    }
-    j
+/// What the iteration drives to: a whole flange pose, or one point of the flange frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum IkGoal {
+    /// The flange pose (robot base frame).
+    Flange(Pose),
+    /// The point `tool` (mm, flange frame) at `target` (mm, robot base frame); orientation free
+    /// (the damped steps keep it near the start's).
+    Point {
+        /// The point in the flange frame (mm).
+        tool: Vector3<f64>,
+        /// Where it should be (mm, robot base frame).
+        target: Vector3<f64>,
+    },
 }
 
-/// Solve for joints that put the flange at `target` (robot base frame), starting from `q0`.
-pub fn solve_flange(
+impl IkGoal {
+    /// Whether every number of the goal is finite.
+    fn is_finite(&self) -> bool {
+        match self {
+            IkGoal::Flange(t) => t.r.iter().chain(t.p.iter()).all(|v| v.is_finite()),
+            IkGoal::Point { tool, target } => {
+                tool.iter().chain(target.iter()).all(|v| v.is_finite())
+            }
+        }
+    }
+
+    /// Position error (mm) and rotation error (rad; zero for a point) at the frames `f`.
+    fn error(&self, f: &Frames) -> (Vector3<f64>, Vector3<f64>) {
+        match self {
+            IkGoal::Flange(t) => pose_error(t, f.flange()),
+            IkGoal::Point { tool, target } => {
+                (target - f.flange().transform_point(tool), Vector3::zeros())
+            }
+        }
+    }
+
+    /// The residual vector the step minimises: position, then rotation × `w` for a pose.
+    fn weighted(&self, ep: &Vector3<f64>, er: &Vector3<f64>, w: f64) -> DVector<f64> {
+        match self {
+            IkGoal::Flange(_) => {
+                DVector::from_iterator(6, ep.iter().copied().chain(er.iter().map(|v| v * w)))
+            }
+            IkGoal::Point { .. } => DVector::from_iterator(3, ep.iter().copied()),
+        }
+    }
+
+    /// The joint Jacobian of [`IkGoal::weighted`]: 6×n for a pose (velocity of the flange
+    /// origin, then angular velocity × `w` mm/rad), 3×n for a point, from the θ screws.
+    fn jacobian(&self, model: &RobotModel, f: &Frames, w: f64) -> DMatrix<f64> {
+        let n = model.dof();
+        let screws = f.screws(&model.joints);
+        let (p, rows) = match self {
+            IkGoal::Flange(_) => (f.flange().p, 6),
+            IkGoal::Point { tool, .. } => (f.flange().transform_point(tool), 3),
+        };
+        let mut j = DMatrix::zeros(rows, n);
+        for i in 0..n {
+            let s = &screws[5 * i];
+            let v = s.point_rate(&p);
+            for k in 0..3 {
+                j[(k, i)] = v[k];
+                if rows == 6 {
+                    j[(3 + k, i)] = w * s.axis[k];
+                }
+            }
+        }
+        j
+    }
+}
+
+/// Where the damped Newton iteration stopped.
+struct Reached {
+    q: Vec<f64>,
+    iterations: usize,
+    position_mm: f64,
+    rotation_rad: f64,
+    converged: bool,
+}
+
+/// Joint `i` sits on a bound and the descent `g` points out of it (such a joint takes no step).
+fn pushed_out(q: f64, g: f64, l: &JointLimit) -> bool {
+    (q <= l.min && g < 0.0) || (q >= l.max && g > 0.0)
+}
+
+/// Damped Newton from `q0` towards `goal` (see the module doc). With `bounds`, each trial is
+/// clamped into the joint limits and a joint the descent pushes against its bound takes no
+/// step (projected Newton), so the iterate never leaves the limits. Stops converged within the
+/// tolerances, or not converged after `max_iterations` or when no damping gives a better pose.
+fn iterate(
     model: &RobotModel,
     q0: &[f64],
-    target: &Pose,
+    goal: &IkGoal,
     opts: &IkOptions,
-) -> Result<IkSolution, IkError> {
+    bounds: Option<&[JointLimit]>,
+) -> Result<Reached, IkError> {
     let n = model.dof();
     if q0.len() != n {
         return Err(IkError::DofMismatch {
@@ -184,38 +256,52 @@ pub fn solve_flange(
             got: q0.len(),
         });
     }
-    if q0.iter().any(|v| !v.is_finite())
-        || target.r.iter().any(|v| !v.is_finite())
-        || target.p.iter().any(|v| !v.is_finite())
-    {
+    if q0.iter().any(|v| !v.is_finite()) || !goal.is_finite() {
         return Err(IkError::NotFinite);
     }
     let w = opts.rotation_scale_mm;
-    let weighted = |ep: &Vector3<f64>, er: &Vector3<f64>| -> DVector<f64> {
-        DVector::from_iterator(6, ep.iter().copied().chain(er.iter().map(|v| v * w)))
+    let clamp = |q: &mut [f64]| {
+        if let Some(b) = bounds {
+            for (v, l) in q.iter_mut().zip(b) {
+                *v = v.clamp(l.min, l.max);
+            }
+        }
     };
     let mut q = q0.to_vec();
+    clamp(&mut q);
     let mut f = forward(model, &q);
-    let (mut ep, mut er) = pose_error(target, f.flange());
-    let mut e = weighted(&ep, &er);
+    let (mut ep, mut er) = goal.error(&f);
+    let mut e = goal.weighted(&ep, &er, w);
     let mut cost = e.norm_squared();
     let mut lambda = 1e-3;
     let mut iterations = 0;
+    let stop = |q: Vec<f64>, iterations, ep: &Vector3<f64>, er: &Vector3<f64>, converged| Reached {
+        q,
+        iterations,
+        position_mm: ep.norm(),
+        rotation_rad: er.norm(),
+        converged,
+    };
     loop {
         if ep.norm() <= opts.tol_mm && er.norm() <= opts.tol_rad {
-            break;
+            return Ok(stop(q, iterations, &ep, &er, true));
         }
         if iterations >= opts.max_iterations {
-            return Err(IkError::NoConvergence {
-                iterations,
-                position_mm: ep.norm(),
-                rotation_rad: er.norm(),
-            });
+            return Ok(stop(q, iterations, &ep, &er, false));
         }
-        let j = jacobian(model, &f, w);
+        let j = goal.jacobian(model, &f, w);
         let jt = j.transpose();
-        let h = &jt * &j;
-        let g = &jt * &e;
+        let mut h = &jt * &j;
+        let mut g = &jt * &e;
+        if let Some(b) = bounds {
+            for (i, l) in b.iter().enumerate() {
+                if pushed_out(q[i], g[i], l) {
+                    h.row_mut(i).fill(0.0);
+                    h.column_mut(i).fill(0.0);
+                    g[i] = 0.0;
+                }
+            }
+        }
         let scale = (h.trace() / n as f64).max(1e-300);
         let mut accepted = false;
         while lambda < 1e12 {
@@ -232,10 +318,11 @@ pub fn solve_flange(
             if big > opts.max_step_rad {
                 step *= opts.max_step_rad / big;
             }
-            let trial: Vec<f64> = q.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+            let mut trial: Vec<f64> = q.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+            clamp(&mut trial);
             let tf = forward(model, &trial);
-            let (tp, tr) = pose_error(target, tf.flange());
-            let te = weighted(&tp, &tr);
+            let (tp, tr) = goal.error(&tf);
+            let te = goal.weighted(&tp, &tr, w);
             let tc = te.norm_squared();
             if tc.is_finite() && tc < cost {
                 q = trial;
@@ -248,15 +335,28 @@ pub fn solve_flange(
             lambda *= 10.0;
         }
         if !accepted {
-            return Err(IkError::NoConvergence {
-                iterations,
-                position_mm: ep.norm(),
-                rotation_rad: er.norm(),
-            });
+            return Ok(stop(q, iterations, &ep, &er, false));
         }
         iterations += 1;
     }
-    for (i, (v, l)) in q.iter().zip(&model.limits).enumerate() {
+}
+
+/// Solve for joints that put the flange at `target` (robot base frame), starting from `q0`.
+pub fn solve_flange(
+    model: &RobotModel,
+    q0: &[f64],
+    target: &Pose,
+    opts: &IkOptions,
+) -> Result<IkSolution, IkError> {
+    let r = iterate(model, q0, &IkGoal::Flange(*target), opts, None)?;
+    if !r.converged {
+        return Err(IkError::NoConvergence {
+            iterations: r.iterations,
+            position_mm: r.position_mm,
+            rotation_rad: r.rotation_rad,
+        });
+    }
+    for (i, (v, l)) in r.q.iter().zip(&model.limits).enumerate() {
         if !l.contains(*v) {
             return Err(IkError::OutsideLimits {
                 joint: i + 1,
@@ -267,10 +367,54 @@ pub fn solve_flange(
         }
     }
     Ok(IkSolution {
-        q,
-        iterations,
-        position_error_mm: ep.norm(),
-        rotation_error_rad: er.norm(),
+        q: r.q,
+        iterations: r.iterations,
+        position_error_mm: r.position_mm,
+        rotation_error_rad: r.rotation_rad,
+    })
+}
+
+/// The best joints inside the limits for a goal, reached or not ([`solve_within_limits`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoundedSolution {
+    /// Joint values (rad), each inside its limits.
+    pub q: Vec<f64>,
+    /// Whether the goal was reached within the tolerances.
+    pub reached: bool,
+    /// Accepted Newton steps.
+    pub iterations: usize,
+    /// Remaining position error (mm).
+    pub position_error_mm: f64,
+    /// Remaining rotation error (rad; 0 for a point goal).
+    pub rotation_error_rad: f64,
+    /// Joints (1-based) sitting on a limit in `q`: the limits that bind when not `reached`.
+    pub at_limit: Vec<usize>,
+}
+
+/// Joints for `goal` from `q0` (clamped into the limits first) that never leave the model's
+/// joint limits: the goal reached, or the nearest pose the limits and the reach allow
+/// (`reached` false, the remaining error and the joints on a limit reported).
+pub fn solve_within_limits(
+    model: &RobotModel,
+    q0: &[f64],
+    goal: &IkGoal,
+    opts: &IkOptions,
+) -> Result<BoundedSolution, IkError> {
+    let r = iterate(model, q0, goal, opts, Some(&model.limits))?;
+    let at_limit =
+        r.q.iter()
+            .zip(&model.limits)
+            .enumerate()
+            .filter(|(_, (v, l))| **v <= l.min || **v >= l.max)
+            .map(|(i, _)| i + 1)
+            .collect();
+    Ok(BoundedSolution {
+        q: r.q,
+        reached: r.converged,
+        iterations: r.iterations,
+        position_error_mm: r.position_mm,
+        rotation_error_rad: r.rotation_rad,
+        at_limit,
     })
 }
 
@@ -410,5 +554,50 @@ mod tests {
             solve_flange(&m, &HOME, &bad, &IkOptions::default()),
             Err(IkError::NotFinite)
         );
+    }
+
+    #[test]
+    fn a_point_goal_places_the_point_and_leaves_the_orientation_free() {
+        let m = tx60();
+        let tool = Vector3::new(10.0, -20.0, 60.0);
+        let q_true = [0.3, 0.5, 1.6, 0.2, 0.5, -0.3];
+        let target = flange_pose(&m, &q_true).transform_point(&tool);
+        let goal = IkGoal::Point { tool, target };
+        let s = solve_within_limits(&m, &HOME, &goal, &IkOptions::default()).expect("solves");
+        assert!(s.reached && s.at_limit.is_empty(), "{s:?}");
+        let got = flange_pose(&m, &s.q).transform_point(&tool);
+        assert!((got - target).norm() < 1e-9);
+        assert_eq!(s.rotation_error_rad, 0.0);
+    }
+
+    #[test]
+    fn bounded_solutions_stay_inside_the_limits_and_name_the_binding_joint() {
+        let m = tx60();
+        // reachable: the same answer as the unbounded solver
+        let q_true = [0.25, 0.55, 1.5, 0.1, -0.4, 0.5];
+        let target = flange_pose(&m, &q_true);
+        let opts = IkOptions::default();
+        let s = solve_within_limits(&m, &HOME, &IkGoal::Flange(target), &opts).unwrap();
+        let u = solve_flange(&m, &HOME, &target, &opts).unwrap();
+        assert!(s.reached);
+        for (a, b) in s.q.iter().zip(&u.q) {
+            assert!((a - b).abs() < 1e-9);
+        }
+        // joint 6 would have to pass its limit: it stops there, the rest as close as it gets
+        let q0 = [0.1, 0.4, 1.7, 0.3, -0.6, 2.9];
+        let spin = motion_target(
+            &m,
+            &q0,
+            &FlangeMotion::Rotate {
+                axis: Vector3::z(),
+                angle_rad: 0.5,
+            },
+        );
+        let s = solve_within_limits(&m, &q0, &IkGoal::Flange(spin), &opts).unwrap();
+        assert!(!s.reached, "{s:?}");
+        assert_eq!(s.at_limit, vec![6]);
+        assert!(m.within_limits(&s.q), "{:?}", s.q);
+        assert_eq!(s.q[5], m.limits[5].max);
+        assert!(s.rotation_error_rad > 1e-3, "{s:?}");
     }
 }

@@ -20,7 +20,7 @@ use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
 use crate::identify::{
     identify_with, DropKind, Identification, IdentifyError, IdentifyOptions, JointTrig,
 };
-use crate::model::rotation::to_rotation_vector;
+use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
 
 /// Why the pipeline failed.
@@ -306,7 +306,7 @@ pub fn calibrate(
             .collect(),
         base: BaseJson {
             translation_mm: id.corrected.base_translation.into(),
-            rotation_vector_rad: to_rotation_vector(&id.corrected.base_rotation).into(),
+            rotation_vector_rad: log_so3(&id.corrected.base_rotation).into(),
         },
         tool: ToolJson {
             translation_mm: id.corrected.tool.into(),

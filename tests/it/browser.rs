@@ -1,7 +1,10 @@
 //! The cockpit web page in a real headless Chromium driven over WebDriver (fantoccini, Debian's
 //! `chromedriver`) against the real `cellcal serve` binary on a simulated cell: the printed token
 //! link signs in, a campaign is created with overrides, armed (confirmed), started, every
-//! technician question answered from the keyboard alone, and the verdict shown; the page's
+//! technician question answered by typing a reading and Enter (with its context: pose n of N,
+//! P1 or P2, robot stopped; an out-of-tolerance reading explained), the dashboard's device
+//! panel, drift checks and deviation plot filled, and the verdict shown; the same from the
+//! keyboard alone (Tab, Enter, Escape); what a viewer and a technician are offered; the page's
 //! Abort stops a running campaign. Screenshots go to `target/screenshots/`.
 //!
 //! Without `chromedriver` the tests skip with a loud message, unless `CELLCAL_REQUIRE_BROWSER=1`
@@ -12,17 +15,20 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use fantoccini::actions::{InputSource, KeyAction, KeyActions};
 use fantoccini::elements::Element;
 use fantoccini::{Client, ClientBuilder, Locator};
 use serde_json::{json, Value};
 
 use super::campaign::write_config;
-use super::serve::{fast_config, get, start, Server};
+use super::serve::{fast_config, get, post_as, role_tokens, start, start_as_operator, Server};
 
 /// Env var: `1` makes a missing chromedriver a failure instead of a skip.
 const REQUIRE_ENV: &str = "CELLCAL_REQUIRE_BROWSER";
-/// WebDriver's key code of Enter.
-const ENTER: &str = "\u{E007}";
+/// WebDriver's key codes of Enter, Tab and Escape.
+const ENTER: char = '\u{E007}';
+const TAB: char = '\u{E004}';
+const ESCAPE: char = '\u{E00C}';
 
 /// A running chromedriver, killed on drop.
 struct Driver {
@@ -91,7 +97,7 @@ fn chromedriver() -> Option<Driver> {
 async fn browser(driver: &Driver) -> Client {
     let mut options = json!({
         "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                 "--window-size=1280,1100"]
+                 "--window-size=1280,1800"]
     });
     if Path::new("/usr/bin/chromium").is_file() {
         options["binary"] = json!("/usr/bin/chromium");
@@ -161,8 +167,8 @@ fn screenshot_dir() -> PathBuf {
     d
 }
 
-async fn screenshot(c: &Client, name: &str) -> PathBuf {
-    let png = c.screenshot().await.expect("screenshot");
+/// Save a PNG screenshot as `target/screenshots/<name>`.
+fn save_png(png: Vec<u8>, name: &str) -> PathBuf {
     assert!(png.starts_with(b"\x89PNG"), "a PNG");
     let p = screenshot_dir().join(name);
     std::fs::write(&p, png).expect("write screenshot");
@@ -170,34 +176,131 @@ async fn screenshot(c: &Client, name: &str) -> PathBuf {
     p
 }
 
-/// A manual-stage simulated cell (the technician sets and reads a micrometer), no setup step.
-fn manual_cell(dir: &Path) -> PathBuf {
+/// The whole window.
+async fn screenshot(c: &Client, name: &str) -> PathBuf {
+    save_png(c.screenshot().await.expect("screenshot"), name)
+}
+
+/// Scroll `#id` to the top of the window (below the sticky header).
+async fn scroll_to(c: &Client, id: &str) {
+    c.execute(
+        "document.getElementById(arguments[0]).scrollIntoView({block: 'start'});",
+        vec![json!(id)],
+    )
+    .await
+    .expect("scroll");
+}
+
+/// One element (`#id`) of the page.
+async fn screenshot_of(c: &Client, id: &str, name: &str) -> PathBuf {
+    scroll_to(c, id).await;
+    let png = by_id(c, id).await.screenshot().await.expect("screenshot");
+    save_png(png, name)
+}
+
+/// The window with `#id` at its top.
+async fn screenshot_from(c: &Client, id: &str, name: &str) -> PathBuf {
+    scroll_to(c, id).await;
+    screenshot(c, name).await
+}
+
+/// Press the keys of `text` (WebDriver key codes included) on whatever has the focus: the
+/// keyboard, not an element.
+async fn keys(c: &Client, text: &str) {
+    let mut k = KeyActions::new("keyboard".into());
+    for ch in text.chars() {
+        k = k
+            .then(KeyAction::Down { value: ch })
+            .then(KeyAction::Up { value: ch });
+    }
+    c.perform_actions(k).await.expect("keys");
+}
+
+/// The id of the focused element (`None` for an element without one, e.g. the body).
+async fn focused_id(c: &Client) -> Option<String> {
+    let e = c.active_element().await.ok()?;
+    e.attr("id")
+        .await
+        .ok()
+        .flatten()
+        .filter(|id| !id.is_empty())
+}
+
+/// Press Tab until `#id` has the focus (at most 80 times).
+async fn tab_to(c: &Client, id: &str) {
+    for _ in 0..80 {
+        if focused_id(c).await.as_deref() == Some(id) {
+            return;
+        }
+        keys(c, &TAB.to_string()).await;
+    }
+    panic!("Tab never reached #{id}");
+}
+
+/// Wait until `#id` is shown and enabled.
+async fn until_usable(c: &Client, id: &str) {
+    until(&format!("#{id} usable"), 20, || async move {
+        let e = by_id(c, id).await;
+        let ready =
+            e.is_displayed().await.unwrap_or(false) && e.is_enabled().await.unwrap_or(false);
+        ready.then_some(())
+    })
+    .await;
+}
+
+/// Whether `#id` is shown.
+async fn shown(c: &Client, id: &str) -> bool {
+    by_id(c, id).await.is_displayed().await.unwrap_or(false)
+}
+
+/// A manual-stage simulated cell (the technician sets and reads a micrometer) whose base is
+/// registered (so every measured pose has a deviation from the nominal model), without the
+/// tool-frame step; `extra` is appended to the configuration.
+fn manual_cell(dir: &Path, extra: &str) -> PathBuf {
     let cfg = fast_config(dir, "manual", 300, 100);
     let text = std::fs::read_to_string(&cfg)
         .expect("config")
         .replace("stage_mode = \"zaber\"", "stage_mode = \"manual\"")
         .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+        + extra;
     write_config(dir, &text)
 }
 
-/// Open the printed `/?token=` link: the page signs in and the token leaves the address bar.
-async fn sign_in(c: &Client, s: &Server) {
-    c.goto(&format!("{}/?token={}", s.base, s.token))
+/// Open the `/?token=` link of `token`: the page signs in as `who` and the token leaves the
+/// address bar.
+async fn sign_in_as(c: &Client, s: &Server, token: &str, who: &str) {
+    c.goto(&format!("{}/?token={token}", s.base))
         .await
         .expect("open the link");
-    until("signed in", 20, || async move {
-        (!text(c, "who").await.is_empty()).then_some(())
+    until(&format!("signed in as {who}"), 20, || async move {
+        (text(c, "who").await == who).then_some(())
     })
     .await;
-    assert_eq!(text(c, "who").await, "one-time (operator)");
     let url = c.current_url().await.expect("url");
     assert!(!url.as_str().contains("token"), "{url}");
     let stored: Value = c
         .execute("return sessionStorage.getItem('cellcal.token');", vec![])
         .await
         .expect("sessionStorage");
-    assert_eq!(stored, Value::String(s.token.clone()));
+    assert_eq!(stored, Value::String(token.to_owned()));
+}
+
+/// Open the printed `/?token=` link (the one-time operator token).
+async fn sign_in(c: &Client, s: &Server) {
+    sign_in_as(c, s, &s.token, "one-time (operator)").await;
+}
+
+/// The newest campaign's id, once there is one whose progress the page shows as `0 / poses`.
+async fn created(c: &Client, s: &Server, poses: usize) -> i64 {
+    let id = until("the campaign is created", 30, || async move {
+        let (_, list) = get(s, "/api/campaigns");
+        list.as_array()
+            .and_then(|l| l.last())
+            .and_then(|v| v["id"].as_i64())
+    })
+    .await;
+    until_text(c, "progress", &format!("0 / {poses}"), 20).await;
+    id
 }
 
 /// Create a campaign from the page's form with `poses` and `ident`: its id.
@@ -213,109 +316,236 @@ async fn create_from_page(c: &Client, s: &Server, poses: usize, ident: usize) ->
         .await
         .expect("ident");
     click(c, "create").await;
-    let id = until("the campaign is created", 30, || async move {
-        let (_, list) = get(s, "/api/campaigns");
-        list.as_array()
-            .and_then(|l| l.last())
-            .and_then(|v| v["id"].as_i64())
-    })
-    .await;
-    until_text(c, "progress", &format!("0 / {poses}"), 20).await;
-    id
+    created(c, s, poses).await
 }
 
 /// Arm through the confirmation dialog, then start.
 async fn arm_and_start(c: &Client) {
     click(c, "cmd-arm").await;
     click(c, "arm-confirm").await;
+    until_armed(c).await;
+    click(c, "cmd-start").await;
+}
+
+async fn until_armed(c: &Client) {
     until("armed", 20, || async move {
         text(c, "armed-flag").await.contains("ARMED").then_some(())
     })
     .await;
-    click(c, "cmd-start").await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_page_runs_a_manual_campaign_from_the_keyboard() {
-    let Some(driver) = chromedriver() else { return };
-    let dir = tempfile::tempdir().expect("tempdir");
-    let s = start(&manual_cell(dir.path()), &dir.path().join("c.db"));
-    let c = browser(&driver).await;
-    sign_in(&c, &s).await;
-    let (poses, ident) = (20, 14);
-    let id = create_from_page(&c, &s, poses, ident).await;
-    screenshot(&c, "dashboard.png").await;
-    arm_and_start(&c).await;
+/// How [`answer_all`] answers, beyond typing the expected reading and Enter.
+#[derive(Default)]
+struct Answering {
+    /// Once, at a question about P2: first a reading 0.5 mm off (the re-ask must explain it),
+    /// and a screenshot of the prompt panel with the explanation.
+    off_once: bool,
+    /// Once, at the first reading: Escape (the abort question opens), then Enter on its
+    /// focused "No, go back" (the question is still there, the field focused).
+    escape_once: bool,
+    /// Once `dashboard_after` poses are measured: a screenshot of the whole page.
+    dashboard_after: Option<usize>,
+}
 
-    // every question: the reading typed into the focused field, Enter; commas every other time
+/// The open question the page shows, once it is shown and is the one the API has open (a new
+/// one, not `last`): its API view. `None` when the campaign is done.
+async fn next_question(c: &Client, s: &Server, id: i64, last: &Option<String>) -> Option<Value> {
     let started = Instant::now();
-    let mut answered = 0usize;
-    let mut last_seq = None;
     loop {
-        if text(&c, "campaign-state").await == "done" {
-            break;
+        if text(c, "campaign-state").await == "done" {
+            return None;
         }
         assert!(
-            started.elapsed() < Duration::from_secs(120),
+            started.elapsed() < Duration::from_secs(60),
+            "no question for 60 s"
+        );
+        let panel = by_id(c, "prompt-panel").await;
+        let seq = panel.attr("data-seq").await.expect("data-seq");
+        if panel.is_displayed().await.unwrap_or(false) && seq.is_some() && seq != *last {
+            let (_, v) = get(s, &format!("/api/campaigns/{id}"));
+            if v["prompt"]["seq"].as_u64().map(|n| n.to_string()) == seq {
+                return Some(v);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
+    }
+}
+
+/// The question's context as the page shows it agrees with the engine's: pose n of N, P1 or
+/// P2, and "robot stopped — safe to approach" exactly when the engine says so.
+async fn check_context(c: &Client, q: &Value) {
+    let context = text(c, "prompt-context").await;
+    if let (Some(n), Some(total)) = (q["pose"].as_u64(), q["poses_total"].as_u64()) {
+        assert!(
+            context.contains(&format!("Pose {n} of {total}")),
+            "{context} / {q}"
+        );
+    }
+    if let Some(p) = q["position"].as_str() {
+        assert!(context.contains(p), "{context} / {q}");
+    }
+    let safe = text(c, "prompt-safe").await;
+    assert_eq!(
+        safe.contains("Robot stopped — safe to approach"),
+        q["robot_stopped"] == Value::Bool(true),
+        "{safe} / {q}"
+    );
+}
+
+/// Answer every question of campaign `id` from the keyboard (the focused field, the reading,
+/// Enter; a decimal comma every other time) until the page shows `done`; returns how many
+/// questions were answered, checking each one's context (see [`check_context`]).
+async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
+    let started = Instant::now();
+    let (mut answered, mut off_done, mut escape_done, mut shot) = (0usize, false, false, false);
+    let mut last_seq = None;
+    let mut contexts = Vec::new();
+    while let Some(v) = next_question(c, s, id, &last_seq).await {
+        assert!(
+            started.elapsed() < Duration::from_secs(150),
             "campaign stuck"
         );
-        let panel = by_id(&c, "prompt-panel").await;
-        let seq = panel.attr("data-seq").await.expect("data-seq");
-        if !panel.is_displayed().await.unwrap_or(false) || seq.is_none() || seq == last_seq {
-            tokio::time::sleep(Duration::from_millis(30)).await;
-            continue;
+        let q = &v["prompt"];
+        last_seq = q["seq"].as_u64().map(|n| n.to_string());
+        check_context(c, q).await;
+        assert_eq!(q["robot_stopped"], Value::Bool(true), "{q}");
+        // the visual cue: the tab's title says a question is open
+        let title = c.title().await.expect("title");
+        assert!(title.contains("Question"), "{title}");
+        contexts.push((q["pose"].clone(), q["position"].clone()));
+        if let (Some(after), false) = (how.dashboard_after, shot) {
+            if v["poses_done"].as_u64().unwrap_or(0) >= after as u64 {
+                shot = true;
+                dashboard_is_filled(c, s).await;
+                c.execute("window.scrollTo(0, 0);", vec![])
+                    .await
+                    .expect("scroll");
+                screenshot(c, "dashboard.png").await;
+            }
         }
-        let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
-        if v["prompt"]["seq"].as_u64().map(|n| n.to_string()) != seq {
-            tokio::time::sleep(Duration::from_millis(30)).await;
-            continue;
-        }
-        let context = text(&c, "prompt-context").await;
-        assert!(context.contains(&format!("of {poses}")), "{context}");
-        let focused = c.active_element().await.expect("focused element");
-        let focus = focused.attr("id").await.expect("id");
-        let Some(expected) = v["prompt"]["expected_mm"].as_f64() else {
+        let focus = focused_id(c).await;
+        let Some(expected) = q["expected_mm"].as_f64() else {
             // a confirmation: Enter on the focused Confirm button
             assert_eq!(focus.as_deref(), Some("prompt-confirm"), "{v}");
-            focused.send_keys(ENTER).await.expect("confirm");
+            keys(c, &ENTER.to_string()).await;
             answered += 1;
-            last_seq = seq;
             continue;
         };
-        let prompt = text(&c, "prompt-text").await;
+        let prompt = text(c, "prompt-text").await;
         assert!(prompt.contains("micrometer"), "{prompt}");
         assert_eq!(
             focus.as_deref(),
             Some("prompt-value"),
             "the field has the focus"
         );
-        if answered == 0 {
-            screenshot(&c, "prompt.png").await;
+        if how.escape_once && !escape_done {
+            escape_done = true;
+            keys(c, &ESCAPE.to_string()).await;
+            until("the abort question", 10, || async move {
+                (focused_id(c).await.as_deref() == Some("abort-cancel")).then_some(())
+            })
+            .await;
+            assert!(shown(c, "abort-dialog").await, "Escape asks to abort");
+            keys(c, &ENTER.to_string()).await;
+            until("back at the reading", 10, || async move {
+                (focused_id(c).await.as_deref() == Some("prompt-value")).then_some(())
+            })
+            .await;
+            assert!(!shown(c, "abort-dialog").await);
         }
         let mut reading = format!("{expected:.3}");
+        if how.off_once && !off_done && q["position"] == "P2" {
+            off_done = true;
+            reading = format!("{:.3}", expected + 0.5);
+            keys(c, &format!("{reading}{ENTER}")).await;
+            answered += 1;
+            let v = next_question(c, s, id, &last_seq)
+                .await
+                .expect("the reading is asked again");
+            last_seq = v["prompt"]["seq"].as_u64().map(|n| n.to_string());
+            let why = text(c, "prompt-retry").await;
+            assert!(
+                why.contains(&format!(
+                    "The reading {reading} mm, 0.500 mm from the requested {expected:.3} mm"
+                )),
+                "{why}"
+            );
+            assert!(
+                !text(c, "prompt-text").await.contains("from the requested"),
+                "the reason is shown once, apart from the request"
+            );
+            check_context(c, &v["prompt"]).await;
+            screenshot_of(c, "prompt-panel", "prompt.png").await;
+            reading = format!("{expected:.3}");
+        }
         if answered % 2 == 1 {
             reading = reading.replace('.', ",");
         }
-        focused
-            .send_keys(&format!("{reading}{ENTER}"))
-            .await
-            .expect("type the reading");
+        keys(c, &format!("{reading}{ENTER}")).await;
         answered += 1;
-        last_seq = seq;
     }
-    assert!(answered >= 2 * poses, "{answered} questions answered");
-    until_text(&c, "progress", &format!("{poses} / {poses}"), 10).await;
-    let page = &c;
+    // the context named every pose and both stage positions
+    let poses: std::collections::HashSet<u64> =
+        contexts.iter().filter_map(|(p, _)| p.as_u64()).collect();
+    assert!(poses.len() >= 2, "{contexts:?}");
+    for p in ["P1", "P2"] {
+        assert!(contexts.iter().any(|(_, at)| at == p), "{p}: {contexts:?}");
+    }
+    answered
+}
+
+/// The dashboard panels while poses are measured: device status as `GET /api/devices` says (or
+/// `unknown` before that route exists), the drift reference, the deviation plot with a point
+/// per measured pose (matching the API's deviations).
+async fn dashboard_is_filled(c: &Client, s: &Server) {
+    let (code, devices) = get(s, "/api/devices");
+    for name in ["tracker", "robot", "stage"] {
+        let row = text(c, &format!("device-{name}")).await;
+        let want = match (code, devices[name]["connected"].as_bool()) {
+            (200, Some(true)) => "yes",
+            (200, Some(false)) => "NO",
+            _ => "unknown",
+        };
+        assert!(row.contains(want), "{name}: {row} (API {code}: {devices})");
+    }
+    let drift = text(c, "drift-checks").await;
+    assert!(drift.contains("reference"), "{drift}");
+    let page = c;
+    let points = until("points in the deviation plot", 10, || async move {
+        let p = by_id(page, "deviation-plot")
+            .await
+            .attr("data-points")
+            .await
+            .ok()??;
+        let n: usize = p.parse().ok()?;
+        (n >= 2).then_some(n)
+    })
+    .await;
+    let circles = c
+        .find_all(Locator::Css("#deviation-plot circle"))
+        .await
+        .expect("circles");
+    assert_eq!(circles.len(), points);
+    let summary = text(c, "deviation-summary").await;
+    assert!(
+        summary.contains("mean") && summary.contains("max"),
+        "{summary}"
+    );
+}
+
+/// The verdict and the verify mean after on the page agree with the API's result.
+async fn verdict_is_shown(c: &Client, s: &Server, id: i64, poses: usize) {
+    until_text(c, "progress", &format!("{poses} / {poses}"), 10).await;
     let quality = until("the verdict", 30, || async move {
-        let q = text(page, "quality").await;
+        let q = text(c, "quality").await;
         (!q.is_empty() && q != "—").then_some(q)
     })
     .await;
-    let after: f64 = text(&c, "result-verify-after")
+    let after: f64 = text(c, "result-verify-after")
         .await
         .parse()
         .expect("verify mean after is a number");
-    let (_, result) = get(&s, &format!("/api/campaigns/{id}/result"));
+    let (_, result) = get(s, &format!("/api/campaigns/{id}/result"));
     let want = result["metrics"]["verify"]["after"]["position_mean_mm"]
         .as_f64()
         .expect("verify after");
@@ -324,13 +554,227 @@ async fn the_page_runs_a_manual_campaign_from_the_keyboard() {
         Some(q) => assert_eq!(quality, q),
         None => assert_eq!(quality, "not given"),
     }
-    c.find(Locator::Id("result-view"))
+}
+
+/// Every stored `measured` event carries the pose's deviation from the nominal model (the base
+/// is registered), and it is |deviation_xyz_mm|.
+fn deviations_are_journalled(s: &Server, id: i64, poses: usize) {
+    let (_, events) = get(s, &format!("/api/campaigns/{id}/events"));
+    let measured: Vec<&Value> = events
+        .as_array()
+        .expect("events")
+        .iter()
+        .filter(|e| e["kind"] == "measured")
+        .map(|e| &e["event"])
+        .collect();
+    assert_eq!(measured.len(), poses);
+    for m in measured {
+        let d = m["deviation_mm"].as_f64().expect("deviation_mm");
+        let xyz: Vec<f64> = m["deviation_xyz_mm"]
+            .as_array()
+            .expect("deviation_xyz_mm")
+            .iter()
+            .map(|v| v.as_f64().expect("number"))
+            .collect();
+        let norm = xyz.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!((d - norm).abs() < 1e-9 && d.is_finite(), "{m}");
+        // the simulated robot differs from its nominal model by a few tenths of a mm to mm
+        assert!(d > 1e-4 && d < 20.0, "{m}");
+    }
+}
+
+/// 20 poses, 14 for identification: 14 × 6 equations ≥ 3 × 28 parameters (OP with base), the
+/// fewest a campaign accepts; 40 stage questions and a few more.
+const POSES: usize = 20;
+const IDENT: usize = 14;
+
+/// `serve` on a manual-stage cell in a new directory and a browser signed in with the
+/// printed link (the directory lives as long as the server).
+async fn signed_in_on_a_manual_cell(driver: &Driver) -> (tempfile::TempDir, Server, Client) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = start(&manual_cell(dir.path(), ""), &dir.path().join("c.db"));
+    let c = browser(driver).await;
+    sign_in(&c, &s).await;
+    (dir, s, c)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_runs_a_manual_campaign_with_its_dashboard() {
+    let Some(driver) = chromedriver() else { return };
+    let (_dir, s, c) = signed_in_on_a_manual_cell(&driver).await;
+    let id = create_from_page(&c, &s, POSES, IDENT).await;
+    // the audible cue on: a beep for every question
+    click(&c, "sound-toggle").await;
+    arm_and_start(&c).await;
+    let how = Answering {
+        off_once: true,
+        dashboard_after: Some(6),
+        ..Answering::default()
+    };
+    let answered = answer_all(&c, &s, id, how).await;
+    assert!(answered > 2 * POSES, "{answered} questions answered");
+    verdict_is_shown(&c, &s, id, POSES).await;
+    deviations_are_journalled(&s, id, POSES);
+    let beeps: usize = by_id(&c, "prompt-panel")
         .await
-        .expect("result view")
-        .click()
+        .attr("data-beeps")
         .await
-        .ok();
-    screenshot(&c, "result.png").await;
+        .expect("attr")
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    assert!(beeps >= 2 * POSES, "{beeps} beeps for {answered} questions");
+    // tall enough for the whole result view
+    c.set_window_size(1280, 2600).await.expect("window size");
+    screenshot_from(&c, "result-view", "result.png").await;
+    c.close().await.expect("close");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_is_usable_with_the_keyboard_alone() {
+    let Some(driver) = chromedriver() else { return };
+    let (_dir, s, c) = signed_in_on_a_manual_cell(&driver).await;
+    // create: Tab to the fields, type, Enter submits the form
+    tab_to(&c, "create-poses").await;
+    keys(&c, &POSES.to_string()).await;
+    tab_to(&c, "create-ident").await;
+    keys(&c, &format!("{IDENT}{ENTER}")).await;
+    let id = created(&c, &s, POSES).await;
+    // arm: Enter opens the confirmation with "Cancel" focused; Escape closes it unarmed
+    until_usable(&c, "cmd-arm").await;
+    tab_to(&c, "cmd-arm").await;
+    keys(&c, &ENTER.to_string()).await;
+    let page = &c;
+    until("the arm question", 10, || async move {
+        (focused_id(page).await.as_deref() == Some("arm-cancel")).then_some(())
+    })
+    .await;
+    keys(&c, &ESCAPE.to_string()).await;
+    until("the arm question closed", 10, || async move {
+        (!shown(page, "arm-dialog").await).then_some(())
+    })
+    .await;
+    let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+    assert_eq!(v["armed"], Value::Bool(false), "Escape did not arm: {v}");
+    // again, and this time Tab to "Yes, arm" and Enter
+    tab_to(&c, "cmd-arm").await;
+    keys(&c, &ENTER.to_string()).await;
+    tab_to(&c, "arm-confirm").await;
+    keys(&c, &ENTER.to_string()).await;
+    until_armed(&c).await;
+    until_usable(&c, "cmd-start").await;
+    tab_to(&c, "cmd-start").await;
+    keys(&c, &ENTER.to_string()).await;
+    let how = Answering {
+        escape_once: true,
+        ..Answering::default()
+    };
+    let answered = answer_all(&c, &s, id, how).await;
+    assert!(answered >= 2 * POSES, "{answered} questions answered");
+    verdict_is_shown(&c, &s, id, POSES).await;
+    c.close().await.expect("close");
+}
+
+/// Which of the page's controls are offered (shown) now.
+async fn offered(c: &Client) -> Vec<&'static str> {
+    let mut on = Vec::new();
+    for id in [
+        "create-form",
+        "cmd-arm",
+        "cmd-disarm",
+        "cmd-start",
+        "cmd-pause",
+        "cmd-resume",
+        "prompt-value",
+        "prompt-confirm",
+        "prompt-abort",
+        "abort",
+    ] {
+        if shown(c, id).await {
+            on.push(id);
+        }
+    }
+    on
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_offers_each_role_only_what_it_may_do() {
+    let Some(driver) = chromedriver() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = manual_cell(dir.path(), &role_tokens());
+    let s = start_as_operator(&cfg, &dir.path().join("c.db"));
+    // the operator creates, arms and starts over REST; the first question opens
+    let (code, v) = post_as(
+        &s,
+        "operator-token",
+        "/api/campaigns",
+        &format!(r#"{{"poses": {POSES}, "ident": {IDENT}}}"#),
+    );
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_i64().expect("id");
+    let path = format!("/api/campaigns/{id}/commands");
+    for cmd in ["arm", "start"] {
+        let (code, v) = post_as(
+            &s,
+            "operator-token",
+            &path,
+            &format!(r#"{{"command": "{cmd}"}}"#),
+        );
+        assert_eq!(code, 200, "{cmd}: {v}");
+    }
+    let server = &s;
+    until("the first question", 60, || async move {
+        let (_, v) = get(server, &format!("/api/campaigns/{id}"));
+        v["prompt"]["seq"].as_u64()
+    })
+    .await;
+    let c = browser(&driver).await;
+
+    // a viewer sees the question and its context, and may only abort
+    sign_in_as(&c, &s, "viewer-token", "viewer one (viewer)").await;
+    let page = &c;
+    until("the question on the viewer's page", 20, || async move {
+        shown(page, "prompt-panel").await.then_some(())
+    })
+    .await;
+    assert!(text(&c, "prompt-context").await.contains("question"));
+    assert_eq!(offered(&c).await, ["prompt-abort", "abort"], "viewer");
+    screenshot(&c, "viewer.png").await;
+
+    // a technician may answer (and pause, resume), not create, arm or start
+    c.execute("sessionStorage.clear();", vec![])
+        .await
+        .expect("sign out");
+    sign_in_as(&c, &s, "technician-token", "technician one (technician)").await;
+    until("the question on the technician's page", 20, || async move {
+        shown(page, "prompt-value").await.then_some(())
+    })
+    .await;
+    let on = offered(&c).await;
+    for id in [
+        "prompt-value",
+        "prompt-confirm",
+        "prompt-abort",
+        "abort",
+        "cmd-pause",
+    ] {
+        assert!(on.contains(&id), "technician offered {id}: {on:?}");
+    }
+    for id in ["create-form", "cmd-arm", "cmd-disarm", "cmd-start"] {
+        assert!(!on.contains(&id), "technician not offered {id}: {on:?}");
+    }
+    // and the answer goes through: the technician's typed reading moves the campaign on
+    let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+    let seq = v["prompt"]["seq"].as_u64().expect("seq");
+    let expected = v["prompt"]["expected_mm"].as_f64().expect("a reading");
+    assert_eq!(focused_id(&c).await.as_deref(), Some("prompt-value"));
+    keys(&c, &format!("{expected:.3}{ENTER}")).await;
+    until("the answer taken", 30, || async move {
+        let (_, v) = get(server, &format!("/api/campaigns/{id}"));
+        (v["prompt"]["seq"].as_u64() != Some(seq)).then_some(())
+    })
+    .await;
+    let (code, _) = post_as(&s, "operator-token", &path, r#"{"command": "abort"}"#);
+    assert_eq!(code, 200);
     c.close().await.expect("close");
 }
 

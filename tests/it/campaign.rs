@@ -10,13 +10,16 @@ use std::time::Duration;
 use cellcal::analysis::evaluate;
 use cellcal::campaign::engine::identify_options;
 use cellcal::campaign::session::open_session;
+use cellcal::campaign::session::Session;
+use cellcal::campaign::CampaignContext;
 use cellcal::campaign::{
     run_campaign, CampaignCommand, CampaignEvent, CampaignState, Control, Outcome,
 };
-use cellcal::cell::ScriptedPrompter;
+use cellcal::cell::{Prompter, ScriptedPrompter, StagePosition};
 use cellcal::config::parse_cell_config;
 use cellcal::dataset::{split, to_measured};
 use cellcal::sim::lock_world;
+use cellcal::sim::RunningSimCell;
 use cellcal::store::Store;
 
 /// config/cell.sim.toml with fast motion and extra `[sim]` / `[campaign]` keys.
@@ -79,28 +82,44 @@ pub(crate) struct Finished {
     pub(crate) nominal: cellcal::model::RobotModel,
 }
 
-pub(crate) async fn run_in_process(text: &str) -> Finished {
-    let dir = tempfile::tempdir().expect("tempdir").keep();
-    let cfg_path = write_config(&dir, text);
+/// The campaign of `text` (written to `dir`, stored in `dir/c.db`) run in process to its end
+/// with `prompter`: armed and started; nobody answers an operator fault, which ends the run with
+/// its reason. The engine's context, the simulated cell and the outcome.
+pub(crate) async fn run_with(
+    dir: &Path,
+    text: &str,
+    prompter: Arc<dyn Prompter>,
+) -> (CampaignContext, Option<RunningSimCell>, Outcome) {
+    let cfg_path = write_config(dir, text);
     let cfg = parse_cell_config(text, &cfg_path).expect("config");
-    let store = dir.join("c.db");
-    let session = open_session(cfg, &store, None, Arc::new(ScriptedPrompter::exact()))
+    let Session {
+        mut ctx,
+        mut devices,
+        sim,
+        lock,
+        ..
+    } = open_session(cfg, &dir.join("c.db"), None, prompter)
         .await
         .expect("session");
-    let mut ctx = session.ctx;
-    // nobody answers here: an operator fault ends the run with its reason
     ctx.on_fault = cellcal::campaign::FaultPolicy::Fail;
-    let mut devices = session.devices;
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
     let outcome = tokio::time::timeout(Duration::from_secs(120), run_campaign(&ctx, &mut devices))
         .await
         .expect("campaign finishes in time")
         .expect("campaign runs");
+    drop(lock);
+    (ctx, sim, outcome)
+}
+
+pub(crate) async fn run_in_process(text: &str) -> Finished {
+    let dir = tempfile::tempdir().expect("tempdir").keep();
+    let store = dir.join("c.db");
+    let (ctx, sim, outcome) = run_with(&dir, text, Arc::new(ScriptedPrompter::exact())).await;
     let Outcome::Done(report) = outcome else {
         panic!("campaign did not finish: {outcome:?}");
     };
-    let sim = session.sim.expect("simulated cell");
+    let sim = sim.expect("simulated cell");
     let (truth, true_axis) = {
         let w = lock_world(&sim.world);
         (w.true_model().clone(), w.stage_axis_actual())
@@ -530,4 +549,75 @@ async fn a_stage_fault_after_p1_keeps_p1_as_discarded_and_resume_measures_the_po
         .done_poses(id)
         .expect("done")
         .contains(&pose));
+}
+
+/// The engine tells the technician where it is: every stage question of a manual campaign
+/// names its step, pose n of N and P1 or P2 (agreeing with the requested position), and says
+/// the robot stands still (each question comes after a settled move, before the next one);
+/// every measured pose carries its deviation from the nominal model once the base is
+/// registered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn manual_questions_carry_their_context_and_poses_their_deviation() {
+    let text = config_text("", "", "")
+        .replace("kind = \"serial\"", "kind = \"manual\"")
+        .replace("stage_mode = \"zaber\"", "stage_mode = \"manual\"")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 14");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let prompter = Arc::new(ScriptedPrompter::exact());
+    let (ctx, sim, outcome) = run_with(dir.path(), &text, prompter.clone()).await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let stage = &ctx.cfg.stage;
+    let (p1, p2) = (stage.p1_mm, stage.p1_mm + stage.travel_mm);
+    let asked = prompter.asked();
+    let steps: Vec<Option<&str>> = asked.iter().map(|p| p.context.step.as_deref()).collect();
+    // base registration sets the stage at P1 once (the drift checks find it there), then the
+    // poses ask for P2 and back to P1
+    assert_eq!(steps.first(), Some(&Some("setup")), "{steps:?}");
+    assert!(steps[1..].iter().all(|s| *s == Some("pose")), "{steps:?}");
+    let mut poses = BTreeSet::new();
+    for p in &asked {
+        let c = &p.context;
+        assert!(c.robot_stopped, "{p:?}");
+        assert_eq!(c.retry_reason, None, "{p:?}");
+        let want = match p.expected_mm {
+            Some(mm) if (mm - p1).abs() < 1e-9 => Some(StagePosition::P1),
+            Some(mm) if (mm - p2).abs() < 1e-9 => Some(StagePosition::P2),
+            other => panic!("unexpected stage request {other:?}"),
+        };
+        assert_eq!(c.position, want, "{p:?}");
+        match c.step.as_deref() {
+            Some("pose") => {
+                assert_eq!(c.poses_total, Some(20), "{p:?}");
+                poses.insert(c.pose.expect("pose n"));
+            }
+            _ => assert_eq!((c.pose, c.poses_total), (None, None), "{p:?}"),
+        }
+    }
+    assert_eq!(poses, (1..=20).collect(), "pose n of N, from 1 to 20");
+    let events = ctx
+        .store
+        .lock()
+        .expect("store")
+        .events(ctx.campaign_id)
+        .expect("events");
+    let measured: Vec<serde_json::Value> = events
+        .iter()
+        .filter(|e| e.kind == "measured")
+        .map(|e| serde_json::from_str(&e.message).expect("JSON"))
+        .collect();
+    assert_eq!(measured.len(), 20);
+    for m in &measured {
+        let d = m["deviation_mm"].as_f64().expect("deviation_mm");
+        assert!(d.is_finite() && d > 0.0 && d < 20.0, "{m}");
+        assert_eq!(
+            m["deviation_xyz_mm"].as_array().map(Vec::len),
+            Some(3),
+            "{m}"
+        );
+    }
+    if let Some(sim) = sim {
+        sim.stop().await;
+    }
 }

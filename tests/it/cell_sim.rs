@@ -9,7 +9,8 @@ use std::time::Duration;
 
 use cellcal::cell::{
     Answer, CellError, ChannelPrompter, EmsconTracker, FaultKind, LinkRobot, ManualStage,
-    ManualStageConfig, Robot, ScriptedPrompter, Stage, Tracker, ZaberStageAdapter,
+    ManualStageConfig, PromptContext, Robot, ScriptedPrompter, Stage, StagePosition, Tracker,
+    ZaberStageAdapter,
 };
 use cellcal::model::forward;
 use cellcal::sim::{lock_world, start_cell, RunningSimCell, SimWorldConfig, StageMode};
@@ -470,15 +471,52 @@ async fn manual_stage_asks_validates_and_aborts() {
         );
         assert_eq!(asked[0].expected_mm, Some(10.0));
 
+        // no context given: none claimed (the robot's state is not known)
+        assert_eq!(asked[0].context, PromptContext::default());
+
         let p = Arc::new(ScriptedPrompter::from_answers([
             Answer::Number(10.3),
             Answer::Confirmed,
             Answer::Number(10.005),
+            Answer::Number(0.0),
         ]));
         let mut s = ManualStage::new(p.clone(), ManualStageConfig::default());
+        let context = PromptContext {
+            step: Some("pose".into()),
+            pose: Some(3),
+            poses_total: Some(20),
+            position: Some(StagePosition::P2),
+            robot_stopped: true,
+            retry_reason: None,
+        };
+        s.set_prompt_context(context.clone());
         assert_eq!(s.move_to(10.0).await.expect("third answer"), 10.005);
         let asked = p.asked();
         assert_eq!(asked.len(), 3);
+        // every ask of the move carries its context; a re-ask says why
+        assert_eq!(asked[0].context, context);
+        assert_eq!(
+            asked[1].context.retry_reason.as_deref(),
+            Some(
+                "The reading 10.300 mm, 0.300 mm from the requested 10.000 mm (tolerance 0.020 mm)"
+            )
+        );
+        assert_eq!(
+            asked[2].context.retry_reason.as_deref(),
+            Some("A number is needed (the micrometer reading in mm)")
+        );
+        assert_eq!(asked[2].context.pose, Some(3));
+        assert_eq!(
+            asked[0].context.describe(),
+            "pose 3 of 20 · P2 · robot stopped — safe to approach"
+        );
+        // the context was for that move only
+        s.move_to(0.0).await.expect("fourth answer");
+        assert_eq!(p.asked()[3].context, PromptContext::default());
+        assert!(p.asked()[3]
+            .context
+            .describe()
+            .contains("robot state not known"));
         assert!(
             asked[1]
                 .text

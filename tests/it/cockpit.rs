@@ -13,21 +13,7 @@ const UPDATE_ENV: &str = "CELLCAL_UPDATE_SNAPSHOTS";
 
 /// A GET without a token: status, content type, body text.
 fn get_anonymous(s: &Server, path: &str) -> (u16, String, String) {
-    let mut r = agent()
-        .get(&format!("{}{path}", s.base))
-        .call()
-        .expect("GET");
-    let ct = r
-        .headers()
-        .get("content-type")
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_owned();
-    (
-        r.status().as_u16(),
-        ct,
-        r.body_mut().read_to_string().expect("body"),
-    )
+    super::serve::get_text(s, path, None)
 }
 
 #[test]
@@ -141,7 +127,13 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         ("/api/campaigns/{id}/events", "get"),
         ("/api/campaigns/{id}/stream", "get"),
         ("/api/campaigns/{id}/result", "get"),
+        ("/api/campaigns/{id}/model", "get"),
+        ("/api/campaigns/{id}/report", "get"),
         ("/api/campaigns/{id}/prompt", "get"),
+        ("/api/campaigns/{id}/measurements", "get"),
+        ("/api/campaigns/{id}/plan", "get"),
+        ("/api/devices", "get"),
+        ("/metrics", "get"),
     ] {
         let op = &paths
             .get(path)
@@ -167,7 +159,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         }
     }
     assert!(
-        paths.len() == 13,
+        paths.len() == 19,
         "documented paths: {:?}",
         paths.keys().collect::<Vec<_>>()
     );

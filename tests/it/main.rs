@@ -1,18 +1,25 @@
 //! The one integration-test binary: modules per capability.
 
+mod api_fuzz;
+mod api_load;
+mod api_routes;
 mod browser;
 mod campaign;
 mod cell_sim;
 mod cli;
 mod cockpit;
 mod common;
+mod compensate;
+mod deploy;
 mod frames;
 mod identifiability;
+mod model_out;
 mod paper;
 mod paths;
 mod practical;
 mod quality;
 mod realdata;
+mod report;
 mod reproduce;
 mod robust;
 mod safety;

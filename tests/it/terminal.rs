@@ -119,16 +119,24 @@ fn manual_run(dir: &Path) -> (PtyChild, PathBuf) {
 fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (mut t, store) = manual_run(dir.path());
-    // the drift reference at P1
-    t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    // the drift reference at P1, with its context (pieces in ASCII: the pty output is read in
+    // chunks that may split a character)
+    let asked = t.expect("Set the micrometer to 0.000 mm and enter the reading");
+    for part in ["[drift check at the reference pose", "P1", "robot stopped"] {
+        assert!(asked.contains(part), "{part}: {asked}");
+    }
     t.send_line("0.000");
     // first pose: P1 is already set, so the first question is P2
-    t.expect("Set the micrometer to 10.000 mm and enter the reading");
+    let asked = t.expect("Set the micrometer to 10.000 mm and enter the reading");
+    for part in ["[pose 1 of 20", "P2", "robot stopped", "safe to approach"] {
+        assert!(asked.contains(part), "{part}: {asked}");
+    }
     t.send_line("ten");
     t.expect("`ten` is not a number");
     t.send_line("10.5");
     t.expect("The reading 10.500 mm, 0.500 mm from the requested 10.000 mm");
-    t.send_line("10.004");
+    // a decimal comma is a decimal point
+    t.send_line("10,004");
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     t.send_line("0.001");
     t.expect("[1/20] pose");

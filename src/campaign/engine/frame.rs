@@ -8,7 +8,7 @@ use std::collections::HashSet;
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use super::{Run, SetupResult, Stop};
+use super::{Run, SetupResult, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::measure::{fit_rigid, select_spread};
 use crate::model::{forward, RobotModel};
@@ -198,6 +198,7 @@ impl Run<'_> {
         }
         let mut now = Vec::with_capacity(chosen.len());
         let mut first = Vec::with_capacity(chosen.len());
+        self.step = Step::Reregister;
         for c in &chosen {
             self.wait_unpaused().await?;
             let joints = self.move_to(&c.joints_rad).await?;

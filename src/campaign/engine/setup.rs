@@ -6,7 +6,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::{CampaignError, Run, Stop};
+use super::{CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
@@ -112,6 +112,7 @@ impl Run<'_> {
             return Ok(SetupResult::default());
         }
         let (do_tool, do_base) = (cfg.tool_frame, cfg.base_registration);
+        self.step = Step::Setup;
         let mut model = self.ctx.nominal.clone();
         let mut result = SetupResult::default();
         if do_tool {

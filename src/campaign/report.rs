@@ -1,0 +1,209 @@
+//! The calibration report of a stored campaign: gathers from the store alone what
+//! [`crate::report::html`] shows — the stored result, the per-pose errors of the campaign's own
+//! identification rebuilt by [`load_stored`] (the same recipe, so the same numbers), the setup
+//! result, drift checks and faults from the journal, the configured devices, the digests of the
+//! stored configuration and robot file, and the journal's times.
+
+use std::path::Path;
+
+use serde_json::Value;
+
+use super::engine::SetupResult;
+use super::stored::{load_stored, StoredCampaign, StoredError};
+use crate::analysis::significance::significance;
+use crate::config::cell::{CellConfig, DeviceMode, StageMode};
+use crate::config::parse_cell_config;
+use crate::report::html::{
+    CampaignFacts, DeviceEntry, DriftCheck, FaultEntry, InputDigest, PoseErrors, Provenance,
+    ReportInput, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED,
+};
+use crate::report::{calibrate, IdentifyReport};
+use crate::store::{EventRecord, Store, StoreError};
+
+/// The report input of campaign `id` in `store`, or `None` while it has no result.
+/// `store_name` names the store file in the page; `generated_at_ms` is the page's time. Only a
+/// store failure is an error: a part that cannot be rebuilt (per-pose errors of a campaign
+/// whose stored robot file no longer parses) is reported missing, with the reason, in the page.
+pub fn campaign_report(
+    store: &Store,
+    id: i64,
+    store_name: &str,
+    generated_at_ms: i64,
+) -> Result<Option<ReportInput>, StoreError> {
+    let Some(text) = store.latest_result(id)? else {
+        return Ok(None);
+    };
+    let result = IdentifyReport::from_json(&text)
+        .map_err(|e| StoreError::Corrupt(format!("campaign {id}: its stored result: {e}")))?;
+    let (facts, inputs) = campaign_facts(store, id)?;
+    let title = format!("Calibration report: campaign {id} \"{}\"", facts.name);
+    let provenance = Provenance::of_this_build(generated_at_ms, inputs);
+    let mut input = ReportInput::new(
+        &title,
+        &format!("campaign {id} in {store_name}"),
+        result,
+        provenance,
+    );
+    let stored_metrics = serde_json::from_str::<Value>(&text)
+        .ok()
+        .map(|v| v["metrics"].clone());
+    match load_stored(store, id, None) {
+        Ok(c) => rebuild(&c, stored_metrics, &mut input),
+        Err(StoredError::Store(e)) => return Err(e),
+        Err(e) => input.poses = Err(e.to_string()),
+    }
+    input.campaign = Some(facts);
+    Ok(Some(input))
+}
+
+/// The per-pose errors and significance indices of the campaign's own identification, rebuilt
+/// from the store (a note when it no longer gives `stored_metrics`, the stored result's figures).
+fn rebuild(c: &StoredCampaign, stored_metrics: Option<Value>, input: &mut ReportInput) {
+    input.significance = significance(&c.nominal, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED);
+    let (again, ident) = match calibrate(&c.nominal, &c.rows, &c.opts, c.travel_mm) {
+        Ok(x) => x,
+        Err(e) => {
+            input.poses = Err(format!("the campaign's identification no longer runs: {e}"));
+            return;
+        }
+    };
+    // both through JSON text, as the stored figures went (a parsed number may be 1 ulp off)
+    let again_metrics = serde_json::to_string(&again.metrics)
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok());
+    if again_metrics.is_none() || again_metrics != stored_metrics {
+        input.notes.push(
+            "The per-pose plots come from identifying the stored measurements again with this \
+             software version; its accuracy figures differ from the stored result, which the \
+             tables show."
+                .to_owned(),
+        );
+    }
+    input.poses = PoseErrors::compute(&ident, &c.rows, c.travel_mm).map_err(|e| e.to_string());
+}
+
+/// What the store knows of campaign `id` besides its result, and the digests of its stored
+/// configuration and robot file.
+pub fn campaign_facts(
+    store: &Store,
+    id: i64,
+) -> Result<(CampaignFacts, Vec<InputDigest>), StoreError> {
+    let row = store.campaign(id)?;
+    let (done, total) = store.pose_counts(id)?;
+    let events = store.events(id)?;
+    let cfg = parse_cell_config(&row.config_toml, Path::new("stored configuration"));
+    let inputs = vec![
+        stored_digest("cell configuration (as stored)", &row.config_toml),
+        stored_digest("robot model file (as stored)", &row.robot_toml),
+    ];
+    let facts = CampaignFacts {
+        id,
+        name: row.name,
+        state: row.state,
+        created_at_ms: row.created_at_ms,
+        seed: row.seed,
+        poses_done: done,
+        poses_total: total,
+        setup: SetupResult::load(store, id)?,
+        drift: events.iter().filter_map(drift_check).collect(),
+        faults: events.iter().filter_map(fault).collect(),
+        devices: devices(cfg.as_ref().ok()),
+        journal_span_ms: events
+            .first()
+            .zip(events.last())
+            .map(|(a, b)| (a.at_ms, b.at_ms)),
+        journal_entries: events.len(),
+    };
+    Ok((facts, inputs))
+}
+
+fn stored_digest(what: &str, text: &str) -> InputDigest {
+    if text.trim().is_empty() {
+        return InputDigest {
+            what: what.to_owned(),
+            name: "not stored (an imported campaign)".to_owned(),
+            sha256: "—".to_owned(),
+        };
+    }
+    InputDigest::of(what, "the campaign row's verbatim copy", text.as_bytes())
+}
+
+/// The journal's event JSON, when it is of `kind`.
+fn event_of(e: &EventRecord, kind: &str) -> Option<Value> {
+    (e.kind == kind)
+        .then(|| serde_json::from_str(&e.message).ok())
+        .flatten()
+}
+
+fn drift_check(e: &EventRecord) -> Option<DriftCheck> {
+    let v = event_of(e, "drift")?;
+    Some(DriftCheck {
+        at_ms: e.at_ms,
+        drift_mm: v["drift_mm"].as_f64()?,
+        max_mm: v["max_mm"].as_f64()?,
+    })
+}
+
+fn fault(e: &EventRecord) -> Option<FaultEntry> {
+    let v = event_of(e, "fault")?;
+    let text = |k: &str| v[k].as_str().unwrap_or("").to_owned();
+    Some(FaultEntry {
+        at_ms: e.at_ms,
+        device: text("device"),
+        kind: text("kind"),
+        message: text("message"),
+        action: text("action"),
+    })
+}
+
+/// `what` and, for a real device, its address.
+fn at(what: &str, address: &str, m: DeviceMode) -> String {
+    match m {
+        DeviceMode::Sim => what.to_owned(),
+        DeviceMode::Real => format!("{what} at {address}"),
+    }
+}
+
+/// The cell's devices as the stored configuration names them (identities are not journalled).
+fn devices(cfg: Option<&CellConfig>) -> Vec<DeviceEntry> {
+    let Some(c) = cfg else {
+        return ["tracker", "robot", "stage"]
+            .map(|d| DeviceEntry {
+                device: d.to_owned(),
+                configured: "unknown: no readable stored configuration".to_owned(),
+                identity: None,
+            })
+            .to_vec();
+    };
+    let stage = match c.stage.kind {
+        StageMode::Serial if c.stage.mode == DeviceMode::Sim => "Zaber ASCII stage".to_owned(),
+        StageMode::Serial => format!("Zaber ASCII stage on {}", c.stage.serial_path),
+        StageMode::Manual => "manual micrometer (technician answers)".to_owned(),
+        StageMode::ManualGauge => format!("manual micrometer, gauge on {}", c.stage.gauge_path),
+    };
+    let entry = |device: &str, configured: String, m: DeviceMode| DeviceEntry {
+        device: device.to_owned(),
+        configured: match m {
+            DeviceMode::Sim => format!("{configured} (simulated cell, in-process)"),
+            DeviceMode::Real => configured,
+        },
+        identity: None,
+    };
+    vec![
+        entry(
+            "tracker",
+            at("emScon TPI tracker", &c.tracker.address, c.tracker.mode),
+            c.tracker.mode,
+        ),
+        entry(
+            "robot",
+            at(
+                "robotlink controller",
+                &c.robot_controller.address,
+                c.robot_controller.mode,
+            ),
+            c.robot_controller.mode,
+        ),
+        entry("stage", stage, c.stage.mode),
+    ]
+}

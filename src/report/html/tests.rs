@@ -1,0 +1,131 @@
+use std::path::Path;
+
+use super::*;
+use crate::analysis::significance::significance;
+use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
+use crate::model::parse_robot;
+use crate::report::calibrate;
+use crate::simulate::{simulate, truth, SimConfig};
+
+fn tx60() -> RobotModel {
+    parse_robot(
+        include_str!("../../../config/robots/staubli_tx60.toml"),
+        Path::new("staubli_tx60.toml"),
+    )
+    .expect("TX60")
+}
+
+/// A small simulated OP identification: its rows, result and identification.
+fn small_op() -> (Vec<Observation>, IdentifyReport, Identification) {
+    let nominal = tx60();
+    let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("paper errors");
+    let cfg = SimConfig {
+        poses: 90,
+        ident: 50,
+        ..SimConfig::default()
+    };
+    let rows = simulate(&nominal, &truth, &cfg)
+        .expect("sampled")
+        .observations;
+    let opts = IdentifyOptions {
+        obs: ObsConfig::new(ObsModel::Op, 10.0),
+        identify_base: false,
+        identify_tool: false,
+        robust: None,
+        point_weights: None,
+        solver: Default::default(),
+        practical: PracticalBounds::default(),
+    };
+    let (report, id) = calibrate(&nominal, &rows, &opts, 10.0).expect("identified");
+    (rows, report, id)
+}
+
+fn input(rows: &[Observation], report: IdentifyReport, id: &Identification) -> ReportInput {
+    ReportInput {
+        title: "t".into(),
+        source: "s".into(),
+        result: report,
+        poses: PoseErrors::compute(id, rows, 10.0).map_err(|e| e.to_string()),
+        significance: significance(&tx60(), SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED),
+        campaign: None,
+        provenance: Provenance::of_this_build(0, Vec::new()),
+        notes: Vec::new(),
+    }
+}
+
+fn mean_norm(e: &[PoseError]) -> f64 {
+    e.iter().map(PoseError::norm_mm).sum::<f64>() / e.len() as f64
+}
+
+#[test]
+fn per_pose_errors_are_the_ones_behind_the_metrics() {
+    let (rows, report, id) = small_op();
+    let p = PoseErrors::compute(&id, &rows, 10.0).expect("errors");
+    let v = p.verify.as_ref().expect("verify set");
+    assert_eq!((p.ident.ids.len(), v.ids.len()), (50, 40));
+    let m = &report.metrics;
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+    assert!(close(
+        mean_norm(&p.ident.before),
+        m.ident.before.position_mean_mm
+    ));
+    assert!(close(
+        mean_norm(&p.ident.after),
+        m.ident.after.position_mean_mm
+    ));
+    let verify = m.verify.as_ref().expect("verify metrics");
+    assert!(close(mean_norm(&v.before), verify.before.position_mean_mm));
+    assert!(close(mean_norm(&v.after), verify.after.position_mean_mm));
+    assert!(
+        v.after.iter().all(|e| e.attitude_rad.is_some()),
+        "OP measures the stage axis"
+    );
+}
+
+#[test]
+fn every_text_from_the_input_is_escaped() {
+    let (rows, mut report, id) = small_op();
+    report.warnings.push(crate::report::QualityWarning {
+        code: "x<y".into(),
+        severity: crate::report::Quality::Warning,
+        message: "<script>alert(1)</script> & \"quoted\"".into(),
+    });
+    let mut inp = input(&rows, report, &id);
+    inp.title = "<b>bold</b>".into();
+    inp.notes.push("<img src=x onerror=alert(1)>".into());
+    let html = render(&inp);
+    assert!(!html.contains("<script>"), "a script tag got through");
+    assert!(!html.contains("<img"), "an img tag got through");
+    assert!(!html.contains("<b>bold</b>"));
+    assert!(html.contains("&lt;script&gt;alert(1)&lt;/script&gt; &amp; &quot;quoted&quot;"));
+    assert!(html.contains(
+        "<code><span data-json=\"/warnings/0/code\" data-value=\"x&lt;y\">x&lt;y</span></code>"
+    ));
+}
+
+#[test]
+fn without_a_store_the_campaign_sections_say_so() {
+    let (rows, report, id) = small_op();
+    let html = render(&input(&rows, report, &id));
+    for what in [
+        "not come from a campaign store: the tool-frame",
+        "not come from a campaign store: no journal",
+        "not come from a campaign store: which devices",
+    ] {
+        assert!(html.contains(what), "missing: {what}");
+    }
+    assert!(!html.contains("plot not drawn"), "a plot failed");
+    // 4 per-pose + 2 histograms per set, attitude per set, heat map, 4 significance charts
+    assert_eq!(html.matches("<svg").count(), 2 * 4 + 2 * 2 + 2 + 1 + 4);
+}
+
+#[test]
+fn missing_per_pose_errors_are_reported_with_the_reason() {
+    let (rows, report, id) = small_op();
+    let mut inp = input(&rows, report, &id);
+    inp.poses = Err("the robot file no longer parses".into());
+    let html = render(&inp);
+    assert!(html.contains("Per-pose errors are not available: the robot file no longer parses."));
+    // the heat map and the significance charts remain
+    assert_eq!(html.matches("<svg").count(), 1 + 4);
+}
