@@ -39,15 +39,25 @@ pub struct Metrics {
     pub attitude_rms_rad: Option<f64>,
 }
 
-/// Percentile (0..=100) by linear interpolation of sorted values.
-fn percentile(sorted: &[f64], pct: f64) -> f64 {
-    if sorted.is_empty() {
+/// Percentile (0..=100) of values in any order (reordered in place), by linear interpolation
+/// between the two order statistics around it, found by selection rather than a sort.
+fn percentile(values: &mut [f64], pct: f64) -> f64 {
+    if values.is_empty() {
         return f64::NAN;
     }
-    let x = pct / 100.0 * (sorted.len() - 1) as f64;
-    let lo = x.floor() as usize;
-    let hi = x.ceil() as usize;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+    let x = pct / 100.0 * (values.len() - 1) as f64;
+    let (lo, hi) = (x.floor() as usize, x.ceil() as usize);
+    let (_, &mut at_lo, above) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let at_hi = if hi > lo {
+        above
+            .iter()
+            .copied()
+            .min_by(f64::total_cmp)
+            .unwrap_or(at_lo)
+    } else {
+        at_lo
+    };
+    at_lo + (at_hi - at_lo) * (x - lo as f64)
 }
 
 /// One pose's position error (mm) and attitude error (rad, where measured).
@@ -118,6 +128,7 @@ fn attitude(m: &Measured, r: &Matrix3<f64>, cfg: &ObsConfig) -> Option<f64> {
         }),
         ObsModel::Full => m
             .rotation
+            .as_deref()
             .map(|meas| to_rotation_vector(&(meas * r.transpose())).norm()),
     }
 }
@@ -164,13 +175,12 @@ fn summarize(parts: &[Vec<PoseError>]) -> Metrics {
     let has_att = !atts.is_empty() && atts.len() == count;
     let mean = norms.iter().sum::<f64>() / n;
     let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-    norms.sort_by(f64::total_cmp);
     Metrics {
         poses: count,
         position_mean_mm: mean,
-        position_max_mm: norms.last().copied().unwrap_or(0.0),
+        position_max_mm: norms.iter().copied().fold(0.0, f64::max),
         position_rms_mm: rms,
-        position_p95_mm: percentile(&norms, 95.0),
+        position_p95_mm: percentile(&mut norms, 95.0),
         position_axial_mean_mm: axial_mean,
         position_axial_max_mm: axial_max,
         attitude_mean_rad: has_att.then(|| atts.iter().sum::<f64>() / atts.len() as f64),
@@ -184,11 +194,45 @@ fn summarize(parts: &[Vec<PoseError>]) -> Metrics {
 mod tests {
     use super::*;
 
+    /// The percentile of sorted values, interpolated as [`percentile`] does.
+    fn of_sorted(sorted: &[f64], pct: f64) -> f64 {
+        let x = pct / 100.0 * (sorted.len() - 1) as f64;
+        let (lo, hi) = (x.floor() as usize, x.ceil() as usize);
+        sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+    }
+
+    #[test]
+    fn percentile_by_selection_is_percentile_of_the_sorted() {
+        let mut state = 12345u64;
+        for n in [1, 2, 3, 7, 20, 101, 1000] {
+            let v: Vec<f64> = (0..n)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (state >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .collect();
+            let mut sorted = v.clone();
+            sorted.sort_by(f64::total_cmp);
+            for pct in [0.0, 50.0, 95.0, 99.9, 100.0] {
+                let mut work = v.clone();
+                let got = percentile(&mut work, pct);
+                assert_eq!(
+                    got.to_bits(),
+                    of_sorted(&sorted, pct).to_bits(),
+                    "{n} {pct}"
+                );
+            }
+        }
+        assert!(percentile(&mut [], 95.0).is_nan());
+    }
+
     #[test]
     fn percentile_interpolates() {
-        let v = [1.0, 2.0, 3.0, 4.0, 5.0];
-        assert_eq!(percentile(&v, 50.0), 3.0);
-        assert_eq!(percentile(&v, 100.0), 5.0);
-        assert!((percentile(&v, 95.0) - 4.8).abs() < 1e-12);
+        let v = [5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v.clone(), 50.0), 3.0);
+        assert_eq!(percentile(&mut v.clone(), 100.0), 5.0);
+        assert!((percentile(&mut v.clone(), 95.0) - 4.8).abs() < 1e-12);
     }
 }

@@ -121,8 +121,9 @@ pub(crate) struct Folder {
     cap: usize,
     /// Rows in the block.
     rows: usize,
-    /// The block's rows `[J r]` (held columns, then the residual), row after row; read as a
-    /// column-major matrix it is `[J r]ᵀ`.
+    /// Room for a block of rows `[J r 0]` (held columns, the residual, zeros), row after row;
+    /// the first `rows` read as a column-major matrix are `[J r]ᵀ`. The zeros past the residual
+    /// are never written, so the room is zeroed once, not per block.
     block: Vec<f64>,
     /// `[J r]ᵀ[J r]` summed over the folded blocks.
     gram: DMatrix<f64>,
@@ -137,7 +138,7 @@ impl Folder {
             k,
             cap,
             rows: 0,
-            block: Vec::with_capacity(cap * stride),
+            block: vec![0.0; cap * stride],
             gram: DMatrix::zeros(stride, stride),
         }
     }
@@ -148,25 +149,26 @@ impl Folder {
         self.gram.nrows()
     }
 
-    /// Room for `rows` (≤ the block size) more rows `[J r 0]`, zeroed, each
-    /// [`stride`](Self::stride) entries: the Jacobian over the held columns, the residual at
-    /// index `cols.len()`.
+    /// Room for `rows` (≤ the block size) more rows `[J r 0]`, each
+    /// [`stride`](Self::stride) entries: the caller writes every row's Jacobian over the held
+    /// columns and its residual at index `cols.len()` (they hold an earlier block's values);
+    /// the entries after the residual are zero.
     pub fn rows(&mut self, rows: usize) -> &mut [f64] {
         if self.rows + rows > self.cap {
             self.flush();
         }
-        let start = self.block.len();
-        self.block.resize(start + rows * self.stride(), 0.0);
+        let stride = self.stride();
+        let start = self.rows * stride;
         self.rows += rows;
-        &mut self.block[start..]
+        &mut self.block[start..self.rows * stride]
     }
 
     fn flush(&mut self) {
         if self.rows > 0 {
-            let m = DMatrixView::from_slice(&self.block, self.stride(), self.rows);
+            let filled = &self.block[..self.rows * self.stride()];
+            let m = DMatrixView::from_slice(filled, self.stride(), self.rows);
             self.gram.gemm(1.0, &m, &m.transpose(), 1.0);
         }
-        self.block.clear();
         self.rows = 0;
     }
 
