@@ -1,14 +1,16 @@
 //! Criterion benchmark of `cellcal identify`'s whole pipeline from the file, and of its phases,
 //! on a 10 000-pose OP data set (all poses ident, as `cellcal simulate-data --poses 10000
-//! --ident 10000` writes it): read + parse, split + convert, identify, the metrics before and
-//! after, and the whole of it (`calibrate` from the file). Run with
+//! --ident 10000` writes it, rotation columns included): read + parse (`read_csv`, as the
+//! command reads it), split + convert (`split_measured`), identify (its joint table included),
+//! the metrics before and after (from the shared joint table, as `calibrate` does), and the
+//! whole of it (`calibrate` on the rows `read_csv` reads). Run with
 //! `cargo bench --bench pipeline`.
 
 use std::hint::black_box;
 use std::path::Path;
 
 use cellcal::analysis::metrics::evaluate_pair;
-use cellcal::dataset::{parse_csv, split_measured, write_csv, Required};
+use cellcal::dataset::{read_csv, split_measured, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, JointTrig, ObsConfig, ObsModel};
 use cellcal::model::{parse_robot, RobotModel};
@@ -20,6 +22,7 @@ const POSES: usize = 10_000;
 const OP: Required = Required {
     p2: true,
     rotation: false,
+    rotation_unused: true,
 };
 
 fn tx60() -> RobotModel {
@@ -58,17 +61,14 @@ fn bench_pipeline(c: &mut Criterion) {
         solver: Options::default(),
         practical: Default::default(),
     };
-    let read = || std::fs::read_to_string(&path).expect("read");
-    let text = read();
-    let rows = parse_csv(&text, 6, OP).expect("parse");
+    let read = || read_csv(&path, 6, OP).expect("read").1;
+    let rows = read();
     let (ident, _) = split_measured(&rows, ObsModel::Op, 10.0).expect("convert");
     let id = identify(&robot, &ident, &opts).expect("identify");
 
     let mut g = c.benchmark_group("pipeline_op_10k");
     g.sample_size(20);
-    g.bench_function("read_parse", |b| {
-        b.iter(|| parse_csv(black_box(&read()), 6, OP).expect("parse"))
-    });
+    g.bench_function("read_parse", |b| b.iter(read));
     g.bench_function("split_convert", |b| {
         b.iter(|| split_measured(black_box(&rows), ObsModel::Op, 10.0).expect("convert"))
     });
@@ -83,10 +83,7 @@ fn bench_pipeline(c: &mut Criterion) {
         })
     });
     g.bench_function("whole_from_file", |b| {
-        b.iter(|| {
-            let rows = parse_csv(&read(), 6, OP).expect("parse");
-            calibrate(&robot, &rows, &opts, 10.0).expect("calibrate")
-        })
+        b.iter(|| calibrate(&robot, &read(), &opts, 10.0).expect("calibrate"))
     });
     g.finish();
 }

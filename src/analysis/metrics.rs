@@ -39,38 +39,48 @@ pub struct Metrics {
     pub attitude_rms_rad: Option<f64>,
 }
 
-/// Percentile (0..=100) by linear interpolation of sorted values.
-fn percentile(sorted: &[f64], pct: f64) -> f64 {
-    if sorted.is_empty() {
+/// Percentile (0..=100) of values in any order (reordered in place), by linear interpolation
+/// between the two order statistics around it, found by selection rather than a sort.
+fn percentile(values: &mut [f64], pct: f64) -> f64 {
+    if values.is_empty() {
         return f64::NAN;
     }
-    let x = pct / 100.0 * (sorted.len() - 1) as f64;
-    let lo = x.floor() as usize;
-    let hi = x.ceil() as usize;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+    let x = pct / 100.0 * (values.len() - 1) as f64;
+    let (lo, hi) = (x.floor() as usize, x.ceil() as usize);
+    let (_, &mut at_lo, above) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let at_hi = if hi > lo {
+        above
+            .iter()
+            .copied()
+            .min_by(f64::total_cmp)
+            .unwrap_or(at_lo)
+    } else {
+        at_lo
+    };
+    at_lo + (at_hi - at_lo) * (x - lo as f64)
 }
 
+/// One pose's position error (mm) and attitude error (rad, where measured).
+type PoseError = (Vector3<f64>, Option<f64>);
+
 /// Position and attitude errors per pose.
-pub fn pose_errors(
-    model: &RobotModel,
-    poses: &[Measured],
-    cfg: &ObsConfig,
-) -> Vec<(Vector3<f64>, Option<f64>)> {
-    let [errors] = errors_of([model], poses, None, cfg);
-    errors
+pub fn pose_errors(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Vec<PoseError> {
+    let [parts] = errors_of([model], poses, None, cfg);
+    parts.concat()
 }
 
 /// [`pose_errors`] of `N` models on the same poses: each pose's joint sines and cosines once
 /// for all models (from `trig`, the poses' [`JointTrig`], when given), each model's chain in
 /// the measurement frame into reused frames (no allocation per pose, the twists' sines once
 /// per model), over two fixed halves of the poses on two threads ([`split_map`]), so the
-/// errors are the same bit for bit on any machine.
+/// errors are the same bit for bit on any machine. Per model, the errors of each half in
+/// order (not joined: the metrics read them where they are).
 fn errors_of<const N: usize>(
     models: [&RobotModel; N],
     poses: &[Measured],
     trig: Option<&JointTrig>,
     cfg: &ObsConfig,
-) -> [Vec<(Vector3<f64>, Option<f64>)>; N] {
+) -> [Vec<Vec<PoseError>>; N] {
     let bases = models.map(|m| Pose {
         r: m.base_rotation,
         p: m.base_translation,
@@ -99,7 +109,13 @@ fn errors_of<const N: usize>(
         }
         out
     });
-    std::array::from_fn(|k| parts.iter().flat_map(|p| p[k].iter().copied()).collect())
+    let mut per_model: [Vec<Vec<PoseError>>; N] = std::array::from_fn(|_| Vec::new());
+    for part in parts {
+        for (k, errors) in part.into_iter().enumerate() {
+            per_model[k].push(errors);
+        }
+    }
+    per_model
 }
 
 /// The attitude error of one pose given the modelled flange rotation `r` (measurement frame).
@@ -112,13 +128,15 @@ fn attitude(m: &Measured, r: &Matrix3<f64>, cfg: &ObsConfig) -> Option<f64> {
         }),
         ObsModel::Full => m
             .rotation
+            .as_deref()
             .map(|meas| to_rotation_vector(&(meas * r.transpose())).norm()),
     }
 }
 
 /// Metrics of `model` on `poses`.
 pub fn evaluate(model: &RobotModel, poses: &[Measured], cfg: &ObsConfig) -> Metrics {
-    summarize(&pose_errors(model, poses, cfg))
+    let [parts] = errors_of([model], poses, None, cfg);
+    summarize(&parts)
 }
 
 /// Metrics of two models on the same poses (as [`evaluate`] gives each) in one pass: the
@@ -138,29 +156,31 @@ pub fn evaluate_pair(
     (summarize(&ea), summarize(&eb))
 }
 
-/// The metrics of per-pose position and attitude errors.
-fn summarize(errs: &[(Vector3<f64>, Option<f64>)]) -> Metrics {
-    let n = errs.len().max(1) as f64;
-    let mut norms: Vec<f64> = errs.iter().map(|(e, _)| e.norm()).collect();
+/// The metrics of per-pose position and attitude errors, given in consecutive parts.
+fn summarize(parts: &[Vec<PoseError>]) -> Metrics {
+    let errs = || parts.iter().flatten();
+    let count = parts.iter().map(Vec::len).sum::<usize>();
+    let n = count.max(1) as f64;
+    let mut norms: Vec<f64> = Vec::with_capacity(count);
+    norms.extend(errs().map(|(e, _)| e.norm()));
     let mut axial_mean = [0.0; 3];
     let mut axial_max = [0.0f64; 3];
-    for (e, _) in errs {
+    for (e, _) in errs() {
         for k in 0..3 {
             axial_mean[k] += e[k].abs() / n;
             axial_max[k] = axial_max[k].max(e[k].abs());
         }
     }
-    let atts: Vec<f64> = errs.iter().filter_map(|(_, a)| *a).collect();
-    let has_att = !atts.is_empty() && atts.len() == errs.len();
+    let atts: Vec<f64> = errs().filter_map(|(_, a)| *a).collect();
+    let has_att = !atts.is_empty() && atts.len() == count;
     let mean = norms.iter().sum::<f64>() / n;
     let rms = (norms.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-    norms.sort_by(f64::total_cmp);
     Metrics {
-        poses: errs.len(),
+        poses: count,
         position_mean_mm: mean,
-        position_max_mm: norms.last().copied().unwrap_or(0.0),
+        position_max_mm: norms.iter().copied().fold(0.0, f64::max),
         position_rms_mm: rms,
-        position_p95_mm: percentile(&norms, 95.0),
+        position_p95_mm: percentile(&mut norms, 95.0),
         position_axial_mean_mm: axial_mean,
         position_axial_max_mm: axial_max,
         attitude_mean_rad: has_att.then(|| atts.iter().sum::<f64>() / atts.len() as f64),
@@ -174,11 +194,45 @@ fn summarize(errs: &[(Vector3<f64>, Option<f64>)]) -> Metrics {
 mod tests {
     use super::*;
 
+    /// The percentile of sorted values, interpolated as [`percentile`] does.
+    fn of_sorted(sorted: &[f64], pct: f64) -> f64 {
+        let x = pct / 100.0 * (sorted.len() - 1) as f64;
+        let (lo, hi) = (x.floor() as usize, x.ceil() as usize);
+        sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+    }
+
+    #[test]
+    fn percentile_by_selection_is_percentile_of_the_sorted() {
+        let mut state = 12345u64;
+        for n in [1, 2, 3, 7, 20, 101, 1000] {
+            let v: Vec<f64> = (0..n)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (state >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .collect();
+            let mut sorted = v.clone();
+            sorted.sort_by(f64::total_cmp);
+            for pct in [0.0, 50.0, 95.0, 99.9, 100.0] {
+                let mut work = v.clone();
+                let got = percentile(&mut work, pct);
+                assert_eq!(
+                    got.to_bits(),
+                    of_sorted(&sorted, pct).to_bits(),
+                    "{n} {pct}"
+                );
+            }
+        }
+        assert!(percentile(&mut [], 95.0).is_nan());
+    }
+
     #[test]
     fn percentile_interpolates() {
-        let v = [1.0, 2.0, 3.0, 4.0, 5.0];
-        assert_eq!(percentile(&v, 50.0), 3.0);
-        assert_eq!(percentile(&v, 100.0), 5.0);
-        assert!((percentile(&v, 95.0) - 4.8).abs() < 1e-12);
+        let v = [5.0, 1.0, 4.0, 2.0, 3.0];
+        assert_eq!(percentile(&mut v.clone(), 50.0), 3.0);
+        assert_eq!(percentile(&mut v.clone(), 100.0), 5.0);
+        assert!((percentile(&mut v.clone(), 95.0) - 4.8).abs() < 1e-12);
     }
 }

@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
 use cellcal::dataset::{
-    parse_csv, parse_setup_header, parse_stage_axis, parse_vec3, CsvSetup, Observation, Required,
+    parse_stage_axis, parse_vec3, read_csv, read_text, CsvSetup, Observation, ReadError, Required,
 };
 use cellcal::identify::solver::{Options, DEFAULT_MAX_ITERATIONS};
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
@@ -138,7 +138,8 @@ struct Source {
     origin: String,
     /// Names the rows in error messages.
     label: String,
-    /// Where the data and the nominal model come from, for a corrected model's header.
+    /// Where the data and the nominal model come from, for a corrected model's header (empty
+    /// from a CSV without --model-out, which needs none).
     provenance: Vec<String>,
     /// The setup holds a registered base.
     registered_base: bool,
@@ -241,36 +242,43 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
         .as_deref()
         .ok_or_else(|| input(anyhow!("--data needs --robot")))?;
     let robot = load_robot(robot_path).map_err(input)?;
-    let robot_text = std::fs::read_to_string(robot_path)
-        .with_context(|| format!("{}: cannot read", robot_path.display()))
-        .map_err(input)?;
     let model = a
         .model
         .ok_or_else(|| input(anyhow!("--data needs --model")))?
         .model();
-    let text = std::fs::read_to_string(data)
-        .with_context(|| format!("{}: cannot read", data.display()))
-        .map_err(input)?;
     let label = data.display().to_string();
-    let setup = parse_setup_header(&text)
-        .with_context(|| label.clone())
-        .map_err(input)?;
-    let required = Required {
-        p2: matches!(model, ObsModel::Np | ObsModel::Op),
-        rotation: model == ObsModel::Full,
+    let (setup, rows) = match read_csv(data, robot.dof(), Required::for_model(model)) {
+        Ok(read) => read,
+        Err(ReadError::Io(e)) => {
+            let e = anyhow::Error::new(e).context(format!("{}: cannot read", data.display()));
+            return Err(input(e));
+        }
+        Err(ReadError::Csv(e)) => return Err(input(anyhow::Error::new(e).context(label))),
     };
-    let rows = parse_csv(&text, robot.dof(), required)
-        .with_context(|| label.clone())
-        .map_err(input)?;
-    let provenance = vec![
-        format!("Data: {}", file_id(data, &text)),
-        format!("Nominal model: {}", file_id(robot_path, &robot_text)),
-    ];
+    // the files' digests, for a corrected model's header and the report only (the text is not
+    // kept: read again)
+    let text = || {
+        read_text(data)
+            .with_context(|| format!("{}: cannot read", data.display()))
+            .map_err(input)
+    };
+    let provenance = match &a.model_out {
+        None => Vec::new(),
+        Some(_) => {
+            let robot_text = std::fs::read_to_string(robot_path)
+                .with_context(|| format!("{}: cannot read", robot_path.display()))
+                .map_err(input)?;
+            vec![
+                format!("Data: {}", file_id(data, &text()?)),
+                format!("Nominal model: {}", file_id(robot_path, &robot_text)),
+            ]
+        }
+    };
     let mut report = ReportContext::default();
     if a.report.is_some() {
         report.inputs = vec![
             file_digest("robot model file", robot_path)?,
-            InputDigest::of("measurement CSV", &label, text.as_bytes()),
+            InputDigest::of("measurement CSV", &label, text()?.as_bytes()),
         ];
     }
     Ok(Source {

@@ -2,6 +2,7 @@
 
 use super::csv_format::{Observation, PoseSet};
 use crate::identify::observation::{Measured, ObsModel};
+use crate::identify::problem::{join_parts, split_map};
 use crate::model::rotation::project_so3;
 
 /// A row that cannot serve the chosen model.
@@ -49,29 +50,43 @@ pub fn to_measured(
     model: ObsModel,
     travel_mm: f64,
 ) -> Result<Vec<Measured>, ConvertError> {
-    measured_all(rows.iter(), model, travel_mm)
+    measured_all(rows.iter(), rows.len(), model, travel_mm)
 }
 
 /// The identification and the verification rows (file order kept), each converted as
 /// [`to_measured`] does ([`split`] then [`to_measured`], without copying the rows; the first
-/// unusable identification row is reported before any verification row).
+/// unusable identification row is reported before any verification row); two halves of the
+/// rows on two threads ([`split_map`]), the first half's vectors with room for all.
 pub fn split_measured(
     rows: &[Observation],
     model: ObsModel,
     travel_mm: f64,
 ) -> Result<(Vec<Measured>, Vec<Measured>), ConvertError> {
-    let of =
-        |set: PoseSet| measured_all(rows.iter().filter(move |o| o.set == set), model, travel_mm);
-    Ok((of(PoseSet::Ident)?, of(PoseSet::Verify)?))
+    let halves = split_map(rows.len(), |r| {
+        let part = &rows[r.clone()];
+        let room = |set: PoseSet| {
+            let counted = if r.start == 0 { rows } else { part };
+            counted.iter().filter(|o| o.set == set).count()
+        };
+        let of = |set: PoseSet| {
+            let these = part.iter().filter(move |o| o.set == set);
+            measured_all(these, room(set), model, travel_mm)
+        };
+        (of(PoseSet::Ident), of(PoseSet::Verify))
+    });
+    let (ident, verify): (Vec<_>, Vec<_>) = halves.into_iter().unzip();
+    Ok((join_parts(ident)?, join_parts(verify)?))
 }
 
-/// The rows `rows` converted for `model`, into a vector of their number (no regrowth).
+/// The rows `rows` converted for `model`, into a vector with room for `room` (no regrowth when
+/// that is their number or more).
 fn measured_all<'a>(
-    rows: impl Iterator<Item = &'a Observation> + Clone,
+    rows: impl Iterator<Item = &'a Observation>,
+    room: usize,
     model: ObsModel,
     travel_mm: f64,
 ) -> Result<Vec<Measured>, ConvertError> {
-    let mut out = Vec::with_capacity(rows.clone().count());
+    let mut out = Vec::with_capacity(room);
     for o in rows {
         out.push(measured(o, model, travel_mm)?);
     }
@@ -103,7 +118,7 @@ fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured
         }
     }
     // only the full model uses the rotation: spare the others its projection (an SVD)
-    if let Some(r) = o.rotation.filter(|_| model == ObsModel::Full) {
+    if let Some(r) = o.rotation.as_deref().filter(|_| model == ObsModel::Full) {
         let dev = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
         if dev > 0.1 {
             return Err(ConvertError::NotRotation {
@@ -112,7 +127,7 @@ fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured
                 deviation: dev,
             });
         }
-        m.rotation = Some(project_so3(&r));
+        m.rotation = Some(Box::new(project_so3(r)));
     }
     let missing = match model {
         ObsModel::Np | ObsModel::Op if m.direction.is_none() => Some("p2_x, p2_y, p2_z"),
@@ -133,4 +148,60 @@ fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured
 /// Split rows into identification and verification sets (file order kept).
 pub fn split(rows: &[Observation]) -> (Vec<Observation>, Vec<Observation>) {
     rows.iter().cloned().partition(|o| o.set == PoseSet::Ident)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn row(i: usize, set: PoseSet, travel_mm: f64) -> Observation {
+        let p1 = Vector3::new(i as f64, 2.0, 3.0);
+        Observation {
+            line: i + 2,
+            id: i.to_string(),
+            set,
+            q: vec![0.1 * i as f64; 6],
+            p1,
+            p2: Some(p1 + Vector3::new(0.0, travel_mm, 0.0)),
+            rotation: None,
+        }
+    }
+
+    #[test]
+    fn split_measured_is_split_then_to_measured() {
+        let sets = [
+            PoseSet::Verify,
+            PoseSet::Ident,
+            PoseSet::Ident,
+            PoseSet::Verify,
+        ];
+        // one part, and two halves on two threads
+        for n in [12, 600] {
+            let mut rows: Vec<Observation> = (0..n).map(|i| row(i, sets[i % 4], 10.0)).collect();
+            let (i, v) = split(&rows);
+            let want = (
+                to_measured(&i, ObsModel::Op, 10.0).unwrap(),
+                to_measured(&v, ObsModel::Op, 10.0).unwrap(),
+            );
+            assert_eq!(split_measured(&rows, ObsModel::Op, 10.0).unwrap(), want);
+            // an unusable identification row is reported before an earlier verification row
+            let late = n - 6;
+            rows[0] = row(0, PoseSet::Verify, 30.0);
+            rows[late] = row(late, PoseSet::Ident, 30.0);
+            let e = split_measured(&rows, ObsModel::Op, 10.0).unwrap_err();
+            let line = late + 2;
+            assert!(
+                matches!(e, ConvertError::BadTravel { line: l, .. } if l == line),
+                "{e:?}"
+            );
+            // and the first of two in file order
+            rows[5] = row(5, PoseSet::Ident, 30.0);
+            let e = split_measured(&rows, ObsModel::Op, 10.0).unwrap_err();
+            assert!(
+                matches!(e, ConvertError::BadTravel { line: 7, .. }),
+                "{e:?}"
+            );
+        }
+    }
 }

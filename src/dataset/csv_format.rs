@@ -16,7 +16,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::identify::problem::split_map;
+use crate::identify::observation::ObsModel;
+use crate::identify::problem::{join_parts, split_map};
 
 /// Identification or verification set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -52,8 +53,9 @@ pub struct Observation {
     pub p1: Vector3<f64>,
     /// Ball at stage position P2 (mm), if measured.
     pub p2: Option<Vector3<f64>>,
-    /// Measured flange rotation (columns n, o, a), if measured.
-    pub rotation: Option<Matrix3<f64>>,
+    /// Measured flange rotation (columns n, o, a), if measured (boxed: most data sets have
+    /// none, and a row without one stays small).
+    pub rotation: Option<Box<Matrix3<f64>>>,
 }
 
 /// A CSV problem, naming the line, column or value.
@@ -288,10 +290,25 @@ pub struct Required {
     pub p2: bool,
     /// Require `n_* o_* a_*`.
     pub rotation: bool,
+    /// The caller reads no rotation: `n_* o_* a_*` cells, when present, are checked to be
+    /// finite numbers as ever, but not converted (`Observation::rotation` stays `None`).
+    pub rotation_unused: bool,
+}
+
+impl Required {
+    /// What the identification with `model` reads: P2 for NP and OP, the rotation for the full
+    /// model and for it alone (the others leave the rotation cells unconverted).
+    pub fn for_model(model: ObsModel) -> Required {
+        Required {
+            p2: matches!(model, ObsModel::Np | ObsModel::Op),
+            rotation: model == ObsModel::Full,
+            rotation_unused: model != ObsModel::Full,
+        }
+    }
 }
 
 /// The columns of the fields a data set needs, found by name in its header.
-struct Columns {
+pub(super) struct Columns {
     /// Lower-case, trimmed column names (for error messages).
     names: Vec<String>,
     set: usize,
@@ -300,6 +317,8 @@ struct Columns {
     p1: [usize; 3],
     p2: Option<Vec<usize>>,
     rotation: Option<Vec<usize>>,
+    /// Check the rotation cells but keep no rotation ([`Required::rotation_unused`]).
+    rotation_unused: bool,
 }
 
 impl Columns {
@@ -338,6 +357,7 @@ impl Columns {
             p1,
             p2,
             rotation,
+            rotation_unused: required.rotation_unused,
             names,
         })
     }
@@ -372,8 +392,21 @@ impl Columns {
     /// `csv` crate reads such a text the same, and slower).
     fn plain_rows(&self, text: &str, lines_before: usize) -> Result<Vec<Observation>, CsvError> {
         let mut out = Vec::with_capacity(text.len() / 64);
+        self.push_plain_rows(text, lines_before, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`plain_rows`](Self::plain_rows) pushed onto `out`; the number of line ends in `text`.
+    pub(super) fn push_plain_rows(
+        &self,
+        text: &str,
+        lines_before: usize,
+        out: &mut Vec<Observation>,
+    ) -> Result<usize, CsvError> {
         let mut fields: Vec<&str> = Vec::with_capacity(self.names.len());
+        let mut line_ends = 0;
         for (i, raw) in text.split('\n').enumerate() {
+            line_ends = i;
             let record = raw.strip_suffix('\r').unwrap_or(raw);
             if record.is_empty() || record.starts_with('#') {
                 continue;
@@ -381,7 +414,7 @@ impl Columns {
             split_fields(record, &mut fields);
             out.push(self.observation(&fields, lines_before + i + 1)?);
         }
-        Ok(out)
+        Ok(line_ends)
     }
 
     /// The observation in the fields of one record (line `line`).
@@ -440,12 +473,20 @@ impl Columns {
         }
         let p2 = self.p2.as_deref().map(vec3).transpose()?;
         let rotation = match &self.rotation {
+            Some(cols) if self.rotation_unused => {
+                for &c in cols {
+                    if !plainly_finite(field(c)) {
+                        num(c)?;
+                    }
+                }
+                None
+            }
             Some(cols) => {
                 let mut m = [0.0; 9];
                 for (v, &c) in m.iter_mut().zip(cols) {
                     *v = num(c)?;
                 }
-                Some(Matrix3::from_column_slice(&m))
+                Some(Box::new(Matrix3::from_column_slice(&m)))
             }
             None => None,
         };
@@ -465,9 +506,34 @@ impl Columns {
 ///
 /// The header row by the `csv` crate; the data rows, when none is quoted ([`plain`]), split by
 /// hand with no allocation per row beyond the row's own `Observation`, in two halves on two
-/// threads ([`split_map`]; same rows, line numbers and first error as one pass), else by the
-/// `csv` crate in one pass.
+/// threads ([`split_map`]; same rows, line numbers and first error as one pass; each half
+/// checks its own plainness), else by the `csv` crate in one pass.
 pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Observation>, CsvError> {
+    let (cols, body_start, lines_before) = header(text, dof, required)?;
+    let body = &text[body_start..];
+    // each half checks itself (a half of a plain text is plain, and a text of plain halves)
+    let halves = split_map(body.len(), |r| {
+        let (start, end) = (line_start(body, r.start), line_start(body, r.end));
+        let part = &body[start..end];
+        plain(part).then(|| {
+            let before = lines_before + newlines(&body.as_bytes()[..start]);
+            cols.plain_rows(part, before)
+        })
+    });
+    let parts = match halves.into_iter().collect::<Option<Vec<_>>>() {
+        Some(parts) => parts,
+        None => vec![cols.quoted_rows(body, lines_before)],
+    };
+    finish(&cols, join_parts(parts)?)
+}
+
+/// The columns of the header row of `text` (by the `csv` crate, after any comment lines), the
+/// byte offset where the data rows begin, and the number of lines before it.
+pub(super) fn header(
+    text: &str,
+    dof: usize,
+    required: Required,
+) -> Result<(Columns, usize, usize), CsvError> {
     let mut rdr = reader(text);
     let headers = rdr.headers().map_err(|e| CsvError::Malformed {
         line: 1,
@@ -481,24 +547,20 @@ pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Obser
         .map(|h| h.trim().to_ascii_lowercase())
         .collect();
     let cols = Columns::find(names, dof, required)?;
-    let body_start = usize::try_from(rdr.position().byte()).unwrap_or(text.len());
-    let body = text.get(body_start..).unwrap_or("");
-    let lines_before = newlines(&text.as_bytes()[..text.len() - body.len()]);
-    let parts = if plain(body) {
-        split_map(body.len(), |r| {
-            let (start, end) = (line_start(body, r.start), line_start(body, r.end));
-            let before = lines_before + newlines(&body.as_bytes()[..start]);
-            cols.plain_rows(&body[start..end], before)
-        })
-    } else {
-        vec![cols.quoted_rows(body, lines_before)]
-    };
-    // the parts in order, into the first one's room (no copy of the first)
-    let mut parts = parts.into_iter();
-    let mut out = parts.next().unwrap_or_else(|| Ok(Vec::new()))?;
-    for part in parts {
-        out.extend(part?);
-    }
+    let body_start = usize::try_from(rdr.position().byte())
+        .ok()
+        .filter(|&b| text.is_char_boundary(b))
+        .unwrap_or(text.len());
+    let lines_before = newlines(&text.as_bytes()[..body_start]);
+    Ok((cols, body_start, lines_before))
+}
+
+/// The data set's rows from the rows read: an error when there are none; numbered ids when
+/// there is no `pose` column.
+pub(super) fn finish(
+    cols: &Columns,
+    mut out: Vec<Observation>,
+) -> Result<Vec<Observation>, CsvError> {
     if out.is_empty() {
         return Err(CsvError::NoRows);
     }
@@ -512,24 +574,78 @@ pub fn parse_csv(text: &str, dof: usize, required: Required) -> Result<Vec<Obser
 
 /// Whether `text` needs no CSV unquoting: no `"`, and every `\r` ends a line (`\r\n`), so
 /// every record is one line ([`Columns::plain_rows`]).
-fn plain(text: &str) -> bool {
+pub(super) fn plain(text: &str) -> bool {
     !text.contains('"')
         && text
             .match_indices('\r')
             .all(|(i, _)| text.as_bytes().get(i + 1) == Some(&b'\n'))
 }
 
-/// The comma-separated fields of one unquoted record into `out` (cleared first).
+/// The comma-separated fields of one unquoted record into `out` (cleared first): eight bytes
+/// at a time, each word's commas found at once (exactly: no carry between its bytes).
 fn split_fields<'a>(record: &'a str, out: &mut Vec<&'a str>) {
+    const LOW7: u64 = 0x7f7f_7f7f_7f7f_7f7f;
+    const COMMAS: u64 = 0x2c2c_2c2c_2c2c_2c2c;
     out.clear();
+    let bytes = record.as_bytes();
     let mut start = 0;
-    for (i, &b) in record.as_bytes().iter().enumerate() {
+    let words = bytes.chunks_exact(8);
+    let tail = words.remainder();
+    for (w, word) in words.enumerate() {
+        let x = u64::from_le_bytes([
+            word[0], word[1], word[2], word[3], word[4], word[5], word[6], word[7],
+        ]) ^ COMMAS;
+        // the high bit of each byte that was a comma
+        let mut commas = !(((x & LOW7) + LOW7) | x | LOW7);
+        while commas != 0 {
+            let at = 8 * w + commas.trailing_zeros() as usize / 8;
+            out.push(&record[start..at]);
+            start = at + 1;
+            commas &= commas - 1;
+        }
+    }
+    let base = bytes.len() - tail.len();
+    for (i, &b) in tail.iter().enumerate() {
         if b == b',' {
-            out.push(&record[start..i]);
-            start = i + 1;
+            out.push(&record[start..base + i]);
+            start = base + i + 1;
         }
     }
     out.push(&record[start..]);
+}
+
+/// Whether `s` is spelled as a decimal number that `f64` parsing takes to a finite value: a
+/// sign, digits with at most one point (at least one digit, at most 200 before the point), an
+/// exponent of one or two digits. Never true where the parse fails or overflows; false for
+/// some finite spellings too (a long exponent), which the caller then parses.
+fn plainly_finite(s: &str) -> bool {
+    let b = s.as_bytes();
+    let mut i = usize::from(matches!(b.first(), Some(b'+' | b'-')));
+    let digits = |i: &mut usize| {
+        let start = *i;
+        while b.get(*i).is_some_and(u8::is_ascii_digit) {
+            *i += 1;
+        }
+        *i - start
+    };
+    let int = digits(&mut i);
+    let frac = if b.get(i) == Some(&b'.') {
+        i += 1;
+        digits(&mut i)
+    } else {
+        0
+    };
+    if int + frac == 0 || int > 200 {
+        return false;
+    }
+    if matches!(b.get(i), Some(b'e' | b'E')) {
+        i += 1;
+        i += usize::from(matches!(b.get(i), Some(b'+' | b'-')));
+        if !(1..=2).contains(&digits(&mut i)) {
+            return false;
+        }
+    }
+    i == b.len()
 }
 
 /// `field.trim()`, without its character walk when the field starts and ends in visible ASCII.
@@ -544,8 +660,12 @@ fn trim_field(field: &str) -> &str {
 }
 
 /// The number of line ends in `bytes`.
-fn newlines(bytes: &[u8]) -> usize {
-    bytes.iter().filter(|&&b| b == b'\n').count()
+pub(super) fn newlines(bytes: &[u8]) -> usize {
+    // byte-wide counts of at most 255 (which the compiler keeps in vector lanes)
+    bytes
+        .chunks(255)
+        .map(|c| usize::from(c.iter().map(|&b| u8::from(b == b'\n')).sum::<u8>()))
+        .sum()
 }
 
 /// A CSV reader of `text` with `#` comments, records of any length (checked by
@@ -612,7 +732,7 @@ pub fn write_csv(obs: &[Observation], dof: usize, comment: &str) -> String {
         if let (true, Some(p2)) = (with_p2, o.p2) {
             cells.extend(p2.iter().map(|v| format!("{v:?}")));
         }
-        if let (true, Some(r)) = (with_rot, o.rotation) {
+        if let (true, Some(r)) = (with_rot, &o.rotation) {
             cells.extend(r.as_slice().iter().map(|v| format!("{v:?}")));
         }
         s.push_str(&cells.join(","));
@@ -624,6 +744,7 @@ pub fn write_csv(obs: &[Observation], dof: usize, comment: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
 
     const OK: &str =
         "# comment\nset,q1,q2,p1_x,p1_y,p1_z,pose\nident,0.1,0.2,1,2,3,a\nverify,0,0,4,5,6,b\n";
@@ -712,6 +833,20 @@ mod tests {
         let mut fields = Vec::new();
         split_fields(",a,,b ,", &mut fields);
         assert_eq!(fields, ["", "a", "", "b ", ""]);
+        // eight bytes at a time: as `str::split`, whatever the bytes around the commas
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let alphabet: Vec<char> = ",,,-+.0123456789e\t é€\u{7f}\u{ac}".chars().collect();
+        for _ in 0..5000 {
+            let len = rng.random_range(0..40);
+            let record: String = (0..len)
+                .map(|_| alphabet[rng.random_range(0..alphabet.len())])
+                .collect();
+            let mut split = Vec::new();
+            split_fields(&record, &mut split);
+            assert_eq!(split, record.split(',').collect::<Vec<_>>(), "{record:?}");
+        }
+        let text = "a\nb\n\nc,d\n".repeat(100);
+        assert_eq!(newlines(text.as_bytes()), 400);
     }
 
     #[test]
@@ -755,7 +890,7 @@ mod tests {
             2,
             Required {
                 p2: true,
-                rotation: false,
+                ..Required::default()
             },
         )
         .unwrap_err();
@@ -821,5 +956,90 @@ mod tests {
         assert_eq!(u, Vector3::new(0.6, 0.0, 0.8));
         assert!(parse_stage_axis("y").is_err());
         assert!(parse_stage_axis("1,inf,0").is_err());
+    }
+
+    /// A data set with rotation columns; `cell` replaces the `n_y` of row `bad`.
+    fn with_rotations(rows: usize, bad: usize, cell: &str) -> String {
+        let mut s = format!("set,q1,q2,p1_x,p1_y,p1_z,{}\n", ROT_COLS.join(","));
+        for i in 0..rows {
+            let (c, n) = ((0.01 * i as f64).cos(), (0.01 * i as f64).sin());
+            let n_y = if i == bad {
+                cell.to_owned()
+            } else {
+                format!("{n:?}")
+            };
+            s.push_str(&format!(
+                "ident,{i}.5,0.2,1,2,3,{c:?},{n_y},0,{:?},{c:?},0,0,0,1e0\n",
+                -n
+            ));
+        }
+        s
+    }
+
+    #[test]
+    fn unused_rotation_cells_are_checked_but_not_kept() {
+        let unused = Required {
+            rotation_unused: true,
+            ..Required::default()
+        };
+        let text = with_rotations(600, usize::MAX, "");
+        let kept = parse_csv(&text, 2, Required::default()).unwrap();
+        let skipped = parse_csv(&text, 2, unused).unwrap();
+        assert!(kept.iter().all(|o| o.rotation.is_some()));
+        let without: Vec<Observation> = kept
+            .into_iter()
+            .map(|o| Observation {
+                rotation: None,
+                ..o
+            })
+            .collect();
+        assert_eq!(skipped, without);
+        // a bad rotation cell is the same error, kept or not (in either half)
+        for bad in [3, 450] {
+            for cell in ["x", "NaN", "-inf", "1e999", "1.5.2", "", "--1"] {
+                let text = with_rotations(600, bad, cell);
+                let want = parse_csv(&text, 2, Required::default()).unwrap_err();
+                assert_eq!(parse_csv(&text, 2, unused).unwrap_err(), want, "{cell:?}");
+            }
+            // finite spellings the quick check leaves to the parse are accepted
+            for cell in ["1e-300", "+.5", "5.", " 7 "] {
+                let text = with_rotations(600, bad, cell);
+                assert_eq!(parse_csv(&text, 2, unused).unwrap().len(), 600, "{cell:?}");
+            }
+        }
+        let full = Required::for_model(ObsModel::Full);
+        assert!(full.rotation && !full.rotation_unused && !full.p2);
+        assert!(Required::for_model(ObsModel::Op).rotation_unused);
+    }
+
+    #[test]
+    fn the_quick_finite_check_never_accepts_what_the_parse_refuses() {
+        let parsed_finite = |s: &str| s.parse::<f64>().is_ok_and(f64::is_finite);
+        for s in [
+            "1", "-0.5", "+3.25", ".5", "5.", "1e5", "1E-05", "-2.5e+99", "0.000", "007",
+        ] {
+            assert!(plainly_finite(s) && parsed_finite(s), "{s:?}");
+        }
+        let long = format!("{}e99", "9".repeat(201));
+        for s in [
+            "", "+", "-", ".", "e5", "1e", "1e+", "1e100", "1e-100", "1.2.3", "1,5", " 1", "inf",
+            "NaN", "0x10", "1_0", "1e5x", "--1", "+-1", &long,
+        ] {
+            assert!(!plainly_finite(s), "{s:?}");
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let alphabet = b"0123456789+-.eE";
+        for _ in 0..20_000 {
+            let len = rng.random_range(0..9);
+            let s: String = (0..len)
+                .map(|_| alphabet[rng.random_range(0..alphabet.len())] as char)
+                .collect();
+            assert!(!plainly_finite(&s) || parsed_finite(&s), "{s:?}");
+        }
+        for v in [0.0, -1.5e-7, 123.456, f64::MAX, f64::MIN_POSITIVE, 1e-320] {
+            let (shortest, sci) = (format!("{v:?}"), format!("{v:e}"));
+            assert!(!plainly_finite(&shortest) || parsed_finite(&shortest));
+            assert!(!plainly_finite(&sci) || parsed_finite(&sci));
+        }
     }
 }

@@ -121,8 +121,9 @@ pub(crate) struct Folder {
     cap: usize,
     /// Rows in the block.
     rows: usize,
-    /// The block's rows `[J r]` (held columns, then the residual), row after row; read as a
-    /// column-major matrix it is `[J r]ᵀ`.
+    /// Room for a block of rows `[J r 0]` (held columns, the residual, zeros), row after row;
+    /// the first `rows` read as a column-major matrix are `[J r]ᵀ`. The zeros past the residual
+    /// are never written, so the room is zeroed once, not per block.
     block: Vec<f64>,
     /// `[J r]ᵀ[J r]` summed over the folded blocks.
     gram: DMatrix<f64>,
@@ -137,7 +138,7 @@ impl Folder {
             k,
             cap,
             rows: 0,
-            block: Vec::with_capacity(cap * stride),
+            block: vec![0.0; cap * stride],
             gram: DMatrix::zeros(stride, stride),
         }
     }
@@ -148,25 +149,26 @@ impl Folder {
         self.gram.nrows()
     }
 
-    /// Room for `rows` (≤ the block size) more rows `[J r 0]`, zeroed, each
-    /// [`stride`](Self::stride) entries: the Jacobian over the held columns, the residual at
-    /// index `cols.len()`.
+    /// Room for `rows` (≤ the block size) more rows `[J r 0]`, each
+    /// [`stride`](Self::stride) entries: the caller writes every row's Jacobian over the held
+    /// columns and its residual at index `cols.len()` (they hold an earlier block's values);
+    /// the entries after the residual are zero.
     pub fn rows(&mut self, rows: usize) -> &mut [f64] {
         if self.rows + rows > self.cap {
             self.flush();
         }
-        let start = self.block.len();
-        self.block.resize(start + rows * self.stride(), 0.0);
+        let stride = self.stride();
+        let start = self.rows * stride;
         self.rows += rows;
-        &mut self.block[start..]
+        &mut self.block[start..self.rows * stride]
     }
 
     fn flush(&mut self) {
         if self.rows > 0 {
-            let m = DMatrixView::from_slice(&self.block, self.stride(), self.rows);
+            let filled = &self.block[..self.rows * self.stride()];
+            let m = DMatrixView::from_slice(filled, self.stride(), self.rows);
             self.gram.gemm(1.0, &m, &m.transpose(), 1.0);
         }
-        self.block.clear();
         self.rows = 0;
     }
 
@@ -185,5 +187,47 @@ impl Folder {
         } else {
             sums.embed(&self.cols, self.k)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn folded_blocks_give_the_sums_of_the_rows() {
+        let k = 5;
+        let held = vec![0, 2, 3];
+        // 23 rows in blocks of 8: two full blocks folded, the rest at the end
+        let rows: Vec<([f64; 3], f64)> = (0..23)
+            .map(|i| {
+                let x = i as f64;
+                ([x.sin(), 0.5 * x.cos(), 1.0 - 0.01 * x], 0.1 * x - 1.0)
+            })
+            .collect();
+        let mut folder = Folder::new(held.clone(), k, 8);
+        assert_eq!(folder.stride() % GEMM_TILE, 0);
+        for (j, r) in &rows {
+            let row = folder.rows(1);
+            row[..3].copy_from_slice(j);
+            row[3] = *r;
+        }
+        let sums = folder.finish();
+        let mut want = NormalSums::zeros(k);
+        for (j, r) in &rows {
+            want.sum_sq += r * r;
+            for (a, &ca) in held.iter().enumerate() {
+                want.g[ca] += j[a] * r;
+                for (b, &cb) in held.iter().enumerate() {
+                    want.h[(ca, cb)] += j[a] * j[b];
+                }
+            }
+        }
+        assert!((sums.sum_sq - want.sum_sq).abs() <= 1e-12 * want.sum_sq);
+        assert!((&sums.g - &want.g).norm() <= 1e-12 * want.g.norm());
+        assert!((&sums.h - &want.h).norm() <= 1e-12 * want.h.norm());
+        // columns not held stay zero
+        assert_eq!(sums.g[1], 0.0);
+        assert_eq!(sums.h.row(4).norm(), 0.0);
     }
 }

@@ -119,8 +119,9 @@ pub struct Measured {
     pub p1: Vector3<f64>,
     /// Measured unit stage direction `(P2 − P1)/‖P2 − P1‖`, when P2 was measured.
     pub direction: Option<Vector3<f64>>,
-    /// Measured flange rotation (columns n, o, a), when measured.
-    pub rotation: Option<Matrix3<f64>>,
+    /// Measured flange rotation (columns n, o, a), when measured (boxed: only the full model
+    /// has one, and a pose without one stays small).
+    pub rotation: Option<Box<Matrix3<f64>>>,
     /// Relative weight of this pose (1 = nominal; from the tracker uncertainty model or IRLS).
     pub weight: f64,
 }
@@ -268,7 +269,11 @@ fn residual_jacobian_with<S: JacobianSink>(
             1
         }
         ObsModel::Full => {
-            let r = meas.rotation.unwrap_or_else(Matrix3::zeros);
+            let r = meas
+                .rotation
+                .as_deref()
+                .copied()
+                .unwrap_or_else(Matrix3::zeros);
             for (k, dir) in dirs.iter_mut().enumerate() {
                 *dir = (fl.r.column(k).into_owned(), r.column(k).into_owned());
             }
@@ -380,7 +385,7 @@ mod tests {
             q,
             p1: Vector3::new(1.0, 2.0, 3.0),
             direction: Some(Vector3::x()),
-            rotation: Some(Matrix3::identity()),
+            rotation: Some(Box::new(Matrix3::identity())),
             weight: 1.3,
         };
         let rows = model.rows();

@@ -155,6 +155,17 @@ pub fn split_map<R: Send>(n: usize, f: impl Fn(Range<usize>) -> R + Sync) -> Vec
     })
 }
 
+/// The vectors of [`split_map`]'s parts, in order, joined into the first one's room (a first
+/// part with room for all copies nothing); the first error in that order.
+pub fn join_parts<T, E>(parts: impl IntoIterator<Item = Result<Vec<T>, E>>) -> Result<Vec<T>, E> {
+    let mut parts = parts.into_iter();
+    let mut out = parts.next().unwrap_or_else(|| Ok(Vec::new()))?;
+    for part in parts {
+        out.extend(part?);
+    }
+    Ok(out)
+}
+
 /// Writes one pose's Jacobian into rows `[J r]` of a position block (all columns) and of a
 /// direction block (the columns that turn directions).
 struct BlockSink<'a> {

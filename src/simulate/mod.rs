@@ -214,7 +214,7 @@ pub fn simulate(
             q: q.clone(),
             p1,
             p2: Some(p2),
-            rotation: Some(rot),
+            rotation: Some(Box::new(rot)),
         });
     }
     Ok(SimData {

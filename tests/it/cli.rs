@@ -328,3 +328,43 @@ fn simulate_data_is_deterministic() {
     let fb = simulate(b.path(), &["--seed", "9"]);
     assert_eq!(std::fs::read(fa).expect("a"), std::fs::read(fb).expect("b"));
 }
+
+#[test]
+fn a_large_data_set_read_in_chunks_identifies_as_read_whole() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // over 1 MB: read in chunks by two readers
+    let data = simulate_poses(dir.path(), 4000, 3000, &[]);
+    let text = std::fs::read_to_string(&data).expect("csv");
+    assert!(text.len() > 1 << 20);
+    // one quoted cell: the same data, read whole by the csv crate
+    let quoted = dir.path().join("quoted.csv");
+    std::fs::write(&quoted, text.replacen(",ident,", ",\"ident\",", 1)).expect("write");
+    let report = |data: &Path, name: &str| -> Value {
+        let json = dir.path().join(name);
+        identify_json(data, "op", &json).assert().success();
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json")
+    };
+    assert_eq!(report(&data, "chunks.json"), report(&quoted, "whole.json"));
+    // a bad cell near the end: the same line named either way
+    let line = text.lines().count() - 3;
+    let bad_row = text.lines().nth(line - 1).expect("row");
+    let bad = bad_row
+        .replacen(",ident,", ",ident,x", 1)
+        .replacen(",verify,", ",verify,x", 1);
+    let message = |text: String| {
+        let (code, err) = identify_err(&text, "op");
+        assert_eq!(code, 2, "{err}");
+        err.split("bad.csv")
+            .nth(1)
+            .map(str::to_owned)
+            .expect("names the file")
+    };
+    let broken = text.replacen(bad_row, &bad, 1);
+    let whole = broken.replacen(",ident,", ",\"ident\",", 1);
+    let named = message(broken);
+    assert!(
+        named.contains(&format!("line {line}, column `q1`")),
+        "{named}"
+    );
+    assert_eq!(named, message(whole));
+}

@@ -153,11 +153,7 @@ fn ur5_grid_holds_back_what_it_does_not_determine_at_no_cost_in_rms() {
     let dir = ur5_dir();
     let robot = load_robot(&dir.join("robot.toml")).expect("robot");
     let text = std::fs::read_to_string(dir.join("grid.csv")).expect("csv");
-    let required = Required {
-        p2: false,
-        rotation: false,
-    };
-    let rows = parse_csv(&text, 6, required).expect("rows");
+    let rows = parse_csv(&text, 6, Required::default()).expect("rows");
     let mut opts = options(ObsModel::Position, Vector3::y());
     opts.identify_base = true;
     opts.identify_tool = true;

@@ -356,7 +356,7 @@ fn import_then_observations_round_trip() {
 
     // Rotations cannot be kept: refused, nothing written.
     let mut rot = rows();
-    rot[0].rotation = Some(nalgebra::Matrix3::identity());
+    rot[0].rotation = Some(Box::new(nalgebra::Matrix3::identity()));
     assert!(matches!(
         s.import_observations(&new_campaign("rot"), &rot),
         Err(StoreError::Invalid(_))
