@@ -74,16 +74,13 @@ fn iso_campaigns_on_the_simulated_cell_uncompensated_and_compensated() {
     assert!(rp < 0.1, "RP_l up to {rp} mm");
     assert!(plain.frame.contains("base registration"), "{}", plain.frame);
 
-    // the stored result, recomputed by `cellcal iso9283` from the store alone
-    let stored: IsoReport = serde_json::from_str(
-        &Store::open(&store)
-            .unwrap()
-            .latest_result(id)
-            .unwrap()
-            .expect("stored result"),
-    )
-    .unwrap();
-    assert_eq!(stored, plain);
+    // the stored result, recomputed by `cellcal iso9283` from the store alone (same text)
+    let stored = Store::open(&store)
+        .unwrap()
+        .latest_result(id)
+        .unwrap()
+        .expect("stored result");
+    assert_eq!(stored, serde_json::to_string_pretty(&plain).unwrap());
     let json = store.with_file_name("iso.json");
     let out = cellcal()
         .args(["iso9283", "--store"])
@@ -95,8 +92,7 @@ fn iso_campaigns_on_the_simulated_cell_uncompensated_and_compensated() {
     assert!(out.status.success(), "{out:?}");
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("AP_P mm") && text.contains("P5"), "{text}");
-    let again: IsoReport = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(again, plain);
+    assert_eq!(std::fs::read_to_string(&json).unwrap(), stored);
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     for key in [
