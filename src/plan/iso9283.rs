@@ -12,8 +12,9 @@
 //! reached moving the same way (unidirectional approach). The pre-pose → target leg is a joint
 //! move (MOVEJ) like every move of the cell; over `approach_mm` it stays close to the line.
 //!
-//! Joints come from the nominal model's inverse kinematics (or, compensated, from the
-//! [`Compensator`]) starting at the hub (the calibration plan's drift reference), and must stay
+//! Joints come from the nominal model's inverse kinematics by continuation from the hub (the
+//! calibration plan's drift reference: the flange pose moved to the target in steps, each solved
+//! from the previous; compensated, the [`Compensator`] from that nominal solution), and must stay
 //! on the hub's wrist side; every target and pre-pose passes [`target_ok`] and every move of the
 //! campaign has a route whose legs pass the path check.
 
