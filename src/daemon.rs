@@ -641,7 +641,7 @@ impl Daemon {
             let ctx = session.ctx;
             let mut devices = session.devices;
             let text = match run_campaign(&ctx, &mut devices).await {
-                Ok(Outcome::Done(_)) => "done".to_owned(),
+                Ok(Outcome::Done(_) | Outcome::Iso(_)) => "done".to_owned(),
                 Ok(Outcome::Aborted) => "aborted".to_owned(),
                 Ok(Outcome::Failed(r)) => format!("failed: {r}"),
                 Err(e) => format!("failed: {e}"),

@@ -17,6 +17,7 @@
 //! - [`build_info`]: the version, git commit and build date of this binary.
 //! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
 //!   program says, and the compensate CSV files.
+//! - [`iso9283`]: ISO 9283 pose accuracy and repeatability (AP, RP) from measured cycles.
 //! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
 //! - [`metrics`]: the daemon's Prometheus metrics (`GET /metrics`).
 //! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
@@ -37,6 +38,7 @@ pub mod config;
 pub mod daemon;
 pub mod dataset;
 pub mod identify;
+pub mod iso9283;
 pub mod measure;
 pub mod metrics;
 pub mod model;

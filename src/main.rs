@@ -49,6 +49,8 @@ enum Command {
     Compensate(cli::compensate::CompensateArgs),
     /// Write a stored campaign's calibration report: one self-contained HTML file with plots.
     Report(cli::report::ReportArgs),
+    /// ISO 9283 pose accuracy (AP) and repeatability (RP) of a stored ISO campaign.
+    Iso9283(cli::iso9283::Iso9283Args),
     /// Import an identify CSV as a new, fully measured campaign.
     Import(cli::import::ImportArgs),
 }
@@ -87,6 +89,7 @@ fn main() -> ExitCode {
         Command::Export(args) => cli::export::run(args),
         Command::Compensate(args) => cli::compensate::run(args),
         Command::Report(args) => cli::report::run(args),
+        Command::Iso9283(args) => cli::iso9283::run(args),
         Command::Import(args) => cli::import::run(args),
     };
     match result {

@@ -33,7 +33,9 @@ use crate::cell::{
 use crate::config::CellConfig;
 use crate::identify::solver::Options;
 use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
+use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
+use crate::plan::iso9283::IsoPlan;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
 use crate::store::{EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
@@ -77,6 +79,9 @@ pub struct CampaignContext {
     pub control: Control,
     /// What an operator fault does.
     pub on_fault: FaultPolicy,
+    /// An ISO 9283 campaign's plan (then the run ends with the ISO figures, not an
+    /// identification); `None` for a calibration campaign.
+    pub iso: Option<IsoPlan>,
 }
 
 /// How a run ended.
@@ -84,6 +89,8 @@ pub struct CampaignContext {
 pub enum Outcome {
     /// Every pose measured and identified.
     Done(Box<IdentifyReport>),
+    /// Every visit of an ISO 9283 campaign measured, its figures computed and stored.
+    Iso(Box<IsoReport>),
     /// Aborted by the operator; resumable.
     Aborted,
     /// Stopped by a fault; resumable.
@@ -102,6 +109,9 @@ pub enum CampaignError {
     /// A store task panicked or was cancelled.
     #[error("store task failed: {0}")]
     Task(String),
+    /// The ISO 9283 figures could not be computed.
+    #[error("ISO 9283 figures: {0}")]
+    Iso(String),
 }
 
 enum Stop {
@@ -540,16 +550,31 @@ impl Run<'_> {
         self.ctx.nominal.within_limits(q) && target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
     }
 
+    /// Whether a pose measures P2 too (always, except an ISO campaign with
+    /// `measure_axis = false`).
+    fn measures_axis(&self) -> bool {
+        self.ctx.cfg.iso9283.as_ref().is_none_or(|i| i.measure_axis)
+    }
+
     /// Move to a joint target after the safety checks, through the via points of its route
     /// from the robot's joints as read before each attempt (every leg passes the path check);
     /// returns the joints read after settling at the target. Every attempt re-checks that the
     /// campaign is armed; joints that settle farther than `settle_tolerance_deg` from the
     /// target count as a failed attempt. Not cancel-safe: abort stops the robot.
     async fn move_to(&mut self, q: &[f64]) -> Result<Vec<f64>, Stop> {
-        if !self.target_safe(q) {
-            return Err(Stop::Failed(format!(
-                "target {q:?} fails the joint-limit/workspace check: not sent"
-            )));
+        self.move_via(q, None).await
+    }
+
+    /// [`Run::move_to`] with an `approach` pre-pose (ISO 9283 unidirectional approach): the
+    /// route goes to the pre-pose, which passes the same target checks, and the last leg
+    /// pre-pose → target must pass the path check directly. Not cancel-safe (as `move_to`).
+    async fn move_via(&mut self, q: &[f64], approach: Option<&[f64]>) -> Result<Vec<f64>, Stop> {
+        for t in approach.into_iter().chain(std::iter::once(q)) {
+            if !self.target_safe(t) {
+                return Err(Stop::Failed(format!(
+                    "target {t:?} fails the joint-limit/workspace check: not sent"
+                )));
+            }
         }
         let max = self.ctx.cfg.robot_controller.max_attempts;
         let timeout = Duration::from_millis(self.ctx.cfg.robot_controller.settle_timeout_ms);
@@ -573,7 +598,7 @@ impl Run<'_> {
                 let robot = &mut self.dev.robot;
                 guarded(&self.ctx.control.abort, async {
                     let from = robot.joints().await?;
-                    let vias = match router.route(&from, q) {
+                    let vias = match approached_route(router, &from, approach, q) {
                         Ok(vias) => vias,
                         Err(e) => return Ok(Err(e)),
                     };
@@ -810,9 +835,18 @@ impl Run<'_> {
         s1: f64,
         s2: f64,
     ) -> Result<PoseMeasurement, Stop> {
-        let joints = self.move_to(&entry.q_rad).await?;
+        let approach = self.ctx.plan.approach.get(&entry.index).cloned();
+        let joints = self.move_via(&entry.q_rad, approach.as_deref()).await?;
         let a1 = self.stage_to(s1).await?;
         let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
+        if !self.measures_axis() {
+            return Ok(PoseMeasurement {
+                index: entry.index,
+                joints_rad: joints,
+                p1: record(&p1, a1),
+                p2: None,
+            });
+        }
         let second = async {
             let a2 = self.stage_to(s2).await?;
             let p2 = self.measure_point(Some(entry.index), &joints, a2).await?;
@@ -900,6 +934,47 @@ impl Run<'_> {
         with_operator!(self, self.check_drift(&baseline).await);
         Ok(())
     }
+}
+
+/// Via points from `from` to `q`: the route's, or, with an `approach` pre-pose, the route to
+/// the pre-pose and the pre-pose itself, whose direct move to `q` must pass the path check.
+fn approached_route(
+    router: &mut Router,
+    from: &[f64],
+    approach: Option<&[f64]>,
+    q: &[f64],
+) -> Result<Vec<Vec<f64>>, RouteError> {
+    let Some(pre) = approach else {
+        return router.route(from, q);
+    };
+    let mut vias = router.route(from, pre)?;
+    router
+        .checker()
+        .check_move(pre, q)
+        .map_err(|fault| RouteError::NoRoute {
+            end: "target",
+            fault,
+        })?;
+    if pre != from {
+        vias.push(pre.to_vec());
+    }
+    Ok(vias)
+}
+
+/// Compute the ISO 9283 figures of the stored visits and store them as the campaign result.
+pub async fn iso_stored(ctx: &CampaignContext) -> Result<IsoReport, CampaignError> {
+    let id = ctx.campaign_id;
+    let r = with_store(&ctx.store, move |s| {
+        let r = super::iso::iso_report(s, id).map_err(|e| e.to_string());
+        if let Ok(report) = &r {
+            let json = serde_json::to_string_pretty(report)
+                .map_err(|e| StoreError::Invalid(e.to_string()))?;
+            s.save_result(id, crate::store::ISO9283_KIND, &json)?;
+        }
+        Ok(r)
+    })
+    .await?;
+    r.map_err(CampaignError::Iso)
 }
 
 /// Identification options of a campaign.
@@ -1011,13 +1086,25 @@ impl Run<'_> {
         match result {
             Ok(()) => {
                 self.set_state(CampaignState::Identifying).await?;
-                let report = identify_stored(ctx).await?;
+                let (json, outcome) = if ctx.iso.is_some() {
+                    let report = iso_stored(ctx).await?;
+                    (
+                        serde_json::to_value(&report),
+                        Outcome::Iso(Box::new(report)),
+                    )
+                } else {
+                    let report = identify_stored(ctx).await?;
+                    (
+                        serde_json::to_value(&report),
+                        Outcome::Done(Box::new(report)),
+                    )
+                };
                 self.journal(CampaignEvent::Result {
-                    json: serde_json::to_value(&report).unwrap_or(serde_json::Value::Null),
+                    json: json.unwrap_or(serde_json::Value::Null),
                 })
                 .await?;
                 self.set_state(CampaignState::Done).await?;
-                Ok(Outcome::Done(Box::new(report)))
+                Ok(outcome)
             }
             Err(Stop::Aborted) => {
                 self.stop_robot().await;

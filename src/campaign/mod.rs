@@ -9,6 +9,7 @@
 pub mod engine;
 pub mod events;
 pub mod feasibility;
+pub mod iso;
 pub mod lock;
 pub mod report;
 pub mod session;

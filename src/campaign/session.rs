@@ -16,15 +16,20 @@ use crate::cell::{
     EmsconTracker, EmsconTrackerConfig, LinkRobot, LinkRobotConfig, Prompter, ZaberStageAdapter,
     ZaberStageAdapterConfig,
 };
+use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
+use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
+use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
 use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
-use crate::store::{CampaignRow, EventRecord, NewCampaign, PlannedPose, Store};
+use crate::store::{
+    CampaignKind, CampaignRow, EventRecord, NewCampaign, PlannedPose, Store, ISO9283_KIND,
+};
 use crate::wall_clock::now_unix_ms;
 
 /// Why a session could not be set up.
@@ -71,6 +76,9 @@ pub enum SessionError {
     /// The campaign cannot run as configured, or the campaign to resume is not stored.
     #[error(transparent)]
     Infeasible(#[from] super::feasibility::FeasibilityError),
+    /// The ISO 9283 poses cannot be planned.
+    #[error("planning: {0}")]
+    Iso(#[from] IsoPlanError),
 }
 
 /// A stored campaign to resume.
@@ -188,6 +196,7 @@ pub async fn open_session_with(
     let Prepared {
         campaign_id,
         plan,
+        iso,
         model_of_resumed,
         lock,
     } = prepared;
@@ -195,6 +204,10 @@ pub async fn open_session_with(
     let devices = cell_devices(&cfg, sim.as_ref(), prompter)?;
     let resumed = model_of_resumed.is_some();
     let mut cfg = cfg;
+    if let Some(v) = cfg.iso9283.as_ref().and_then(|i| i.speed_pct) {
+        // the ISO campaign's speed, for every move of the campaign
+        cfg.robot_controller.speed_pct = v;
+    }
     if let Some(model) = model_of_resumed {
         // identify with the model the campaign was created with
         cfg.campaign.model = model;
@@ -209,6 +222,7 @@ pub async fn open_session_with(
             campaign_id,
             control: Control::new(capacity),
             on_fault: FaultPolicy::default(),
+            iso,
         },
         devices,
         sim,
@@ -221,6 +235,8 @@ pub async fn open_session_with(
 struct Prepared {
     campaign_id: i64,
     plan: Plan,
+    /// The ISO 9283 plan of an ISO campaign.
+    iso: Option<IsoPlan>,
     /// The observation model a resumed campaign was created with.
     model_of_resumed: Option<String>,
     lock: CampaignLock,
@@ -248,7 +264,30 @@ fn plan_and_store(
             .transpose()?
     };
     let fresh = plan_campaign(nominal, req)?;
-    let (campaign_id, plan, model_of_resumed, accepted_changes) = match resumed {
+    let (campaign_id, plan, iso, model_of_resumed, accepted_changes) = match resumed {
+        Some(s) if s.iso.is_some() || cfg.iso9283.is_some() => {
+            let iso =
+                match (s.iso, cfg.iso9283.is_some()) {
+                    (Some(iso), true) => iso,
+                    _ => {
+                        return Err(SessionError::Invalid(format!(
+                        "campaign {} is {} campaign: resume it with a configuration {} [iso9283]",
+                        s.id,
+                        if cfg.iso9283.is_some() { "a calibration" } else { "an ISO 9283" },
+                        if cfg.iso9283.is_some() { "without" } else { "with its" },
+                    )))
+                    }
+                };
+            let plan = iso_engine_plan(nominal, req, &iso)?;
+            (s.id, plan, Some(iso), Some(s.model), s.accepted_changes)
+        }
+        None if cfg.iso9283.is_some() => {
+            let iso = plan_new_iso(cfg, nominal, req, &fresh.drift_reference)?;
+            let plan = iso_engine_plan(nominal, req, &iso)?;
+            let mut s = lock_store(store)?;
+            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &plan, Some(&iso))?;
+            (id, plan, Some(iso), None, Vec::new())
+        }
         Some(s) => {
             // a stored plan whose moves cannot all be routed is refused before anything moves
             let mut router = Router::new(
@@ -264,13 +303,14 @@ fn plan_and_store(
                 poses: s.poses,
                 drift_reference: fresh.drift_reference,
                 via_points,
+                approach: Default::default(),
             };
-            (s.id, plan, Some(s.model), s.accepted_changes)
+            (s.id, plan, None, Some(s.model), s.accepted_changes)
         }
         None => {
             let mut s = lock_store(store)?;
-            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &fresh)?;
-            (id, fresh, None, Vec::new())
+            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &fresh, None)?;
+            (id, fresh, None, None, Vec::new())
         }
     };
     if !plan.poses.iter().any(|p| p.set == PoseSet::Ident) {
@@ -294,6 +334,7 @@ fn plan_and_store(
     Ok(Prepared {
         campaign_id,
         plan,
+        iso,
         model_of_resumed,
         lock,
     })
@@ -310,6 +351,8 @@ struct StoredCampaign {
     id: i64,
     model: String,
     poses: Vec<PlanEntry>,
+    /// The stored ISO 9283 plan of an ISO campaign.
+    iso: Option<IsoPlan>,
     accepted_changes: Vec<(&'static str, Vec<String>)>,
 }
 
@@ -342,21 +385,98 @@ fn stored_campaign(
             q_rad: p.q_rad,
         })
         .collect();
+    let iso = match store.campaign_kind(r.id)? {
+        Some(k) if k.kind == ISO9283_KIND => {
+            Some(serde_json::from_str(&k.plan_json).map_err(|e| {
+                SessionError::Invalid(format!("campaign {}: its stored ISO plan: {e}", r.id))
+            })?)
+        }
+        _ => None,
+    };
     Ok(StoredCampaign {
         id: r.id,
         model: row.model,
         poses,
+        iso,
         accepted_changes: changes,
     })
 }
 
-/// Store a freshly planned campaign (plan, split and the verbatim files); returns its id.
+/// The ISO request of `[iso9283]` (the cube defaults to the campaign box's centre and smallest
+/// edge).
+fn iso_request(cfg: &CellConfig) -> Option<IsoRequest> {
+    let i = cfg.iso9283.as_ref()?;
+    let c = &cfg.campaign;
+    Some(IsoRequest {
+        cube_center_mm: Vector3::from(i.cube_center_mm.unwrap_or(c.box_center_mm)),
+        cube_edge_mm: i
+            .cube_edge_mm
+            .unwrap_or_else(|| c.box_size_mm.iter().copied().fold(f64::INFINITY, f64::min)),
+        diagonal_fraction: i.diagonal_fraction,
+        approach_dir: i.approach_vector()?,
+        approach_mm: i.approach_mm,
+        rotation: i
+            .orientation_deg
+            .map(|r| from_rotation_vector(&Vector3::from(r).map(f64::to_radians))),
+        cycles: i.cycles,
+    })
+}
+
+/// Plan a new ISO campaign around `hub`: nominal joints, or compensated by the configured
+/// corrected model.
+fn plan_new_iso(
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+    req: &PlanRequest,
+    hub: &[f64],
+) -> Result<IsoPlan, SessionError> {
+    let iso = iso_request(cfg)
+        .ok_or_else(|| SessionError::Invalid("[iso9283]: no approach direction".into()))?;
+    match cfg
+        .iso9283
+        .as_ref()
+        .and_then(|i| i.compensated_model.as_ref())
+    {
+        None => Ok(plan_iso(nominal, req, &iso, hub, &Targeting::Nominal)?),
+        Some(path) => {
+            let identified = load_robot(path)?;
+            let c = Compensator::new(nominal, &identified).map_err(|e| {
+                SessionError::Invalid(format!("iso9283.compensated_model {}: {e}", path.display()))
+            })?;
+            Ok(plan_iso(
+                nominal,
+                req,
+                &iso,
+                hub,
+                &Targeting::Compensated(&c),
+            )?)
+        }
+    }
+}
+
+/// The engine's plan of an ISO campaign (every move routed, or refused before anything moves).
+fn iso_engine_plan(
+    nominal: &RobotModel,
+    req: &PlanRequest,
+    iso: &IsoPlan,
+) -> Result<Plan, SessionError> {
+    let mut router = Router::new(nominal, &req.workspace, &req.tool_mm, &iso.hub_q_rad)
+        .map_err(PlanError::from)?;
+    let via_points = iso
+        .via_points(&mut router, req.drift_every)
+        .map_err(PlanError::from)?;
+    Ok(iso.to_plan(via_points))
+}
+
+/// Store a freshly planned campaign (plan, split, the verbatim files and, for an ISO campaign,
+/// its ISO plan); returns its id.
 fn store_new_campaign(
     store: &mut Store,
     cfg: &CellConfig,
     nominal: &RobotModel,
     robot_text: String,
     plan: &Plan,
+    iso: Option<&IsoPlan>,
 ) -> Result<i64, SessionError> {
     let planned: Vec<PlannedPose> = plan
         .poses
@@ -369,17 +489,28 @@ fn store_new_campaign(
             q_rad: e.q_rad.clone(),
         })
         .collect();
-    Ok(store.create_campaign(
-        &NewCampaign {
-            name: format!("{} {}", nominal.name, cfg.campaign.model),
-            created_at_ms: now_unix_ms(),
-            model: cfg.campaign.model.clone(),
-            seed: cfg.campaign.seed,
-            config_toml: cfg.text.clone(),
-            robot_toml: robot_text,
+    let new = NewCampaign {
+        name: match iso {
+            None => format!("{} {}", nominal.name, cfg.campaign.model),
+            Some(_) => format!("{} {ISO9283_KIND}", nominal.name),
         },
-        &planned,
-    )?)
+        created_at_ms: now_unix_ms(),
+        model: cfg.campaign.model.clone(),
+        seed: cfg.campaign.seed,
+        config_toml: cfg.text.clone(),
+        robot_toml: robot_text,
+    };
+    Ok(match iso {
+        None => store.create_campaign(&new, &planned)?,
+        Some(iso) => {
+            let kind = CampaignKind {
+                kind: ISO9283_KIND.to_owned(),
+                plan_json: serde_json::to_string(iso)
+                    .map_err(|e| SessionError::Invalid(e.to_string()))?,
+            };
+            store.create_campaign_of_kind(&new, &planned, &kind)?
+        }
+    })
 }
 
 /// Start the simulated cell when any device is simulated (`[sim]`).

@@ -138,9 +138,13 @@ pub fn load_stored(
 }
 
 /// Campaign `id`'s corrected model as robot-file TOML ([`crate::report::model_file`]) from its
-/// stored result and its stored nominal model and setup; `None` before it has a result. The
+/// stored result and its stored nominal model and setup; `None` before it has a result, and
+/// for a campaign that is no calibration (ISO 9283: its result is figures, not a model). The
 /// same store gives the same bytes (`cellcal run --model-out`, `GET /api/campaigns/{id}/model`).
 pub fn stored_model_toml(store: &Store, id: i64) -> Result<Option<String>, StoredError> {
+    if store.campaign_kind(id)?.is_some() {
+        return Ok(None);
+    }
     let Some(text) = store.latest_result(id)? else {
         return Ok(None);
     };

@@ -8,6 +8,7 @@ pub mod compensate;
 pub mod export;
 pub mod identify;
 pub mod import;
+pub mod iso9283;
 pub mod practical;
 pub mod report;
 pub mod run;

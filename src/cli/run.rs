@@ -171,6 +171,14 @@ pub fn run(opts: RunArgs) -> Result<(), Failure> {
                 }
                 poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
             }
+            Outcome::Iso(report) => {
+                print!("{}", cellcal::iso9283::format_table(&report));
+                if let Some(path) = &opts.json {
+                    let text = serde_json::to_string_pretty(&*report).map_err(other)?;
+                    write_file(path, &text)?;
+                }
+                Ok(())
+            }
             Outcome::Aborted => {
                 let (code, by) = match caught.get() {
                     Some(sig) => (sig.exit_code(), format!(" by {}", sig.name())),

@@ -263,6 +263,108 @@ impl Default for SetupSection {
     }
 }
 
+/// `[iso9283]`: when present, `cellcal run` measures an ISO 9283 pose accuracy and
+/// repeatability campaign (five poses on the cube's diagonal plane, `cycles` cycles) instead of
+/// a calibration campaign.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Iso9283Section {
+    /// Cycles (ISO 9283: 30; at least 2).
+    pub cycles: usize,
+    /// Distance of P2…P5 from the cube's corners along the diagonals (fraction of the
+    /// diagonal, ISO: 0.1).
+    pub diagonal_fraction: f64,
+    /// Direction of the last motion into every pose, robot base frame: `+x`, `-x`, `+y`, `-y`,
+    /// `+z` or `-z` (`-z`: from above).
+    pub approach: String,
+    /// Length of that last motion from the pre-pose (mm).
+    pub approach_mm: f64,
+    /// Robot speed of the campaign (percent; ISO uses 100, 50 and 10 % of rated speed); unset:
+    /// `robot_controller.speed_pct`.
+    pub speed_pct: Option<f64>,
+    /// Measure P2 too at every visit (the stage-axis direction figures).
+    pub measure_axis: bool,
+    /// A corrected robot model (`--model-out`): the joints then come from compensation.
+    pub compensated_model: Option<PathBuf>,
+    /// Cube centre (mm, robot base frame); unset: `campaign.box_center_mm`.
+    pub cube_center_mm: Option<[f64; 3]>,
+    /// Cube edge (mm); unset: the smallest edge of the campaign box.
+    pub cube_edge_mm: Option<f64>,
+    /// Flange orientation at every pose, rotation vector (deg, robot base frame); unset: the
+    /// orientation at the drift reference (the hub).
+    pub orientation_deg: Option<[f64; 3]>,
+}
+
+impl Default for Iso9283Section {
+    fn default() -> Self {
+        Iso9283Section {
+            cycles: 30,
+            diagonal_fraction: 0.1,
+            approach: "-z".into(),
+            approach_mm: 50.0,
+            speed_pct: None,
+            measure_axis: true,
+            compensated_model: None,
+            cube_center_mm: None,
+            cube_edge_mm: None,
+            orientation_deg: None,
+        }
+    }
+}
+
+impl Iso9283Section {
+    /// The approach direction as a unit vector (robot base frame).
+    pub fn approach_vector(&self) -> Option<Vector3<f64>> {
+        let axis = match self.approach.get(1..) {
+            Some("x") => Vector3::x(),
+            Some("y") => Vector3::y(),
+            Some("z") => Vector3::z(),
+            _ => return None,
+        };
+        match self.approach.get(..1) {
+            Some("+") => Some(axis),
+            Some("-") => Some(-axis),
+            _ => None,
+        }
+    }
+
+    /// The ISO rules: at least 2 cycles, a fraction in (0, 0.5), a known approach axis, a
+    /// positive approach length and cube edge, a speed in (0, 100] %.
+    pub fn check(&self) -> Result<(), InvalidKey> {
+        rule(
+            self.cycles >= 2 && self.cycles <= MAX_POSES / 5,
+            "iso9283.cycles",
+            format!(
+                "must be between 2 and {}, got {}",
+                MAX_POSES / 5,
+                self.cycles
+            ),
+        )?;
+        rule(
+            self.diagonal_fraction > 0.0 && self.diagonal_fraction < 0.5,
+            "iso9283.diagonal_fraction",
+            format!("must be in (0, 0.5), got {}", self.diagonal_fraction),
+        )?;
+        rule(
+            self.approach_vector().is_some(),
+            "iso9283.approach",
+            format!("`{}` is not one of +x, -x, +y, -y, +z, -z", self.approach),
+        )?;
+        positive("iso9283.approach_mm", self.approach_mm)?;
+        if let Some(e) = self.cube_edge_mm {
+            positive("iso9283.cube_edge_mm", e)?;
+        }
+        if let Some(v) = self.speed_pct {
+            rule(
+                v > 0.0 && v <= 100.0,
+                "iso9283.speed_pct",
+                format!("must be in (0, 100], got {v}"),
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// One `[[api.tokens]]` entry as written in the file.
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -390,6 +492,7 @@ struct CellFile {
     setup: SetupSection,
     #[serde(default)]
     api: ApiFile,
+    iso9283: Option<Iso9283Section>,
     sim: Option<toml::Table>,
 }
 
@@ -416,6 +519,8 @@ pub struct CellConfig {
     pub setup: SetupSection,
     /// REST API access (`[api]`).
     pub api: ApiSection,
+    /// An ISO 9283 campaign instead of a calibration (`[iso9283]`, paths resolved).
+    pub iso9283: Option<Iso9283Section>,
     /// The `[sim]` table, if any (the simulated world's own configuration).
     pub sim: Option<toml::Table>,
 }
@@ -458,8 +563,22 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     f.stage.check().map_err(invalid)?;
     f.campaign.check().map_err(invalid)?;
     f.setup.check().map_err(invalid)?;
+    if let Some(iso) = &f.iso9283 {
+        iso.check().map_err(invalid)?;
+        rule(
+            f.setup.base_registration || iso.compensated_model.is_some(),
+            "iso9283",
+            "the figures are given in the robot base frame: needs setup.base_registration = true \
+             (or a compensated_model, whose base is used)",
+        )
+        .map_err(invalid)?;
+    }
     let dir = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: PathBuf| if p.is_absolute() { p } else { dir.join(p) };
+    let iso9283 = f.iso9283.map(|i| Iso9283Section {
+        compensated_model: i.compensated_model.map(resolve),
+        ..i
+    });
     let api = api_section(
         f.api,
         |key: &str, message: String| ConfigError::Invalid {
@@ -483,6 +602,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         campaign: f.campaign,
         setup: f.setup,
         api,
+        iso9283,
         sim: f.sim,
     })
 }
@@ -681,6 +801,34 @@ impl SetupSection {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn iso9283_section_defaults_and_rules() {
+        let p = Path::new("/etc/cellcal/cell.toml");
+        assert!(parse_cell_config("", p).unwrap().iso9283.is_none());
+        let c = parse_cell_config("[iso9283]\ncompensated_model = \"id.toml\"\n", p).unwrap();
+        let iso = c.iso9283.unwrap();
+        assert_eq!((iso.cycles, iso.approach_mm), (30, 50.0));
+        assert_eq!(iso.approach_vector(), Some(-Vector3::z()));
+        assert_eq!(
+            iso.compensated_model.as_deref(),
+            Some(Path::new("/etc/cellcal/id.toml"))
+        );
+        for (text, key) in [
+            ("[iso9283]\ncycles = 1\n", "iso9283.cycles"),
+            ("[iso9283]\napproach = \"down\"\n", "iso9283.approach"),
+            (
+                "[iso9283]\ndiagonal_fraction = 0.6\n",
+                "iso9283.diagonal_fraction",
+            ),
+            ("[iso9283]\nspeed_pct = 0.0\n", "iso9283.speed_pct"),
+            ("[iso9283]\nrepeat = 3\n", "repeat"),
+            ("[setup]\nbase_registration = false\n[iso9283]\n", "iso9283"),
+        ] {
+            let e = parse_cell_config(text, p).unwrap_err().to_string();
+            assert!(e.contains(key), "{text}: {e}");
+        }
+    }
 
     #[test]
     fn empty_file_gives_defaults() {

@@ -8,6 +8,6 @@ pub mod diff;
 
 pub use cell::{
     load_cell_config, parse_cell_config, ApiSection, ApiToken, CampaignSection, CellConfig,
-    ConfigError, DeviceMode, InvalidKey, RobotSection, SetupSection, StageMode, StageSection,
-    TrackerSection, MAX_POSES,
+    ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotSection, SetupSection, StageMode,
+    StageSection, TrackerSection, MAX_POSES,
 };

@@ -58,6 +58,10 @@ pub struct Plan {
     /// Via points the campaign's moves need (for the operator; the engine routes every move
     /// again from the robot's actual joints).
     pub via_points: usize,
+    /// Pre-pose of a pose index: the last via point of every move to it, reached by the
+    /// route and left by a direct checked move (ISO 9283 unidirectional approach); empty for
+    /// calibration plans.
+    pub approach: std::collections::BTreeMap<usize, Vec<f64>>,
 }
 
 /// Whether the target ball at `q` faces the tracker within the limit.
@@ -154,6 +158,7 @@ pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, Plan
         poses,
         drift_reference,
         via_points,
+        approach: Default::default(),
     })
 }
 

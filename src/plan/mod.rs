@@ -1,7 +1,8 @@
 //! Planning: pose sampling in the workspace box (METHOD.md §7), campaign plans, path checks of
-//! joint moves and their routing.
+//! joint moves and their routing, the ISO 9283 test poses and cycles.
 
 pub mod campaign;
+pub mod iso9283;
 pub mod order;
 pub mod path;
 pub mod route;

@@ -5,6 +5,7 @@ use std::collections::HashSet;
 use rusqlite::{params, OptionalExtension, Row, Transaction, TransactionBehavior};
 
 use super::error::{Ctx, StoreError};
+use super::kinds::{insert_kind, CampaignKind};
 use super::records::{
     decode_joints, encode_joints, from_sql_index, parse_set, to_sql_index, CampaignRow,
     EventRecord, JournalEntry, NewCampaign, PlannedPose,
@@ -76,12 +77,26 @@ impl Store {
         campaign: &NewCampaign,
         plan: &[PlannedPose],
     ) -> Result<i64, StoreError> {
+        self.create_campaign_as(campaign, plan, None)
+    }
+
+    /// [`Store::create_campaign`], with the campaign's `kind` (none: a calibration) in the same
+    /// transaction.
+    pub(crate) fn create_campaign_as(
+        &mut self,
+        campaign: &NewCampaign,
+        plan: &[PlannedPose],
+        kind: Option<&CampaignKind>,
+    ) -> Result<i64, StoreError> {
         let encoded = check_plan(plan)?;
         let tx = self
             .conn
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .ctx("begin create campaign")?;
         let id = insert_campaign(&tx, campaign, plan, &encoded)?;
+        if let Some(k) = kind {
+            insert_kind(&tx, id, k)?;
+        }
         tx.commit().ctx("commit create campaign")?;
         Ok(id)
     }

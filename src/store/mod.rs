@@ -29,6 +29,7 @@
 mod campaigns;
 mod error;
 mod frames;
+mod kinds;
 mod locks;
 mod measurements;
 pub mod records;
@@ -47,6 +48,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension};
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
 pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint};
+pub use kinds::{CampaignKind, ISO9283_KIND};
 pub use locks::{Acquired, LockHolder};
 pub use measurements::IMPORTED_STATE;
 pub use records::{

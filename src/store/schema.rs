@@ -34,6 +34,11 @@
 //! Version 4 adds `frame_refs.to_first` (TEXT, JSON, `NULL` for segment 0): the rigid transform
 //! from a re-registered segment's tracker frame into segment 0's, `{"rotation": 3×3 rows,
 //! "translation_mm", "rms_mm", "max_mm", "points"}`, fitted on points re-measured at stored joints.
+//!
+//! Version 5 adds `campaign_kinds(campaign_id, kind, plan_json)`: the kind of a campaign that is
+//! not a calibration (`iso9283`: an ISO 9283 pose accuracy/repeatability campaign) and its
+//! kind's plan (JSON object), written with the campaign in one transaction, append-only. A
+//! campaign without a row is a calibration campaign (every campaign of an older store).
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -163,6 +168,18 @@ BEGIN SELECT RAISE(ABORT, 'frame references are append-only'); END;
     r#"
 ALTER TABLE frame_refs ADD COLUMN to_first TEXT
     CHECK (to_first IS NULL OR (json_valid(to_first) AND json_type(to_first) = 'object'));
+"#,
+    // 4 -> 5: campaign kinds other than calibration (ISO 9283) and their plans.
+    r#"
+CREATE TABLE campaign_kinds (
+    campaign_id INTEGER PRIMARY KEY REFERENCES campaigns(id),
+    kind        TEXT    NOT NULL CHECK (kind IN ('iso9283')),
+    plan_json   TEXT    NOT NULL CHECK (json_valid(plan_json) AND json_type(plan_json) = 'object')
+) STRICT;
+CREATE TRIGGER campaign_kinds_no_update BEFORE UPDATE ON campaign_kinds
+BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
+CREATE TRIGGER campaign_kinds_no_delete BEFORE DELETE ON campaign_kinds
+BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
 "#,
 ];
 

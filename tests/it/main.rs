@@ -14,6 +14,7 @@ mod deploy;
 mod frames;
 mod house;
 mod identifiability;
+mod iso9283;
 mod model_out;
 mod paper;
 mod paths;
