@@ -24,6 +24,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
+use crate::campaign::report::{campaign_report, ReportError};
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
 use crate::campaign::stored::{load_stored, stored_model_toml, StoredError};
 use crate::campaign::{
@@ -379,6 +380,8 @@ fn refusal(e: SessionError) -> DaemonError {
         | SessionError::Store(StoreError::Locked { .. }) => DaemonError::Conflict(e.to_string()),
         // an infeasible campaign is the client's request to fix, before anything starts
         SessionError::Infeasible(f) => DaemonError::BadRequest(f.to_string()),
+        // so is an ISO 9283 cube the robot cannot reach under the planning checks
+        e @ SessionError::Iso(_) => DaemonError::BadRequest(e.to_string()),
         e => DaemonError::Session(e),
     }
 }
@@ -1020,7 +1023,7 @@ impl Daemon {
     }
 
     /// The calibration report of a campaign (one self-contained HTML page), `None` while it has
-    /// no result. Built on a blocking thread from a store reader (the campaign's identification
+    /// no result; a conflict for an ISO 9283 campaign (no identification to report). Built on a blocking thread from a store reader (the campaign's identification
     /// is rebuilt for the per-pose plots). Cancel-safe (reads only).
     pub async fn report_html(&self, id: i64) -> Result<Option<String>, DaemonError> {
         let name = self
@@ -1030,11 +1033,14 @@ impl Daemon {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         let at = crate::wall_clock::now_unix_ms();
-        self.read(move |s| {
-            let input = crate::campaign::report::campaign_report(s, id, &name, at)?;
-            Ok(input.map(|i| crate::report::html::render(&i)))
-        })
-        .await
+        let page = self
+            .read(move |s| match campaign_report(s, id, &name, at) {
+                Ok(input) => Ok(Ok(input.map(|i| crate::report::html::render(&i)))),
+                Err(ReportError::Store(e)) => Err(e),
+                Err(e @ ReportError::NotCalibration(_)) => Ok(Err(e)),
+            })
+            .await?;
+        page.map_err(|e| DaemonError::Conflict(e.to_string()))
     }
 
     /// Refuse new campaigns, wait for one being loaded, abort the loaded campaign (if running)

@@ -443,7 +443,8 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
     responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
-        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
+        (status = 409, description = "an ISO 9283 campaign: no calibration report (its figures are the result)", body = ErrorBody)))]
 async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.report_html(id).await? {
         Some(html) => Ok(web::report_page(html)),

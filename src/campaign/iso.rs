@@ -62,6 +62,13 @@ pub enum IsoResultError {
     },
 }
 
+/// Whether campaign `id` is an ISO 9283 campaign (not a calibration).
+pub fn is_iso_campaign(store: &Store, id: i64) -> Result<bool, StoreError> {
+    Ok(store
+        .campaign_kind(id)?
+        .is_some_and(|k| k.kind == ISO9283_KIND))
+}
+
 /// The ISO plan of campaign `id`; `NotIso` for a calibration campaign.
 pub fn stored_iso_plan(store: &Store, id: i64) -> Result<IsoPlan, IsoResultError> {
     let kind = store

@@ -20,6 +20,20 @@ use crate::report::html::{
 use crate::report::{calibrate, IdentifyReport};
 use crate::store::{EventRecord, Store, StoreError};
 
+/// Why a stored campaign has no calibration report.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// The store could not be read, or the campaign does not exist.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// An ISO 9283 campaign: its result is the ISO figures, not an identification.
+    #[error(
+        "campaign {0} is an ISO 9283 campaign: it has no calibration report; its figures are \
+         `cellcal iso9283 --campaign {0}` (GET /api/campaigns/{0}/result)"
+    )]
+    NotCalibration(i64),
+}
+
 /// The report input of campaign `id` in `store`, or `None` while it has no result.
 /// `store_name` names the store file in the page; `generated_at_ms` is the page's time. Only a
 /// store failure is an error: a part that cannot be rebuilt (per-pose errors of a campaign
@@ -29,7 +43,10 @@ pub fn campaign_report(
     id: i64,
     store_name: &str,
     generated_at_ms: i64,
-) -> Result<Option<ReportInput>, StoreError> {
+) -> Result<Option<ReportInput>, ReportError> {
+    if super::iso::is_iso_campaign(store, id)? {
+        return Err(ReportError::NotCalibration(id));
+    }
     let Some(text) = store.latest_result(id)? else {
         return Ok(None);
     };
@@ -49,7 +66,7 @@ pub fn campaign_report(
         .map(|v| v["metrics"].clone());
     match load_stored(store, id, None) {
         Ok(c) => rebuild(&c, stored_metrics, &mut input),
-        Err(StoredError::Store(e)) => return Err(e),
+        Err(StoredError::Store(e)) => return Err(e.into()),
         Err(e) => input.poses = Err(e.to_string()),
     }
     input.campaign = Some(facts);

@@ -8,6 +8,7 @@ use anyhow::{anyhow, Context};
 use clap::ValueEnum;
 use nalgebra::Vector3;
 
+use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
 use cellcal::dataset::{
@@ -299,6 +300,13 @@ fn csv_source(a: &IdentifyArgs, data: &Path) -> Result<Source, Failure> {
 fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
     let s = open_store(store)?;
     let id = campaign_id(&s, store, a.campaign)?;
+    if is_iso_campaign(&s, id).map_err(other)? {
+        return Err(input(anyhow!(
+            "{}: campaign {id} is an ISO 9283 campaign: it is not identified; its figures are \
+             `cellcal iso9283 --campaign {id}`",
+            store.display()
+        )));
+    }
     let robot = a
         .robot
         .as_deref()

@@ -7,11 +7,13 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, Context};
 
+use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::session::{open_session, Resume, SessionError};
 use cellcal::campaign::stored::stored_model_toml;
 use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::load_cell_config;
+use cellcal::iso9283::{format_table, IsoReport};
 use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::Store;
 
@@ -172,7 +174,7 @@ pub fn run(opts: RunArgs) -> Result<(), Failure> {
                 poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
             }
             Outcome::Iso(report) => {
-                print!("{}", cellcal::iso9283::format_table(&report));
+                print!("{}", format_table(&report));
                 if let Some(path) = &opts.json {
                     let text = serde_json::to_string_pretty(&*report).map_err(other)?;
                     write_file(path, &text)?;
@@ -200,6 +202,30 @@ pub fn run(opts: RunArgs) -> Result<(), Failure> {
     result
 }
 
+/// A done ISO 9283 campaign: print (and with `--json` write) its stored figures; it has no
+/// corrected model.
+fn print_stored_iso(
+    id: i64,
+    text: &str,
+    json: Option<&Path>,
+    model_out: Option<&Path>,
+) -> Result<(), Failure> {
+    if model_out.is_some() {
+        return Err(input(anyhow!(
+            "campaign {id} is an ISO 9283 campaign: it has no corrected model (--model-out)"
+        )));
+    }
+    let report: IsoReport = serde_json::from_str(text)
+        .with_context(|| format!("campaign {id}: the stored ISO 9283 figures do not parse"))
+        .map_err(other)?;
+    eprintln!("campaign {id} is done: nothing moves. Its stored ISO 9283 figures:");
+    print!("{}", format_table(&report));
+    if let Some(path) = json {
+        write_file(path, text)?;
+    }
+    Ok(())
+}
+
 /// Write campaign `id`'s corrected model from the store to `path`.
 fn write_model(store_path: &Path, id: i64, path: &Path) -> Result<(), Failure> {
     let store = Store::open(store_path).map_err(other)?;
@@ -217,10 +243,14 @@ fn print_stored_result(
     json: Option<&Path>,
     model_out: Option<&Path>,
 ) -> Result<(), Failure> {
-    let text = Store::open(store_path)
-        .and_then(|s| s.latest_result(id))
+    let store = Store::open(store_path).map_err(other)?;
+    let text = store
+        .latest_result(id)
         .map_err(other)?
         .ok_or_else(|| other(anyhow!("campaign {id} is done but has no stored result")))?;
+    if is_iso_campaign(&store, id).map_err(other)? {
+        return print_stored_iso(id, &text, json, model_out);
+    }
     let report = IdentifyReport::from_json(&text)
         .with_context(|| format!("campaign {id}: the stored result does not parse"))
         .map_err(other)?;

@@ -107,6 +107,50 @@ fn iso_campaigns_on_the_simulated_cell_uncompensated_and_compensated() {
         assert!(v["poses"][0].get(key).is_some(), "{key}: {v}");
     }
 
+    // an ISO campaign is not a calibration: no report, no identification, no corrected model
+    // (exit 2, saying where its figures are); `run` on it (done) prints the stored figures
+    let refused = |args: &[&str]| {
+        let out = cellcal().args(args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {out:?}");
+        let e = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(e.contains("is an ISO 9283 campaign"), "{args:?}: {e}");
+        assert!(e.contains("cellcal iso9283"), "{args:?}: {e}");
+    };
+    let (db, n) = (store.to_str().unwrap(), id.to_string());
+    let html = store.with_file_name("iso.html");
+    refused(&[
+        "report",
+        "--store",
+        db,
+        "--campaign",
+        &n,
+        "--out",
+        html.to_str().unwrap(),
+    ]);
+    assert!(!html.exists());
+    refused(&["identify", "--store", db, "--campaign", &n]);
+    let cfg = store.with_file_name("cell.toml");
+    let out = cellcal()
+        .args([
+            "run",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--store",
+            db,
+            "--campaign",
+            &n,
+        ])
+        .arg("--json")
+        .arg(store.with_file_name("again.json"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(String::from_utf8_lossy(&out.stdout), format_table(&plain));
+    assert_eq!(
+        std::fs::read_to_string(store.with_file_name("again.json")).unwrap(),
+        stored
+    );
+
     // a calibration campaign: its corrected model, and `cellcal iso9283` refuses it (exit 2)
     let text = base.replace("poses = 300", "poses = 160");
     let f = rt.block_on(run_in_process(&text));
@@ -240,4 +284,35 @@ fn an_iso_campaign_aborted_and_resumed_counts_complete_cycles() {
     assert_eq!(s.done_poses(id).unwrap().len(), 15, "every visit once");
     let r: IsoReport = serde_json::from_str(&s.latest_result(id).unwrap().unwrap()).unwrap();
     assert!(!r.partial && r.poses.iter().all(|p| p.n == 3), "{r:?}");
+}
+
+/// The daemon runs ISO campaigns from the same `[iso9283]` table: the result is the figures,
+/// the calibration report is refused (409, saying where the figures are), and a cube the robot
+/// cannot reach under the planning checks is the client's request to fix (400, not 500).
+#[test]
+fn the_daemon_runs_iso_campaigns_and_refuses_what_does_not_apply() {
+    use crate::serve::{arm_and_start, create, get, get_text, post, start, wait_for_state};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let base = config_text("", "", "");
+    let cfg = crate::campaign::write_config(dir.path(), &format!("{base}{}", iso_table(None)));
+    let s = start(&cfg, &dir.path().join("c.db"));
+    let id = create(&s, "{}");
+    arm_and_start(&s, id);
+    wait_for_state(&s, id, "done");
+    let (code, r) = get(&s, &format!("/api/campaigns/{id}/result"));
+    assert_eq!((code, r["kind"].as_str()), (200, Some("iso9283")), "{r}");
+    assert_eq!(r["poses"].as_array().map(Vec::len), Some(5), "{r}");
+    let (code, _, body) = get_text(&s, &format!("/api/campaigns/{id}/report"), Some(&s.token));
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("is an ISO 9283 campaign"), "{body}");
+    drop(s);
+
+    let far = dir.path().join("far");
+    std::fs::create_dir_all(&far).unwrap();
+    let table = iso_table(None).replace("cube_edge_mm = 200.0", "cube_edge_mm = 1600.0");
+    let cfg = crate::campaign::write_config(&far, &format!("{base}{table}"));
+    let s = start(&cfg, &far.join("c.db"));
+    let (code, e) = post(&s, "/api/campaigns", "{}");
+    assert_eq!(code, 400, "{e}");
+    assert!(e["error"].as_str().unwrap_or("").contains("ISO"), "{e}");
 }
