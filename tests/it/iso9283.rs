@@ -316,3 +316,38 @@ fn the_daemon_runs_iso_campaigns_and_refuses_what_does_not_apply() {
     assert_eq!(code, 400, "{e}");
     assert!(e["error"].as_str().unwrap_or("").contains("ISO"), "{e}");
 }
+
+/// `measure_axis = false` measures P1 only (no direction figures, no P2 of a visit), and
+/// `speed_pct` is the speed the run prepares the robot with.
+#[test]
+fn position_only_iso_campaign_at_its_own_speed() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let table = format!(
+        "{}measure_axis = false\nspeed_pct = 35.0\n",
+        iso_table(None)
+    );
+    let text = format!("{}{table}", config_text("", "", ""));
+    let dir = tempfile::tempdir().expect("tempdir").keep();
+    let (ctx, sim, outcome) =
+        rt.block_on(run_with(&dir, &text, Arc::new(ScriptedPrompter::exact())));
+    if let Some(sim) = sim {
+        rt.block_on(sim.stop());
+    }
+    let Outcome::Iso(report) = outcome else {
+        panic!("the ISO campaign did not finish: {outcome:?}");
+    };
+    assert_eq!(ctx.cfg.robot_controller.speed_pct, 35.0);
+    assert!(
+        report
+            .poses
+            .iter()
+            .all(|p| p.n == 3 && p.ap_dir_deg.is_none() && p.rp_dir_deg.is_none()),
+        "{}",
+        format_table(&report)
+    );
+    assert!(max_of(&report, |p| p.ap_p_mm) > 0.2);
+}
