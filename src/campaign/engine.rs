@@ -212,6 +212,8 @@ fn check_travel(
 }
 
 /// Await a device call unless the campaign is aborted first.
+/// Cancel-safe when `fut` is: on abort it drops `fut` (the device traits'
+/// contract makes that safe) and returns `Stop::Aborted`.
 async fn guarded<T>(
     abort: &tokio_util::sync::CancellationToken,
     fut: impl Future<Output = Result<T, CellError>>,
@@ -353,6 +355,7 @@ impl Run<'_> {
     }
 
     /// Journal and emit a device fault and the action taken.
+    /// Cancel-safe as [`journal_event`].
     async fn fault(
         &self,
         device: DeviceKind,
@@ -364,6 +367,9 @@ impl Run<'_> {
             .await
     }
 
+    /// Store the new state, then journal and emit it. Not cancel-safe: a drop between the two
+    /// leaves the stored state without its event; the run is ended by its abort token, never
+    /// dropped.
     async fn set_state(&self, state: CampaignState) -> Result<(), CampaignError> {
         let id = self.ctx.campaign_id;
         let name = state.name();
@@ -372,6 +378,8 @@ impl Run<'_> {
     }
 
     /// Recover from a transient fault; returns the action taken.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn recover(&mut self, e: &CellError) -> Result<&'static str, Stop> {
         let action = match (e.device, e.kind) {
             (DeviceKind::Tracker, FaultKind::BeamBroken) => "relock",
@@ -428,6 +436,8 @@ impl Run<'_> {
     }
 
     /// One accepted tracker point (beam breaks and gate failures are measured again).
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn measure_point(
         &mut self,
         pose: Option<usize>,
@@ -476,6 +486,7 @@ impl Run<'_> {
 
     /// Store a tracker point outside a pose commit (drift, setup, discarded) with its note;
     /// returns its row id.
+    /// Cancel-safe in effect, as [`with_store`]: a dropped call still stores the point.
     async fn keep_point(
         &self,
         kind: PointKind,
@@ -490,6 +501,7 @@ impl Run<'_> {
     }
 
     /// [`Run::keep_point`] of an already recorded point.
+    /// Cancel-safe in effect, as [`with_store`].
     async fn keep_record(
         &self,
         kind: PointKind,
@@ -507,6 +519,8 @@ impl Run<'_> {
     /// A pose whose |P2 − P1| agrees with the stage travel: a disagreeing pair is kept as
     /// `discarded` and the pose measured again, up to the tracker's `max_attempts`, then the
     /// operator is asked.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn measure_sane_pose(
         &mut self,
         entry: &PlanEntry,
@@ -647,6 +661,8 @@ impl Run<'_> {
 
     /// Put the stage at `mm` (skipped when its last move already put it there, so a technician
     /// is not asked twice); returns the reading.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn stage_to(&mut self, mm: f64) -> Result<f64, Stop> {
         let tol = self.ctx.cfg.stage.tolerance_mm;
         if let Some(at) = self.stage_mm.filter(|at| (at - mm).abs() <= tol) {
@@ -703,6 +719,8 @@ impl Run<'_> {
     }
 
     /// Measure the drift reference at `q` (stage at P1); returns the point and its row id.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn drift_point(&mut self, q: &[f64]) -> Result<(Vector3<f64>, i64), Stop> {
         self.step = Step::Drift;
         let joints = self.move_to(q).await?;
@@ -725,6 +743,8 @@ impl Run<'_> {
     /// Wait for Start while armed. A Start that arrives while disarmed is forgotten (it must
     /// not turn a later Arm into motion).
     /// The stored state follows Arm and Disarm meanwhile (`armed` / `idle`).
+    /// Not cancel-safe: a drop between a stored `armed`/`idle` and its event leaves the event
+    /// unsent; it returns `Stop::Aborted` on the abort token instead.
     async fn wait_start(&self, mut armed: bool) -> Result<(), Stop> {
         let mut start = self.ctx.control.start.subscribe();
         loop {
@@ -753,6 +773,8 @@ impl Run<'_> {
     }
 
     /// Stay paused with `reason` until the operator resumes (or aborts).
+    /// Not cancel-safe: a drop while waiting leaves the stored state `paused`; it returns
+    /// `Stop::Aborted` on the abort token instead.
     async fn paused(&self, reason: String) -> Result<(), Stop> {
         let mut pause = self.ctx.control.pause.subscribe();
         self.set_state(CampaignState::Paused { reason }).await?;
@@ -766,6 +788,7 @@ impl Run<'_> {
         Ok(())
     }
 
+    /// Return at once unless the operator paused; then [`Run::paused`] (not cancel-safe, as it).
     async fn wait_unpaused(&self) -> Result<(), Stop> {
         if !*self.ctx.control.pause.borrow() {
             return Ok(());
@@ -775,6 +798,8 @@ impl Run<'_> {
 
     /// An operator fault: pause with the reason (or fail, per the policy); on resume the
     /// devices are prepared again (a failure there pauses again).
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn operator_pause(&mut self, mut reason: String) -> Result<(), Stop> {
         if self.ctx.on_fault == FaultPolicy::Fail {
             return Err(Stop::Fault(reason));
@@ -791,6 +816,9 @@ impl Run<'_> {
         }
     }
 
+    /// Prepare robot, tracker and stage (in that order) and journal what each says it is; a
+    /// device that cannot be prepared is an operator fault. Not cancel-safe: a drop may leave a
+    /// device half-prepared (the next preparation starts it again); the abort token ends it.
     async fn prepare(&mut self) -> Result<(), Stop> {
         self.stage_mm = None;
         self.robot_settled = false;
@@ -829,6 +857,8 @@ impl Run<'_> {
 
     /// Move, P1, P2 and back for one planned pose. A P1 taken before a later step fails is kept
     /// as `discarded`.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn measure_pose(
         &mut self,
         entry: &PlanEntry,
@@ -883,6 +913,9 @@ impl Run<'_> {
         }
     }
 
+    /// Setup, the frame reference, every pose not yet done (drift checks between) and the final
+    /// drift check. Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// [`guarded`]), never by dropping it.
     async fn measure_all(&mut self) -> Result<(), Stop> {
         let id = self.ctx.campaign_id;
         let done: Vec<usize> = self.store(move |s| s.done_poses(id)).await?;
@@ -962,6 +995,8 @@ fn approached_route(
 }
 
 /// Compute the ISO 9283 figures of the stored visits and store them as the campaign result.
+/// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+/// `guarded`), never by dropping it.
 pub async fn iso_stored(ctx: &CampaignContext) -> Result<IsoReport, CampaignError> {
     let id = ctx.campaign_id;
     let r = with_store(&ctx.store, move |s| {
@@ -1012,6 +1047,8 @@ pub fn campaign_identification(
 }
 
 /// Identify from the stored measurements and store the result.
+/// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+/// `guarded`), never by dropping it.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
     let rows = with_store(&ctx.store, move |s| s.observations(id)).await?;

@@ -514,6 +514,8 @@ fn store_new_campaign(
 }
 
 /// Start the simulated cell when any device is simulated (`[sim]`).
+/// Not cancel-safe: a drop once the cell started leaves its servers running until the
+/// runtime ends.
 async fn simulated_cell(
     cfg: &CellConfig,
     nominal: &RobotModel,

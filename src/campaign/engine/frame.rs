@@ -97,6 +97,8 @@ impl Run<'_> {
     /// and compares: farther than `drift_max_mm` means the tracker or the robot moved between
     /// sessions, and measuring on would mix two frames in one campaign — an operator fault,
     /// unless a re-registration was asked for (then a new segment starts here).
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     pub(super) async fn frame_reference(
         &mut self,
         poses_done: usize,
@@ -145,6 +147,8 @@ impl Run<'_> {
     }
 
     /// Measure the drift reference again and compare with `baseline`.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     pub(super) async fn check_drift(&mut self, baseline: &Vector3<f64>) -> Result<(), Stop> {
         let q = self.drift_q.clone();
         let (p, _) = self.drift_point(&q).await?;
@@ -168,6 +172,8 @@ impl Run<'_> {
     /// and a spread of confirmed points; fit the rigid transform into segment 0's frame (every
     /// residual within `drift_max_mm`, else refused) and store the segment with it. Returns the
     /// new reference (the baseline of later drift checks).
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     async fn reregister(
         &mut self,
         refs: &[FrameRef],

@@ -102,6 +102,8 @@ fn arr(v: &Vector3<f64>) -> [f64; 3] {
 
 impl Run<'_> {
     /// The campaign's setup: the stored one on resume, else measured now and stored.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     pub(super) async fn setup(&mut self) -> Result<SetupResult, Stop> {
         let id = self.ctx.campaign_id;
         if let Some(done) = self.store(move |s| SetupResult::load(s, id)).await? {
@@ -134,6 +136,8 @@ impl Run<'_> {
     }
 
     /// METHOD §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     async fn tool_frame(&mut self) -> Result<ToolFrameResult, Stop> {
         let cfg = &self.ctx.cfg.setup;
         let req = cfg.tool_frame_request();
@@ -238,6 +242,8 @@ impl Run<'_> {
     }
 
     /// Tracker ← robot base from spread planned poses on `model` (nominal + measured tool).
+    /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
+    /// `guarded`), never by dropping it.
     async fn base_registration(&mut self, model: &RobotModel) -> Result<BaseResult, Stop> {
         let n = self.ctx.cfg.setup.base_poses;
         let max_rms = self.ctx.cfg.setup.max_base_rms_mm;
