@@ -8,18 +8,18 @@ use std::sync::Arc;
 use anyhow::{anyhow, Context};
 
 use cellcal::campaign::iso::is_iso_campaign;
-use cellcal::campaign::session::{open_session, Resume, SessionError};
+use cellcal::campaign::session::{open_session, Resume, Session, SessionError};
 use cellcal::campaign::stored::stored_model_toml;
-use cellcal::campaign::{run_campaign, CampaignCommand, FaultPolicy, Outcome};
+use cellcal::campaign::{run_campaign, CampaignCommand, Control, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
-use cellcal::config::load_cell_config;
+use cellcal::config::{load_cell_config, CellConfig};
 use cellcal::iso9283::{format_table, IsoReport};
 use cellcal::report::{summary_text, IdentifyReport};
 use cellcal::store::Store;
 
 use super::identify::{poor_is_exit_3, write_file};
 use super::{input, other, runtime, Failure};
-use crate::signals::StopSignals;
+use crate::signals::{StopSignal, StopSignals};
 use crate::terminal::{ask_on_pause, print_events, Display, TerminalPrompter};
 
 /// Arguments of `cellcal run`.
@@ -76,130 +76,167 @@ impl RunArgs {
 
 /// Run a campaign headless (or with terminal prompts for a manual stage).
 pub fn run(opts: RunArgs) -> Result<(), Failure> {
-    let on_fault = opts.fault_policy();
     let cfg = load_cell_config(&opts.config).map_err(input)?;
     let store_path = opts.store.clone().unwrap_or_else(|| cfg.store.clone());
     let rt = runtime()?;
-    let result = rt.block_on(async move {
-        let prompter: Arc<dyn Prompter> = Arc::new(TerminalPrompter);
-        let resume = opts.campaign.map(|id| Resume {
-            id,
-            accept_changed_config: opts.accept_changed_config,
-        });
-        let session = match open_session(cfg, &store_path, resume, prompter).await {
-            Ok(s) => s,
-            Err(SessionError::Done(id)) => {
-                return print_stored_result(&store_path, id, opts.json.as_deref(), opts.model_out.as_deref())
-            }
-            Err(e) => return Err(input(e)),
-        };
-        let mut ctx = session.ctx;
-        ctx.on_fault = on_fault;
-        if opts.reregister {
-            ctx.control.apply(&CampaignCommand::Reregister);
-        }
-        let mut devices = session.devices;
-        let id = ctx.campaign_id;
-        let total = ctx.plan.poses.len();
-        if session.resumed {
-            eprintln!("campaign {id}: resuming from {}", store_path.display());
-        } else {
-            eprintln!(
-                "campaign {id}: {total} poses planned ({} via points keep every path in the workspace), stored in {}",
-                ctx.plan.via_points,
-                store_path.display()
-            );
-        }
-        if let Some(sim) = &session.sim {
-            eprintln!(
-                "simulated cell: tracker {}, robot {}, stage {}",
-                sim.tracker_addr,
-                sim.robot_addr,
-                sim.stage_path.as_deref().unwrap_or("manual")
-            );
-        }
-        if !opts.arm {
-            println!(
-                "campaign {id} is not armed: nothing moves. Run `cellcal run --config {} --store {} --campaign {id} --arm` to measure.",
-                opts.config.display(),
-                store_path.display()
-            );
-            return Ok(());
-        }
-        let control = ctx.control.clone();
-        control.apply(&CampaignCommand::Arm);
-        control.apply(&CampaignCommand::Start);
-        let manual = devices.stage.is_manual();
-        let display = if opts.quiet {
-            Display::Quiet
-        } else if manual {
-            Display::Lines { every: 1 }
-        } else if on_fault == FaultPolicy::Pause {
-            Display::Lines {
-                every: (total / 10).max(1),
-            }
-        } else {
-            Display::Bar
-        };
-        let printer = tokio::spawn(print_events(control.events.subscribe(), total, display));
-        if on_fault == FaultPolicy::Pause {
-            tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
-        }
-        // SIGINT, SIGTERM and SIGHUP abort: the engine stops the robot and stores `aborted`
-        let mut signals = StopSignals::install().map_err(other)?;
-        let abort = control.clone();
-        let caught = Arc::new(std::sync::OnceLock::new());
-        let seen = Arc::clone(&caught);
-        tokio::spawn(async move {
-            let sig = signals.next().await;
-            let _ = seen.set(sig);
-            abort.apply(&CampaignCommand::Abort);
-        });
-        let outcome = run_campaign(&ctx, &mut devices).await.map_err(other)?;
-        drop(ctx);
-        printer.abort();
-        if let Some(sim) = session.sim {
-            sim.stop().await;
-        }
-        match outcome {
-            Outcome::Done(report) => {
-                print!("{}", summary_text(&report));
-                if let Some(path) = &opts.json {
-                    let text = serde_json::to_string_pretty(&*report).map_err(other)?;
-                    write_file(path, &text)?;
-                }
-                if let Some(path) = &opts.model_out {
-                    write_model(&store_path, id, path)?;
-                }
-                poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
-            }
-            Outcome::Iso(report) => {
-                print!("{}", format_table(&report));
-                if let Some(path) = &opts.json {
-                    let text = serde_json::to_string_pretty(&*report).map_err(other)?;
-                    write_file(path, &text)?;
-                }
-                Ok(())
-            }
-            Outcome::Aborted => {
-                let (code, by) = match caught.get() {
-                    Some(sig) => (sig.exit_code(), format!(" by {}", sig.name())),
-                    None => (130, String::new()),
-                };
-                Err(Failure(
-                    code,
-                    anyhow!("campaign {id} aborted{by}; the robot was stopped. Resume with --campaign {id} --arm"),
-                ))
-            }
-            Outcome::Failed(reason) => Err(Failure(
-                1,
-                anyhow!("campaign {id} stopped: {reason}. Resume with --campaign {id} --arm"),
-            )),
-        }
-    });
+    let result = rt.block_on(run_session(opts, cfg, store_path));
     // a technician question may still be blocked reading the terminal: do not wait for it
     rt.shutdown_background();
     result
+}
+
+/// Open (or resume) the campaign, and with `--arm` run it to its end.
+async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Result<(), Failure> {
+    let on_fault = opts.fault_policy();
+    let prompter: Arc<dyn Prompter> = Arc::new(TerminalPrompter);
+    let resume = opts.campaign.map(|id| Resume {
+        id,
+        accept_changed_config: opts.accept_changed_config,
+    });
+    let session = match open_session(cfg, &store_path, resume, prompter).await {
+        Ok(s) => s,
+        Err(SessionError::Done(id)) => {
+            let (json, model_out) = (opts.json.as_deref(), opts.model_out.as_deref());
+            return print_stored_result(&store_path, id, json, model_out);
+        }
+        Err(e) => return Err(input(e)),
+    };
+    announce(&session, &store_path);
+    let mut ctx = session.ctx;
+    let id = ctx.campaign_id;
+    if !opts.arm {
+        println!(
+            "campaign {id} is not armed: nothing moves. Run `cellcal run --config {} --store {} --campaign {id} --arm` to measure.",
+            opts.config.display(),
+            store_path.display()
+        );
+        return Ok(());
+    }
+    ctx.on_fault = on_fault;
+    let control = ctx.control.clone();
+    if opts.reregister {
+        control.apply(&CampaignCommand::Reregister);
+    }
+    control.apply(&CampaignCommand::Arm);
+    control.apply(&CampaignCommand::Start);
+    let mut devices = session.devices;
+    let total = ctx.plan.poses.len();
+    let display = display_for(opts.quiet, devices.stage.is_manual(), on_fault, total);
+    let printer = tokio::spawn(print_events(control.events.subscribe(), total, display));
+    if on_fault == FaultPolicy::Pause {
+        tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
+    }
+    let caught = abort_on_stop_signals(&control)?;
+    let outcome = run_campaign(&ctx, &mut devices).await.map_err(other)?;
+    drop(ctx);
+    printer.abort();
+    if let Some(sim) = session.sim {
+        sim.stop().await;
+    }
+    let signal = caught.get().copied();
+    finish(outcome, id, signal, &opts, &store_path)
+}
+
+/// The campaign's first lines: planned or resumed, and the simulated cell's addresses.
+fn announce(session: &Session, store_path: &Path) {
+    let (id, plan) = (session.ctx.campaign_id, &session.ctx.plan);
+    if session.resumed {
+        eprintln!("campaign {id}: resuming from {}", store_path.display());
+    } else {
+        eprintln!(
+            "campaign {id}: {} poses planned ({} via points keep every path in the workspace), stored in {}",
+            plan.poses.len(),
+            plan.via_points,
+            store_path.display()
+        );
+    }
+    if let Some(sim) = &session.sim {
+        eprintln!(
+            "simulated cell: tracker {}, robot {}, stage {}",
+            sim.tracker_addr,
+            sim.robot_addr,
+            sim.stage_path.as_deref().unwrap_or("manual")
+        );
+    }
+}
+
+/// Progress: none with `--quiet`; a line per event while a technician is asked; lines every
+/// tenth of the poses when a fault asks at the terminal; else a bar.
+fn display_for(quiet: bool, manual: bool, on_fault: FaultPolicy, total: usize) -> Display {
+    if quiet {
+        Display::Quiet
+    } else if manual {
+        Display::Lines { every: 1 }
+    } else if on_fault == FaultPolicy::Pause {
+        Display::Lines {
+            every: (total / 10).max(1),
+        }
+    } else {
+        Display::Bar
+    }
+}
+
+/// SIGINT, SIGTERM and SIGHUP abort the run (the engine stops the robot and stores
+/// `aborted`); the signal caught, for the exit code.
+fn abort_on_stop_signals(
+    control: &Control,
+) -> Result<Arc<std::sync::OnceLock<StopSignal>>, Failure> {
+    let mut signals = StopSignals::install().map_err(other)?;
+    let abort = control.clone();
+    let caught = Arc::new(std::sync::OnceLock::new());
+    let seen = Arc::clone(&caught);
+    tokio::spawn(async move {
+        let sig = signals.next().await;
+        let _ = seen.set(sig);
+        abort.apply(&CampaignCommand::Abort);
+    });
+    Ok(caught)
+}
+
+/// Print and write what the run ended with; the exit code (3 for a poor result, the signal's
+/// for an abort by one, 1 for a failure).
+fn finish(
+    outcome: Outcome,
+    id: i64,
+    signal: Option<StopSignal>,
+    opts: &RunArgs,
+    store_path: &Path,
+) -> Result<(), Failure> {
+    match outcome {
+        Outcome::Done(report) => {
+            print!("{}", summary_text(&report));
+            if let Some(path) = &opts.json {
+                let text = serde_json::to_string_pretty(&*report).map_err(other)?;
+                write_file(path, &text)?;
+            }
+            if let Some(path) = &opts.model_out {
+                write_model(store_path, id, path)?;
+            }
+            poor_is_exit_3(&report, &format!("campaign {id} is done, but its result"))
+        }
+        Outcome::Iso(report) => {
+            print!("{}", format_table(&report));
+            if let Some(path) = &opts.json {
+                let text = serde_json::to_string_pretty(&*report).map_err(other)?;
+                write_file(path, &text)?;
+            }
+            Ok(())
+        }
+        Outcome::Aborted => {
+            let (code, by) = match signal {
+                Some(sig) => (sig.exit_code(), format!(" by {}", sig.name())),
+                None => (130, String::new()),
+            };
+            Err(Failure(
+                code,
+                anyhow!("campaign {id} aborted{by}; the robot was stopped. Resume with --campaign {id} --arm"),
+            ))
+        }
+        Outcome::Failed(reason) => Err(Failure(
+            1,
+            anyhow!("campaign {id} stopped: {reason}. Resume with --campaign {id} --arm"),
+        )),
+    }
 }
 
 /// A done ISO 9283 campaign: print (and with `--json` write) its stored figures; it has no
