@@ -85,7 +85,9 @@ pub fn run(opts: RunArgs) -> Result<(), Failure> {
     result
 }
 
-/// Open (or resume) the campaign, and with `--arm` run it to its end.
+/// Open (or resume) the campaign, and with `--arm` run it to its end. Not cancel-safe (as
+/// `run_campaign`): a drop mid-run skips the robot stop and the final state; the stop signals
+/// end it by an abort instead.
 async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Result<(), Failure> {
     let on_fault = opts.fault_policy();
     let prompter: Arc<dyn Prompter> = Arc::new(TerminalPrompter);
