@@ -10,7 +10,11 @@
 //! | `cellcal_retries_total` | counter | `device`, `kind` (faults the engine retried: relock, reconnect, …) |
 //! | `cellcal_campaign_state` | gauge, 1 for the current state | `state` (`none` before any campaign) |
 //! | `cellcal_campaign_poses_done`, `cellcal_campaign_poses_planned` | gauge | (the loaded campaign) |
-//! | `cellcal_http_request_duration_seconds` | histogram | `method`, `route` (the route template), `status` |
+//! | `cellcal_http_request_duration_seconds` | histogram | `method` (one of [`HTTP_METHODS`], else `other`), `route` (the route template, `other` when none matched), `status` |
+//!
+//! Every label value comes from a fixed set (the engine's device, fault and action names, the
+//! router's templates, [`HTTP_METHODS`], status codes), never from a client's raw text, so the
+//! text stays bounded whatever clients send.
 
 use std::time::Duration;
 
@@ -56,9 +60,24 @@ struct StateLabels {
     state: &'static str,
 }
 
+/// The HTTP methods counted by name; any other is counted as [`OTHER`].
+pub const HTTP_METHODS: [&str; 7] = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"];
+
+/// The label of an HTTP method not in [`HTTP_METHODS`], or a request no route matched.
+pub const OTHER: &str = "other";
+
+/// `method`'s label: itself when in [`HTTP_METHODS`], else [`OTHER`].
+pub fn method_label(method: &str) -> &'static str {
+    HTTP_METHODS
+        .iter()
+        .find(|m| **m == method)
+        .copied()
+        .unwrap_or(OTHER)
+}
+
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct HttpLabels {
-    method: String,
+    method: &'static str,
     route: String,
     status: u16,
 }
@@ -197,12 +216,13 @@ impl Metrics {
     }
 
     /// One HTTP request answered with `status` after `took`; `route` is the route template
-    /// (bounded label values: never a raw path).
-    pub fn request(&self, method: &str, route: &str, status: u16, took: Duration) {
+    /// that matched (`None`: [`OTHER`]), `method` is counted by [`method_label`]: never a raw
+    /// value as a label.
+    pub fn request(&self, method: &str, route: Option<&str>, status: u16, took: Duration) {
         self.http
             .get_or_create(&HttpLabels {
-                method: method.to_owned(),
-                route: route.to_owned(),
+                method: method_label(method),
+                route: route.unwrap_or(OTHER).to_owned(),
                 status,
             })
             .observe(took.as_secs_f64());
@@ -228,7 +248,19 @@ mod tests {
         m.measured(3, 10);
         m.fault("tracker", "BeamBroken", "relock");
         m.fault("robot", "EmergencyStop", "pause");
-        m.request("GET", "/api/campaigns/{id}", 200, Duration::from_millis(2));
+        m.request(
+            "GET",
+            Some("/api/campaigns/{id}"),
+            200,
+            Duration::from_millis(2),
+        );
+        m.request("BREW", None, 401, Duration::from_millis(1));
+        m.request(
+            &"X".repeat(60_000),
+            Some("/api/campaigns"),
+            401,
+            Duration::ZERO,
+        );
         let t = m.encode();
         for want in [
             "cellcal_poses_measured_total 1",
@@ -239,10 +271,13 @@ mod tests {
             r#"cellcal_faults_total{device="tracker",kind="BeamBroken",action="relock"} 1"#,
             r#"cellcal_retries_total{device="tracker",kind="BeamBroken"} 1"#,
             r#"cellcal_http_request_duration_seconds_count{method="GET",route="/api/campaigns/{id}",status="200"} 1"#,
+            r#"cellcal_http_request_duration_seconds_count{method="other",route="other",status="401"} 1"#,
+            r#"cellcal_http_request_duration_seconds_count{method="other",route="/api/campaigns",status="401"} 1"#,
             "# EOF",
         ] {
             assert!(t.contains(want), "{want} missing from\n{t}");
         }
+        assert!(!t.contains("BREW") && !t.contains("XXXX"), "{t}");
         // a pause is not a retry
         assert!(
             !t.contains(r#"cellcal_retries_total{device="robot""#),

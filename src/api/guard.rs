@@ -146,6 +146,9 @@ impl Gate {
             return Ok(());
         }
         let principal = self.authenticate(req.headers())?;
+        if let Some(connection) = req.extensions().get::<super::conns::Connection>() {
+            connection.authenticated();
+        }
         if matches!(*req.method(), Method::POST | Method::PUT | Method::PATCH) {
             check_json_body(req.headers())?;
         }

@@ -1,5 +1,5 @@
-//! The REST API of `cellcal serve` over [`crate::daemon::Daemon`] (axum). Every body is JSON
-//! (`Content-Type: application/json`, at most 64 KiB); every error is `{"error": "..."}` with a
+//! The REST API of `cellcal serve` over [`crate::daemon::Daemon`] (axum). Every body is one JSON
+//! value and nothing after it (`Content-Type: application/json`, at most 64 KiB); every error is `{"error": "..."}` with a
 //! 4xx/5xx status. [`guard`] checks `Host`, `Origin` and the bearer token of every request
 //! before routing; the routes check the caller's [`crate::auth::Role`] for what it asks.
 //! [`serve`] runs the router over plain HTTP or TLS ([`tls`]). Every handler is cancel-safe: a
@@ -27,6 +27,7 @@
 //! | `GET /metrics` | Prometheus metrics, OpenMetrics text ([`crate::metrics`]); a token of any role |
 //! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
 
+pub mod conns;
 pub mod guard;
 mod observe;
 pub mod openapi;
@@ -50,6 +51,7 @@ use axum::{Json, Router};
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::{Stream, StreamExt};
 
+pub use conns::ServeLimits;
 pub use guard::{Gate, Scheme};
 
 use crate::auth::{Action, Principal};
@@ -80,11 +82,16 @@ impl From<DaemonError> for ApiError {
     }
 }
 
-/// A JSON body (the gate has checked its content type); errors name the field.
+/// A JSON body (the gate has checked its content type): exactly one JSON value, whitespace
+/// around it allowed, anything after it refused; errors name the field.
 fn parse_body<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ApiError> {
+    let bad =
+        |e: &dyn std::fmt::Display| ApiError(StatusCode::BAD_REQUEST, format!("request body: {e}"));
     let mut de = serde_json::Deserializer::from_slice(body);
-    serde_path_to_error::deserialize(&mut de)
-        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, format!("request body: {e}")))
+    let value = serde_path_to_error::deserialize(&mut de).map_err(|e| bad(&e))?;
+    de.end()
+        .map_err(|e| bad(&format_args!("{e} after the JSON value")))?;
+    Ok(value)
 }
 
 /// The body of every error response.
@@ -200,7 +207,9 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .with_state(daemon)
 }
 
-/// Serve `app` on `listener` (TLS when `tls` is given) until `handle` shuts it down.
+/// Serve `app` on `listener` (TLS when `tls` is given) until `handle` shuts it down, within
+/// `limits` ([`conns`]: a connection cap with room for new requests, header-read and idle
+/// timeouts, failed accepts logged).
 /// Cancel-safe: dropping the future stops accepting; connections already open run on until
 /// they end (a graceful stop goes through `handle`).
 pub async fn serve(
@@ -208,21 +217,53 @@ pub async fn serve(
     app: Router,
     tls: Option<axum_server::tls_rustls::RustlsConfig>,
     handle: axum_server::Handle<std::net::SocketAddr>,
+    limits: ServeLimits,
 ) -> std::io::Result<()> {
     let service = app.into_make_service();
+    let conns = Arc::new(conns::Connections::new(limits));
+    let _reaper = Reaper(tokio::spawn(close_idle(Arc::clone(&conns), limits)));
+    let mut server = axum_server::from_tcp(listener)?
+        .handle(handle)
+        .first_request_timeout(limits.header_read_timeout);
+    server
+        .http_builder()
+        .http1()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits.header_read_timeout);
+    let failed = Arc::clone(&conns);
+    let server = server.accept_error_handler(move |_, e| {
+        failed.accept_failed(e, std::time::Instant::now());
+    });
+    let plain = conns::Tracking::new(axum_server::accept::DefaultAcceptor::new(), conns);
     match tls {
-        None => {
-            axum_server::from_tcp(listener)?
-                .handle(handle)
-                .serve(service)
-                .await
-        }
+        None => server.acceptor(plain).serve(service).await,
         Some(config) => {
-            axum_server::from_tcp_rustls(listener, config)?
-                .handle(handle)
-                .serve(service)
-                .await
+            let tls = axum_server::tls_rustls::RustlsAcceptor::new(config)
+                .handshake_timeout(limits.header_read_timeout)
+                .acceptor(plain);
+            server.acceptor(tls).serve(service).await
         }
+    }
+}
+
+/// Ends the idle-connection task with the server.
+struct Reaper(tokio::task::JoinHandle<()>);
+
+impl Drop for Reaper {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Close connections idle longer than the idle timeout, checking a few times per timeout.
+/// Cancel-safe: it only closes idle connections; it runs until aborted.
+async fn close_idle(conns: Arc<conns::Connections>, limits: ServeLimits) {
+    let every = (limits.idle_timeout / 4).clamp(Duration::from_millis(10), Duration::from_secs(1));
+    let mut tick = tokio::time::interval(every);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        conns.close_idle(std::time::Instant::now());
     }
 }
 
@@ -614,4 +655,26 @@ async fn prometheus_metrics(State(d): State<Shared>, caller: Caller) -> Result<R
         d.metrics().encode(),
     )
         .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_body_is_one_json_value_and_nothing_after_it() {
+        let cmd: ClientCommand =
+            parse_body(b" {\"command\": \"disarm\"} \r\n\t").expect("whitespace");
+        assert!(matches!(cmd, ClientCommand::Disarm));
+        for trailing in [
+            &br#"{"command":"disarm"}{"command":"arm"}"#[..],
+            br#"{"command":"disarm"} x"#,
+            br#"{"command":"disarm"},"#,
+            b"{\"command\":\"disarm\"}\0",
+        ] {
+            let e = parse_body::<ClientCommand>(trailing).expect_err("trailing data");
+            assert_eq!(e.0, StatusCode::BAD_REQUEST);
+            assert!(e.1.contains("after the JSON value"), "{}", e.1);
+        }
+    }
 }

@@ -75,8 +75,17 @@ pub fn run(a: ServeArgs) -> Result<(), Failure> {
             Arc::clone(&daemon),
             access::gate(tokens, scheme, bound, &api_cfg),
         );
+        let descriptors = api::conns::raise_descriptor_limit().map_err(other)?;
+        let limits = api::ServeLimits::from_env(descriptors).map_err(input)?;
+        tracing::info!(
+            descriptors,
+            max_connections = limits.max_connections,
+            header_read_timeout_s = limits.header_read_timeout.as_secs_f64(),
+            idle_timeout_s = limits.idle_timeout.as_secs_f64(),
+            "connection limits"
+        );
         let handle = axum_server::Handle::new();
-        let server = api::serve(listener, app, tls, handle.clone());
+        let server = api::serve(listener, app, tls, handle.clone(), limits);
         tokio::pin!(server);
         tokio::select! {
             r = &mut server => r.map_err(other)?,

@@ -22,6 +22,11 @@ pub(crate) struct Server {
 }
 
 impl Server {
+    /// The daemon's process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// Whether the daemon process is still running (it has not exited or panicked out).
     pub(crate) fn alive(&mut self) -> bool {
         matches!(self.child.try_wait(), Ok(None))
@@ -76,18 +81,32 @@ fn start_with(
     env: &[(&str, &str)],
     args: &[&str],
 ) -> Server {
-    let mut child = Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
-        .args(["serve", "--listen", listen, "--config"])
+    let mut cmd = serve_command(cfg, store, listen);
+    cmd.args(args).envs(env.iter().copied()).stderr(stderr);
+    spawn_server(cmd, token)
+}
+
+/// The command line of `serve` on `cfg`, `store` and `listen` (stdin closed, stdout piped).
+pub(crate) fn serve_command(cfg: &Path, store: &Path, listen: &str) -> Command {
+    let mut cmd = Command::new(assert_cmd::cargo::cargo_bin("cellcal"));
+    cmd.args(["serve", "--listen", listen, "--config"])
         .arg(cfg)
         .arg("--store")
         .arg(store)
-        .args(args)
-        .envs(env.iter().copied())
         .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(stderr)
-        .spawn()
-        .expect("spawn cellcal serve");
+        .stdout(Stdio::piped());
+    cmd
+}
+
+/// `serve` of [`serve_command`] (with whatever the caller added), used with the configured
+/// `token`.
+pub(crate) fn start_command(cmd: Command, token: &str) -> Server {
+    spawn_server(cmd, Token::Configured(token))
+}
+
+/// Spawn `cmd` and read the address (and the printed token) from its first lines.
+fn spawn_server(mut cmd: Command, token: Token) -> Server {
+    let mut child = cmd.spawn().expect("spawn cellcal serve");
     let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
     let mut line = String::new();
     stdout.read_line(&mut line).expect("first line");
@@ -852,7 +871,7 @@ pub(crate) fn start_as_operator(cfg: &Path, store: &Path) -> Server {
 
 /// A configuration with `[[api.tokens]]` for `operator-token`, `technician-token`, `viewer-token`
 /// (plus `extra`, appended as is).
-fn config_with_tokens(dir: &Path, extra: &str) -> std::path::PathBuf {
+pub(crate) fn config_with_tokens(dir: &Path, extra: &str) -> std::path::PathBuf {
     let cfg = fast_config(dir, "serial", 20, 14);
     let mut text = std::fs::read_to_string(&cfg).expect("config");
     text.push_str(&role_tokens());
