@@ -109,6 +109,24 @@ fn env_ms(name: &'static str) -> Result<Option<Duration>, LimitError> {
     }
 }
 
+/// Connections the kernel completes and queues for [`listen`]'s socket before they are
+/// accepted (capped by `net.core.somaxconn`): a burst of new connections must not fill the
+/// queue, or a newcomer's SYN is dropped and it waits a second for the retransmission.
+pub const ACCEPT_BACKLOG: u32 = 1024;
+
+/// A listening socket on `addr` with an accept queue of [`ACCEPT_BACKLOG`] (std's `bind` has
+/// 128). Must be called within a tokio runtime.
+pub fn listen(addr: std::net::SocketAddr) -> std::io::Result<std::net::TcpListener> {
+    let socket = if addr.is_ipv4() {
+        tokio::net::TcpSocket::new_v4()?
+    } else {
+        tokio::net::TcpSocket::new_v6()?
+    };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(ACCEPT_BACKLOG)?.into_std()
+}
+
 /// Raise this process's soft limit of open files to its hard limit; the limit now in force.
 pub fn raise_descriptor_limit() -> std::io::Result<u64> {
     use nix::sys::resource::{getrlimit, setrlimit, Resource};

@@ -60,7 +60,7 @@ pub fn run(a: ServeArgs) -> Result<(), Failure> {
     let rt = runtime()?;
     rt.block_on(async move {
         let daemon = Arc::new(Daemon::new(cfg, &store_path).map_err(input)?);
-        let listener = std::net::TcpListener::bind(addr)
+        let listener = api::conns::listen(addr)
             .with_context(|| format!("cannot listen on {addr}"))
             .map_err(other)?;
         let bound = listener.local_addr().map_err(other)?;

@@ -13,6 +13,7 @@ mod compensate;
 mod deploy;
 mod frames;
 mod house;
+mod http_limits;
 mod identifiability;
 mod iso9283;
 mod model_out;
