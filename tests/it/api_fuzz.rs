@@ -496,3 +496,65 @@ fn every_route_survives_a_schema_driven_fuzz() {
     assert!(by_status.contains_key(&200) && by_status.contains_key(&400));
     assert!(by_status.contains_key(&404) && by_status.contains_key(&405));
 }
+
+/// What may follow a body's JSON value: nothing but whitespace.
+const TRAILING: [&str; 6] = [r#"{"command":"arm"}"#, "x", ",", "[]", "\u{0}", " 1"];
+
+#[test]
+fn every_json_body_route_refuses_anything_after_the_json_value() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = fast_config(dir.path(), "serial", 20, 14);
+    let s = start(&cfg, &dir.path().join("c.db"));
+    let (code, v) = post(&s, "/api/campaigns", "{}");
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_i64().expect("id");
+    let commands = format!("/api/campaigns/{id}/commands");
+    // the issue's case: a disarm with an arm after it is refused whole, nothing applied
+    let (code, v) = post(&s, &commands, r#"{"command":"disarm"}{"command":"arm"}"#);
+    assert_eq!(code, 400, "{v}");
+    assert!(
+        v["error"].as_str().is_some_and(
+            |e| e.contains("trailing characters") && e.contains("after the JSON value")
+        ),
+        "{v}"
+    );
+    let (code, doc) = get(&s, "/api/openapi.json");
+    assert_eq!(code, 200);
+    let mut f = Fuzz {
+        s: &s,
+        doc,
+        rng: ChaCha8Rng::seed_from_u64(0x0b0d_1e5),
+        sent: 0,
+        by_status: Default::default(),
+    };
+    let before = get(&s, "/api/campaigns").1;
+    let mut routes = Vec::new();
+    let paths = f.doc["paths"].as_object().expect("paths").clone();
+    for (template, item) in &paths {
+        for (method, op) in item.as_object().expect("path item") {
+            let schema = &op["requestBody"]["content"]["application/json"]["schema"];
+            if schema.is_null() {
+                continue;
+            }
+            let target = template.replace("{id}", &id.to_string());
+            let upper = method.to_ascii_uppercase();
+            routes.push(format!("{upper} {template}"));
+            for _ in 0..8 {
+                let valid = f.instance(schema, 0).to_string();
+                for trailing in TRAILING {
+                    let body = format!("{valid}{trailing}");
+                    let code = f.authed(&upper, &target, body.as_bytes());
+                    assert_eq!(code, 400, "{upper} {target} {body}");
+                }
+            }
+        }
+    }
+    assert!(routes.len() >= 2, "{routes:?}");
+    // nothing was applied: no campaign created, armed, started or aborted
+    assert_eq!(get(&s, "/api/campaigns").1, before, "{routes:?}");
+    // whitespace after the value is fine
+    let (code, v) = post(&s, &commands, "{\"command\": \"arm\"} \r\n\t ");
+    assert_eq!(code, 200, "{v}");
+    assert_eq!(v["armed"], true, "{v}");
+    eprintln!("trailing data refused on {routes:?} ({} requests)", f.sent);
+}

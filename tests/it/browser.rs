@@ -104,11 +104,40 @@ async fn browser(driver: &Driver) -> Client {
     }
     let mut caps = serde_json::Map::new();
     caps.insert("goog:chromeOptions".into(), options);
+    // the console's entries, for [`console_errors`]
+    caps.insert("goog:loggingPrefs".into(), json!({"browser": "ALL"}));
     ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
         .capabilities(caps)
         .connect(&driver.url)
         .await
         .expect("WebDriver session")
+}
+
+/// The browser console's SEVERE entries (errors, failed loads) since the session began or the
+/// last call, from chromedriver's log endpoint.
+async fn console_errors(c: &Client, driver: &Driver) -> Vec<Value> {
+    let session = c
+        .session_id()
+        .await
+        .expect("session id")
+        .expect("a session");
+    let url = format!("{}/session/{session}/se/log", driver.url);
+    let log: Value = tokio::task::spawn_blocking(move || {
+        super::serve::agent()
+            .post(&url)
+            .send_json(json!({"type": "browser"}))
+            .expect("console log")
+            .body_mut()
+            .read_json()
+            .expect("console log JSON")
+    })
+    .await
+    .expect("console log thread");
+    let entries = log["value"].as_array().expect("console entries").clone();
+    entries
+        .into_iter()
+        .filter(|e| e["level"] == "SEVERE")
+        .collect()
 }
 
 /// Poll `probe` every 50 ms until it gives `Some`, at most `secs` seconds.
@@ -632,6 +661,9 @@ async fn the_page_runs_a_manual_campaign_with_its_dashboard() {
     // tall enough for the whole result view
     c.set_window_size(1280, 2600).await.expect("window size");
     screenshot_from(&c, "result-view", "result.png").await;
+    // the whole campaign without a console error (the page's icon asks for nothing)
+    let errors = console_errors(&c, &driver).await;
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
     c.close().await.expect("close");
 }
 
