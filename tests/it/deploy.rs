@@ -14,7 +14,7 @@ fn repo_file(path: &str) -> String {
 
 /// The `[Service]` lines of the shipped unit a plant relies on (dedicated user, read-only
 /// system, state directory, serial access by group, restart policy, SIGTERM handling).
-const REQUIRED_UNIT_LINES: [&str; 11] = [
+const REQUIRED_UNIT_LINES: [&str; 12] = [
     "User=cellcal",
     "SupplementaryGroups=dialout",
     "ProtectSystem=strict",
@@ -25,7 +25,10 @@ const REQUIRED_UNIT_LINES: [&str; 11] = [
     "RestartPreventExitStatus=2",
     "KillSignal=SIGTERM",
     "CapabilityBoundingSet=",
-    "ExecStart=/usr/local/bin/cellcal serve --config /etc/cellcal/cell.toml --listen 0.0.0.0:8080 --store /var/lib/cellcal/cellcal.db",
+    // loopback by default (a drop-in names the cell network's address, deploy/README.md)
+    "ExecStart=/usr/local/bin/cellcal serve --config /etc/cellcal/cell.toml --listen 127.0.0.1:8080 --store /var/lib/cellcal/cellcal.db",
+    // room for the connection cap (512) and the reserve (64) of `cellcal serve`
+    "LimitNOFILE=1024",
 ];
 
 #[test]
@@ -126,7 +129,8 @@ fn the_container_builds_in_one_stage_and_runs_the_daemon_in_another() {
         file.contains("USER cellcal"),
         "the daemon must not run as root"
     );
-    // the image's command is the unit's: same config, listen address and store
+    // the image's command is the unit's (same config and store), listening on every interface of
+    // the container's own network namespace; the example publishes the port on loopback only
     let cmd = file
         .lines()
         .find_map(|l| l.strip_prefix("CMD "))
@@ -136,4 +140,5 @@ fn the_container_builds_in_one_stage_and_runs_the_daemon_in_another() {
         args.join(" "),
         "serve --config /etc/cellcal/cell.toml --listen 0.0.0.0:8080 --store /var/lib/cellcal/cellcal.db"
     );
+    assert!(file.contains("docker run -d --name cellcal -p 127.0.0.1:8080:8080 "));
 }
