@@ -173,6 +173,19 @@ fn broken_bodies() -> Vec<Vec<u8>> {
 }
 
 impl Fuzz<'_> {
+    /// A fuzzer of `s` (its OpenAPI document read), seeded with `seed`.
+    fn of(s: &Server, seed: u64) -> Fuzz<'_> {
+        let (code, doc) = get(s, "/api/openapi.json");
+        assert_eq!(code, 200);
+        Fuzz {
+            s,
+            doc,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            sent: 0,
+            by_status: Default::default(),
+        }
+    }
+
     /// Send, tally, and check the answer: below 500; an error is JSON `{"error": "…"}`.
     fn check(&mut self, method: &str, target: &str, headers: &[(&str, &str)], body: &[u8]) -> u16 {
         let a = send(self.s, method, target, headers, body);
@@ -439,15 +452,7 @@ fn every_route_survives_a_schema_driven_fuzz() {
     let (code, v) = post(&s, "/api/campaigns", "{}");
     assert_eq!(code, 201, "{v}");
     let id = v["id"].as_i64().expect("id");
-    let (code, doc) = get(&s, "/api/openapi.json");
-    assert_eq!(code, 200);
-    let mut f = Fuzz {
-        s: &s,
-        doc,
-        rng: ChaCha8Rng::seed_from_u64(0x00ce_11ca_1f22),
-        sent: 0,
-        by_status: Default::default(),
-    };
+    let mut f = Fuzz::of(&s, 0x00ce_11ca_1f22);
     let paths: Vec<(String, Value)> = f.doc["paths"]
         .as_object()
         .expect("paths")
@@ -518,15 +523,7 @@ fn every_json_body_route_refuses_anything_after_the_json_value() {
         ),
         "{v}"
     );
-    let (code, doc) = get(&s, "/api/openapi.json");
-    assert_eq!(code, 200);
-    let mut f = Fuzz {
-        s: &s,
-        doc,
-        rng: ChaCha8Rng::seed_from_u64(0x00b0_d1e5),
-        sent: 0,
-        by_status: Default::default(),
-    };
+    let mut f = Fuzz::of(&s, 0x00b0_d1e5);
     let before = get(&s, "/api/campaigns").1;
     let mut routes = Vec::new();
     let paths = f.doc["paths"].as_object().expect("paths").clone();
