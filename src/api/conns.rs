@@ -386,6 +386,32 @@ impl Table {
     }
 }
 
+/// The task closing idle connections (see [`Connections::close_idle`]); it ends when dropped.
+pub(crate) struct Reaper(tokio::task::JoinHandle<()>);
+
+impl Reaper {
+    /// Check `conns` a few times per idle timeout (at most every second). Must be called within
+    /// a tokio runtime.
+    pub(crate) fn start(conns: Arc<Connections>) -> Reaper {
+        let every = (conns.limits.idle_timeout / 4)
+            .clamp(Duration::from_millis(10), Duration::from_secs(1));
+        Reaper(tokio::spawn(async move {
+            let mut tick = tokio::time::interval(every);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tick.tick().await;
+                conns.close_idle(Instant::now());
+            }
+        }))
+    }
+}
+
+impl Drop for Reaper {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
 /// The acceptor of [`super::serve`]: tracks each accepted connection (then hands it to
 /// `inner`, e.g. TLS).
 #[derive(Debug, Clone)]

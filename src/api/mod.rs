@@ -1,8 +1,9 @@
-//! The REST API of `cellcal serve` over [`crate::daemon::Daemon`] (axum). Every body is one JSON
-//! value and nothing after it (`Content-Type: application/json`, at most 64 KiB); every error is `{"error": "..."}` with a
-//! 4xx/5xx status. [`guard`] checks `Host`, `Origin` and the bearer token of every request
-//! before routing; the routes check the caller's [`crate::auth::Role`] for what it asks.
-//! [`serve`] runs the router over plain HTTP or TLS ([`tls`]). Every handler is cancel-safe: a
+//! The REST API of `cellcal serve` over [`crate::daemon::Daemon`] (axum). Every body is one
+//! JSON value and nothing after it (`Content-Type: application/json`, at most 64 KiB); every
+//! error is `{"error": "..."}` with a 4xx/5xx status. [`guard`] checks `Host`, `Origin` and the
+//! bearer token of every request before routing; the routes check the caller's
+//! [`crate::auth::Role`] for what it asks. [`serve`] runs the router over plain HTTP or TLS
+//! ([`tls`]) within [`conns`]' limits. Every handler is cancel-safe: a
 //! dropped request only stops its own reads or waits (a command is applied before its reply
 //! waits for the engine; a creation or load runs in its own task).
 //!
@@ -221,7 +222,7 @@ pub async fn serve(
 ) -> std::io::Result<()> {
     let service = app.into_make_service();
     let conns = Arc::new(conns::Connections::new(limits));
-    let _reaper = Reaper(tokio::spawn(close_idle(Arc::clone(&conns), limits)));
+    let _reaper = conns::Reaper::start(Arc::clone(&conns));
     let mut server = axum_server::from_tcp(listener)?
         .handle(handle)
         .first_request_timeout(limits.header_read_timeout);
@@ -243,27 +244,6 @@ pub async fn serve(
                 .acceptor(plain);
             server.acceptor(tls).serve(service).await
         }
-    }
-}
-
-/// Ends the idle-connection task with the server.
-struct Reaper(tokio::task::JoinHandle<()>);
-
-impl Drop for Reaper {
-    fn drop(&mut self) {
-        self.0.abort();
-    }
-}
-
-/// Close connections idle longer than the idle timeout, checking a few times per timeout.
-/// Cancel-safe: it only closes idle connections; it runs until aborted.
-async fn close_idle(conns: Arc<conns::Connections>, limits: ServeLimits) {
-    let every = (limits.idle_timeout / 4).clamp(Duration::from_millis(10), Duration::from_secs(1));
-    let mut tick = tokio::time::interval(every);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        tick.tick().await;
-        conns.close_idle(std::time::Instant::now());
     }
 }
 
