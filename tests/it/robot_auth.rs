@@ -323,3 +323,158 @@ fn cellcal_sim_uses_the_configured_secret_file() {
     );
     assert!(matches!(without, Err(RobotError::Auth(_))), "{without:?}");
 }
+
+/// The VAL3 application's files (not run in CI: no controller here), parsed as XML.
+fn val3_files() -> Vec<(String, String)> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/staubli/cellcal");
+    let mut files: Vec<(String, String)> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            (name, std::fs::read_to_string(&p).unwrap())
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn the_val3_app_is_well_formed_and_calls_only_its_own_programs() {
+    let files = val3_files();
+    let programs: Vec<String> = files
+        .iter()
+        .filter_map(|(n, _)| n.strip_suffix(".pgx").map(str::to_owned))
+        .collect();
+    let project = &files.iter().find(|(n, _)| n == "cellcal.pjx").unwrap().1;
+    for (name, text) in &files {
+        let doc = roxmltree::Document::parse(text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let Some(stem) = name.strip_suffix(".pgx") else {
+            continue;
+        };
+        assert!(
+            project.contains(&format!("<Program file=\"{name}\" />")),
+            "{name} is not in cellcal.pjx"
+        );
+        let program = doc
+            .descendants()
+            .find(|n| n.has_tag_name("Program"))
+            .unwrap();
+        assert_eq!(program.attribute("name"), Some(stem), "{name}");
+        let code = doc
+            .descendants()
+            .find(|n| n.has_tag_name("Code"))
+            .and_then(|n| n.text())
+            .unwrap_or_default();
+        for call in code.split("call ").skip(1) {
+            let callee = call.split('(').next().unwrap().trim();
+            assert!(
+                programs.iter().any(|p| p == callee),
+                "{name} calls {callee}, which is no program of the application"
+            );
+        }
+    }
+    assert!(programs.len() >= 20, "{programs:?}");
+}
+
+/// `name`'s values in cellcal.dtx, in key order.
+fn dtx_numbers(dtx: &roxmltree::Document, name: &str) -> Vec<u64> {
+    let data = dtx
+        .descendants()
+        .find(|n| n.has_tag_name("Data") && n.attribute("name") == Some(name))
+        .unwrap_or_else(|| panic!("no {name} in cellcal.dtx"));
+    let mut v: Vec<(usize, u64)> = data
+        .children()
+        .filter(|n| n.has_tag_name("Value"))
+        .map(|n| {
+            let key = n.attribute("key").unwrap().parse().unwrap();
+            (key, n.attribute("value").unwrap().parse().unwrap())
+        })
+        .collect();
+    v.sort();
+    assert!(v.iter().enumerate().all(|(i, (k, _))| i == *k), "{name}");
+    v.into_iter().map(|(_, x)| x).collect()
+}
+
+#[test]
+fn the_val3_sha256_tables_and_hmac_labels_are_the_protocols() {
+    // The controller computes HMAC-SHA256 itself (shaBlock.pgx): its round constants and
+    // initial state must be SHA-256's, its labels the ones robotlink uses.
+    let text = &val3_files()
+        .into_iter()
+        .find(|(n, _)| n == "cellcal.dtx")
+        .unwrap()
+        .1;
+    let dtx = roxmltree::Document::parse(text).unwrap();
+    let k: Vec<u32> = dtx_numbers(&dtx, "nK").iter().map(|&x| x as u32).collect();
+    let h0: Vec<u32> = dtx_numbers(&dtx, "nH0").iter().map(|&x| x as u32).collect();
+    assert_eq!((k.len(), h0.len()), (64, 8));
+    let label = |name| -> Vec<u8> { dtx_numbers(&dtx, name).iter().map(|&x| x as u8).collect() };
+    assert_eq!(label("nLblC"), robotlink::auth::CLIENT_LABEL);
+    assert_eq!(label("nLblS"), robotlink::auth::SERVER_LABEL);
+    assert_eq!(label("nLblN").len(), 18);
+    // FIPS 180-4 with the controller's tables, against the sha2 crate
+    let sha256 = |msg: &[u8]| -> Vec<u8> {
+        let mut h: [u32; 8] = h0.clone().try_into().unwrap();
+        let mut m = msg.to_vec();
+        m.push(0x80);
+        while m.len() % 64 != 56 {
+            m.push(0);
+        }
+        m.extend_from_slice(&((msg.len() as u64) * 8).to_be_bytes());
+        for block in m.chunks(64) {
+            let mut w = [0u32; 64];
+            for t in 0..64 {
+                w[t] = if t < 16 {
+                    u32::from_be_bytes(block[4 * t..4 * t + 4].try_into().unwrap())
+                } else {
+                    let s0 =
+                        w[t - 15].rotate_right(7) ^ w[t - 15].rotate_right(18) ^ (w[t - 15] >> 3);
+                    let s1 =
+                        w[t - 2].rotate_right(17) ^ w[t - 2].rotate_right(19) ^ (w[t - 2] >> 10);
+                    w[t - 16]
+                        .wrapping_add(s0)
+                        .wrapping_add(w[t - 7])
+                        .wrapping_add(s1)
+                };
+            }
+            let mut v = h;
+            for t in 0..64 {
+                let e = v[4];
+                let s1 = e.rotate_right(6) ^ e.rotate_right(11) ^ e.rotate_right(25);
+                let ch = v[6] ^ (e & (v[5] ^ v[6]));
+                let t1 = v[7]
+                    .wrapping_add(s1)
+                    .wrapping_add(ch)
+                    .wrapping_add(k[t])
+                    .wrapping_add(w[t]);
+                let a = v[0];
+                let s0 = a.rotate_right(2) ^ a.rotate_right(13) ^ a.rotate_right(22);
+                let maj = (a & v[1]) ^ (v[2] & (a ^ v[1]));
+                v = [
+                    t1.wrapping_add(s0.wrapping_add(maj)),
+                    a,
+                    v[1],
+                    v[2],
+                    v[3].wrapping_add(t1),
+                    e,
+                    v[5],
+                    v[6],
+                ];
+            }
+            for (x, y) in h.iter_mut().zip(v) {
+                *x = x.wrapping_add(y);
+            }
+        }
+        h.iter().flat_map(|x| x.to_be_bytes()).collect()
+    };
+    use sha2::Digest;
+    for msg in [
+        &b""[..],
+        b"abc",
+        &[0x5a; 200][..],
+        robotlink::auth::CLIENT_LABEL,
+    ] {
+        assert_eq!(sha256(msg), sha2::Sha256::digest(msg).to_vec(), "{msg:?}");
+    }
+}
