@@ -478,3 +478,31 @@ fn the_val3_sha256_tables_and_hmac_labels_are_the_protocols() {
         assert_eq!(sha256(msg), sha2::Sha256::digest(msg).to_vec(), "{msg:?}");
     }
 }
+
+#[test]
+fn the_deploy_guide_says_the_controller_network_must_be_isolated_and_how() {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/README.md"))
+            .unwrap();
+    let section = text
+        .split("## 2a. Isolate the robot controller network")
+        .nth(1)
+        .expect("the isolation section")
+        .split("\n## ")
+        .next()
+        .unwrap();
+    for needed in [
+        "The\ncontroller network must be isolated",
+        "only the cellcal PC may reach the controller",
+        "VLAN",
+        "Firewall",
+        "only from the cellcal PC's address",
+        "nc -vz",
+    ] {
+        assert!(
+            section.contains(needed),
+            "deploy/README.md §2a lacks {needed:?}"
+        );
+    }
+    assert!(text.contains("secret_file = \"robotlink.key\""));
+}
