@@ -629,7 +629,8 @@ fn stage_device(
 }
 
 /// The configuration keys and robot-model keys that differ from the campaign's stored files
-/// (the simulated world's `[sim]` table is not the cell's configuration and is skipped).
+/// (the simulated world's `[sim]` table is not the cell's configuration and is skipped, nor is
+/// `robot_controller.secret_file`: who may drive the robot, not what is measured).
 fn config_changes(
     row: &CampaignRow,
     config_text: &str,
@@ -638,7 +639,10 @@ fn config_changes(
     [
         (
             "configuration",
-            changed_keys(&row.config_toml, config_text, &["sim"]),
+            changed_keys(&row.config_toml, config_text, &["sim"])
+                .into_iter()
+                .filter(|k| k != "robot_controller.secret_file")
+                .collect(),
         ),
         (
             "robot model",

@@ -506,3 +506,52 @@ fn the_deploy_guide_says_the_controller_network_must_be_isolated_and_how() {
     }
     assert!(text.contains("secret_file = \"robotlink.key\""));
 }
+
+#[test]
+fn adding_or_changing_the_secret_file_does_not_block_a_resume() {
+    // Access to the controller is not part of what a campaign measured: a campaign created
+    // before its cell had a secret_file (or with another one) resumes without an override.
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let robot = root.join("config/robots/staubli_tx60.toml");
+    let sim = std::fs::read_to_string(root.join("config/cell.sim.toml"))
+        .unwrap()
+        .replace(
+            "robot = \"robots/staubli_tx60.toml\"",
+            &format!("robot = {:?}", robot.to_string_lossy()),
+        );
+    let cfg = dir.path().join("cell.toml");
+    let key = dir.path().join("robot.key");
+    std::fs::write(&key, format!("{KEY}\n")).unwrap();
+    set_mode(&key, 0o600);
+    let run = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_cellcal"))
+            .args(["run", "--config"])
+            .arg(&cfg)
+            .arg("--store")
+            .arg(dir.path().join("c.db"))
+            .args(extra)
+            .stdin(Stdio::null())
+            .output()
+            .expect("run cellcal")
+    };
+    std::fs::write(&cfg, &sim).unwrap();
+    let out = run(&[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let with_key = sim.replace(
+        "[robot_controller]\n",
+        "[robot_controller]\nsecret_file = \"robot.key\"\n",
+    );
+    assert_ne!(with_key, sim);
+    std::fs::write(&cfg, &with_key).unwrap();
+    let out = run(&["--campaign", "1"]);
+    assert!(
+        out.status.success(),
+        "resume refused: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
