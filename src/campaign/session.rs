@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use nalgebra::Vector3;
+use robotlink::SharedSecret;
 
 use super::engine::{CampaignContext, Devices, FaultPolicy};
 use super::events::{CampaignEvent, Control};
@@ -26,7 +27,7 @@ use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targetin
 use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
-use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
+use crate::sim::{start_cell_with, RunningSimCell, SimTechnician, SimWorldConfig};
 use crate::store::{
     CampaignKind, CampaignRow, EventRecord, NewCampaign, PlannedPose, Store, ISO9283_KIND,
 };
@@ -55,6 +56,9 @@ pub enum SessionError {
     /// Inconsistent request.
     #[error("{0}")]
     Invalid(String),
+    /// The robot controller's shared secret (`[robot_controller] secret_file`).
+    #[error(transparent)]
+    RobotSecret(#[from] crate::cell::RobotSecretError),
     /// The campaign is done: nothing to measure (its result is stored).
     #[error("campaign {0} is done: nothing moves; its result is stored")]
     Done(i64),
@@ -178,6 +182,8 @@ pub async fn open_session_with(
 ) -> Result<Session, SessionError> {
     let mut nominal: RobotModel = load_robot(&cfg.robot)?;
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
+    // before a campaign is stored: no session without the controller's secret
+    let robot_secret = crate::cell::controller_secret(&cfg.robot_controller)?;
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
     let req = plan_request(&cfg);
     let prepared = {
@@ -200,8 +206,8 @@ pub async fn open_session_with(
         model_of_resumed,
         lock,
     } = prepared;
-    let sim = simulated_cell(&cfg, &nominal).await?;
-    let devices = cell_devices(&cfg, sim.as_ref(), prompter)?;
+    let sim = simulated_cell(&cfg, &nominal, robot_secret.clone()).await?;
+    let devices = cell_devices(&cfg, sim.as_ref(), robot_secret, prompter)?;
     let resumed = model_of_resumed.is_some();
     let mut cfg = cfg;
     if let Some(v) = cfg.iso9283.as_ref().and_then(|i| i.speed_pct) {
@@ -519,6 +525,7 @@ fn store_new_campaign(
 async fn simulated_cell(
     cfg: &CellConfig,
     nominal: &RobotModel,
+    robot_secret: SharedSecret,
 ) -> Result<Option<RunningSimCell>, SessionError> {
     if !cfg.any_simulated() {
         return Ok(None);
@@ -538,7 +545,7 @@ async fn simulated_cell(
     if cfg.stage.kind != StageMode::Serial {
         sc.stage_mode = crate::sim::config::StageMode::Manual;
     }
-    let cell = start_cell(nominal.bare(), sc, std::future::pending())
+    let cell = start_cell_with(nominal.bare(), sc, robot_secret, std::future::pending())
         .await
         .map_err(|e| sim_err(e.to_string()))?;
     Ok(Some(cell))
@@ -549,6 +556,7 @@ async fn simulated_cell(
 fn cell_devices(
     cfg: &CellConfig,
     sim: Option<&RunningSimCell>,
+    robot_secret: SharedSecret,
     prompter: Arc<dyn Prompter>,
 ) -> Result<Devices, SessionError> {
     let mut tcfg = match (sim, cfg.tracker.mode) {
@@ -564,6 +572,7 @@ fn cell_devices(
         (Some(s), DeviceMode::Sim) => s.robot_config(),
         _ => LinkRobotConfig {
             address: cfg.robot_controller.address.clone(),
+            secret: Some(robot_secret),
             ..LinkRobotConfig::default()
         },
     };
@@ -620,7 +629,8 @@ fn stage_device(
 }
 
 /// The configuration keys and robot-model keys that differ from the campaign's stored files
-/// (the simulated world's `[sim]` table is not the cell's configuration and is skipped).
+/// (the simulated world's `[sim]` table is not the cell's configuration and is skipped, nor is
+/// `robot_controller.secret_file`: who may drive the robot, not what is measured).
 fn config_changes(
     row: &CampaignRow,
     config_text: &str,
@@ -629,7 +639,10 @@ fn config_changes(
     [
         (
             "configuration",
-            changed_keys(&row.config_toml, config_text, &["sim"]),
+            changed_keys(&row.config_toml, config_text, &["sim"])
+                .into_iter()
+                .filter(|k| k != "robot_controller.secret_file")
+                .collect(),
         ),
         (
             "robot model",

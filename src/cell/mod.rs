@@ -15,7 +15,7 @@ pub mod stage_zaber;
 pub mod tracker_emscon;
 
 pub use prompt::{ChannelPrompter, PendingPrompt, ScriptedPrompter};
-pub use robot_link::{LinkRobot, LinkRobotConfig};
+pub use robot_link::{controller_secret, LinkRobot, LinkRobotConfig, RobotSecretError};
 pub use stage_manual::{GaugeReader, ManualStage, ManualStageConfig};
 pub use stage_zaber::{ZaberStageAdapter, ZaberStageAdapterConfig};
 pub use tracker_emscon::{EmsconTracker, EmsconTrackerConfig};

@@ -4,11 +4,12 @@
 use std::time::Duration;
 
 use async_trait::async_trait;
-use robotlink::{ClientConfig, RobotClient, RobotError, StopHandle};
+use robotlink::{ClientConfig, RobotClient, RobotError, SecretError, SharedSecret, StopHandle};
 use serde::{Deserialize, Serialize};
 use tracing::info;
 
 use super::{CellError, DeviceKind, FaultKind, Robot};
+use crate::config::{DeviceMode, RobotSection};
 
 /// Configuration of a [`LinkRobot`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -22,6 +23,9 @@ pub struct LinkRobotConfig {
     pub request_timeout_ms: u64,
     /// Extra client-side time granted to WAIT (ms).
     pub wait_margin_ms: u64,
+    /// The secret shared with the controller (never serialized; `Debug` hides it).
+    #[serde(skip)]
+    pub secret: Option<SharedSecret>,
 }
 
 impl Default for LinkRobotConfig {
@@ -31,6 +35,7 @@ impl Default for LinkRobotConfig {
             connect_timeout_ms: 5000,
             request_timeout_ms: 5000,
             wait_margin_ms: 2000,
+            secret: None,
         }
     }
 }
@@ -42,8 +47,36 @@ impl LinkRobotConfig {
             connect_timeout: Duration::from_millis(self.connect_timeout_ms),
             request_timeout: Duration::from_millis(self.request_timeout_ms),
             wait_margin: Duration::from_millis(self.wait_margin_ms),
+            secret: self.secret.clone(),
             ..ClientConfig::default()
         }
+    }
+}
+
+/// Why the controller's shared secret could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotSecretError {
+    /// A real controller and no `secret_file`.
+    #[error(
+        "robot_controller.secret_file: not set. The robot controller (robotlink v3) accepts only \
+         a client that proves it holds their shared secret: write 64 hex digits (`openssl rand \
+         -hex 32`) to a file only cellcal can read, name it here, and enter the same secret in \
+         the controller application (deploy/staubli/README.md)"
+    )]
+    NotSet,
+    /// The file is missing, open to every user, or not 64 hex digits.
+    #[error("robot_controller.secret_file: {0}")]
+    File(#[from] SecretError),
+}
+
+/// The secret shared with the robot controller: read from `[robot_controller] secret_file`
+/// (required for a real controller); a simulated controller without one gets a fresh random
+/// secret, which only this process knows.
+pub fn controller_secret(section: &RobotSection) -> Result<SharedSecret, RobotSecretError> {
+    match (&section.secret_file, section.mode) {
+        (Some(path), _) => Ok(SharedSecret::read_file(path)?),
+        (None, DeviceMode::Sim) => Ok(SharedSecret::generate()?),
+        (None, DeviceMode::Real) => Err(RobotSecretError::NotSet),
     }
 }
 
@@ -51,7 +84,9 @@ impl LinkRobotConfig {
 pub fn classify_robotlink(e: &RobotError) -> FaultKind {
     match e {
         RobotError::EStop(_) | RobotError::PowerOff(_) => FaultKind::EmergencyStop,
-        RobotError::Rejected { .. } => FaultKind::Rejected,
+        RobotError::Rejected { .. } | RobotError::Auth(_) | RobotError::OldServer(_) => {
+            FaultKind::Rejected
+        }
         RobotError::NotSettled(_) | RobotError::Timeout(_) => FaultKind::Timeout,
         RobotError::Stopped(_) => FaultKind::Aborted,
         RobotError::Protocol(_) => FaultKind::Protocol,
@@ -127,8 +162,8 @@ impl LinkRobot {
         Ok(())
     }
 
-    /// A new connection that has said HELLO (v2, or v1 with an older server), and what the
-    /// controller said it is.
+    /// A new connection that has authenticated both ways (robotlink v3 handshake), and what
+    /// the controller said it is.
     /// Cancel-safe: a drop before it returns drops the new connection (the client closes on drop).
     async fn open(&self) -> Result<(RobotClient, String), CellError> {
         let client = RobotClient::connect(self.cfg.address.as_str(), self.cfg.client_config())
@@ -144,7 +179,7 @@ impl LinkRobot {
             id.arm,
             id.ctrl,
             id.sw,
-            client.protocol_version().unwrap_or(1)
+            client.protocol_version().unwrap_or(0)
         );
         Ok((client, identity))
     }

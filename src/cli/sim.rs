@@ -46,10 +46,34 @@ fn sim_robot_path(table: &toml::Table, dir: &Path, file: &Path) -> Result<PathBu
     })
 }
 
+/// The robotlink secret of `[robot_controller] secret_file` (relative to the config file), so
+/// that a `cellcal run` with the same file can drive the simulated robot; without it a fresh
+/// random secret that no other process knows.
+fn sim_robot_secret(
+    table: &toml::Table,
+    dir: &Path,
+    file: &Path,
+) -> Result<robotlink::SharedSecret, Failure> {
+    let secret_file = table
+        .get("robot_controller")
+        .and_then(|t| t.get("secret_file"));
+    match secret_file {
+        None => robotlink::SharedSecret::generate().map_err(other),
+        Some(toml::Value::String(p)) => {
+            robotlink::SharedSecret::read_file(&dir.join(p)).map_err(input)
+        }
+        Some(_) => Err(input(anyhow!(
+            "{}: key `robot_controller.secret_file` must be a path string",
+            file.display()
+        ))),
+    }
+}
+
 /// Arguments of `cellcal sim`.
 #[derive(clap::Args)]
 pub struct SimCellArgs {
-    /// Cell configuration file (TOML); only `[sim]` and the top-level `robot` are read.
+    /// Cell configuration file (TOML); only `[sim]`, the top-level `robot` and
+    /// `robot_controller.secret_file` are read.
     #[arg(long)]
     config: PathBuf,
 }
@@ -73,13 +97,14 @@ pub fn run(a: SimCellArgs) -> Result<(), Failure> {
     }
     let robot_path = sim_robot_path(&table, dir, config)?;
     let robot = load_robot(&robot_path).map_err(input)?;
+    let robot_secret = sim_robot_secret(&table, dir, config)?;
     let rt = runtime()?;
     let result = rt.block_on(async move {
         let mut signals = signals::StopSignals::install().map_err(other)?;
         let stop = async move {
             signals.next().await;
         };
-        let cell = cellcal::sim::start_cell(robot, cfg, stop)
+        let cell = cellcal::sim::start_cell_with(robot, cfg, robot_secret, stop)
             .await
             .with_context(|| format!("{}: [sim]", config.display()))
             .map_err(input)?;

@@ -74,6 +74,10 @@ pub struct RobotSection {
     /// Largest accepted difference between a joint read after settling and its target (deg);
     /// beyond it the move is repeated (then the campaign pauses).
     pub settle_tolerance_deg: f64,
+    /// File with the secret shared with the controller (64 hex digits; robotlink v3
+    /// authentication), relative to this file; required for a real controller, optional for a
+    /// simulated one (else a fresh random secret). Only the path is ever kept or shown.
+    pub secret_file: Option<PathBuf>,
 }
 
 impl Default for RobotSection {
@@ -85,6 +89,7 @@ impl Default for RobotSection {
             settle_timeout_ms: 60_000,
             max_attempts: 3,
             settle_tolerance_deg: 0.05,
+            secret_file: None,
         }
     }
 }
@@ -597,7 +602,10 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         ),
         store: resolve(f.store.unwrap_or_else(|| PathBuf::from("cellcal.db"))),
         tracker: f.tracker,
-        robot_controller: f.robot_controller,
+        robot_controller: RobotSection {
+            secret_file: f.robot_controller.secret_file.clone().map(resolve),
+            ..f.robot_controller
+        },
         stage: f.stage,
         campaign: f.campaign,
         setup: f.setup,

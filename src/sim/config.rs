@@ -81,6 +81,9 @@ pub struct SimWorldConfig {
     pub tracker_port: u16,
     /// Robot TCP port on 127.0.0.1 (0 = any free port).
     pub robot_port: u16,
+    /// Client addresses the simulated controller's robotlink server accepts (its allow-list);
+    /// any other peer is refused before it can send a line.
+    pub robot_allow: Vec<std::net::IpAddr>,
     /// Robot arm power at start.
     pub robot_power_on: bool,
     /// Initial joints (deg).
@@ -122,6 +125,10 @@ impl Default for SimWorldConfig {
             drift_direction: [1.0, 0.0, 0.0],
             tracker_port: 0,
             robot_port: 0,
+            robot_allow: vec![
+                std::net::Ipv4Addr::LOCALHOST.into(),
+                std::net::Ipv6Addr::LOCALHOST.into(),
+            ],
             robot_power_on: false,
             initial_joints_deg: [0.0, 0.0, 90.0, 0.0, 45.0, 0.0],
             faults: SimFaults::default(),

@@ -121,6 +121,8 @@ pub struct RunningSimCell {
     pub gauge_faults: Option<Arc<Mutex<GaugeFaults>>>,
     /// The configuration the cell runs with.
     pub config: SimWorldConfig,
+    /// The secret the simulated controller's clients must prove (never shown).
+    robot_secret: robotlink::SharedSecret,
     stop_tx: watch::Sender<bool>,
     tasks: Vec<JoinHandle<()>>,
 }
@@ -149,6 +151,7 @@ impl RunningSimCell {
             connect_timeout_ms: 2000,
             request_timeout_ms: 2000,
             wait_margin_ms: 2000,
+            secret: Some(self.robot_secret.clone()),
         }
     }
 
@@ -241,14 +244,28 @@ fn sim_stage_resolution(microsteps_per_mm: f64) -> Result<u32, SimError> {
     Ok(r as u32)
 }
 
-/// Start the simulated cell for `robot` (the nominal model): binds the tracker and robot
-/// listeners on 127.0.0.1, opens the ptys, and runs until `shutdown` completes or the returned
-/// handle is stopped or dropped. Must be called inside a Tokio runtime.
-/// Cancel-safe: a drop before it returns drops the listeners and ptys opened so far; the servers
-/// are spawned only after the last await.
+/// [`start_cell_with`] and a fresh random robotlink secret, which only the returned handle's
+/// [`RunningSimCell::robot_config`] knows. Cancel-safe as [`start_cell_with`].
 pub async fn start_cell(
     robot: RobotModel,
     cfg: SimWorldConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<RunningSimCell, SimError> {
+    let secret =
+        robotlink::SharedSecret::generate().map_err(|e| SimError::Config(e.to_string()))?;
+    start_cell_with(robot, cfg, secret, shutdown).await
+}
+
+/// Start the simulated cell for `robot` (the nominal model): binds the tracker and robot
+/// listeners on 127.0.0.1 (the robot's serves `cfg.robot_allow` clients that prove they hold
+/// `robot_secret`), opens the ptys, and runs until `shutdown` completes or the returned handle
+/// is stopped or dropped. Must be called inside a Tokio runtime.
+/// Cancel-safe: a drop before it returns drops the listeners and ptys opened so far; the servers
+/// are spawned only after the last await.
+pub async fn start_cell_with(
+    robot: RobotModel,
+    cfg: SimWorldConfig,
+    robot_secret: robotlink::SharedSecret,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<RunningSimCell, SimError> {
     check_world_config(&robot, &cfg)?;
@@ -307,6 +324,10 @@ pub async fn start_cell(
             robot_listener,
             Arc::new(SimRobotBackend::new(world.clone())),
             robot_faults.clone(),
+            robotlink::ServerAccess {
+                allow: cfg.robot_allow.clone(),
+                ..robotlink::ServerAccess::loopback(robot_secret.clone())
+            },
             stop_rx.clone(),
         ),
         // the ptys close when the cell stops
@@ -332,6 +353,7 @@ pub async fn start_cell(
         stage_sim,
         gauge_faults,
         config: cfg,
+        robot_secret,
         stop_tx,
         tasks,
     })
@@ -460,10 +482,11 @@ fn serve_robot(
     listener: TcpListener,
     backend: Arc<dyn robotlink::RobotBackend>,
     faults: robotlink::FaultHandle,
+    access: robotlink::ServerAccess,
     stop: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
-        if let Err(e) = robotlink::serve(listener, backend, faults, stopped(stop)).await {
+        if let Err(e) = robotlink::serve(listener, backend, faults, access, stopped(stop)).await {
             warn!(error = %e, "sim robot server ended");
         }
     })

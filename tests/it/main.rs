@@ -24,6 +24,7 @@ mod quality;
 mod realdata;
 mod report;
 mod reproduce;
+mod robot_auth;
 mod robust;
 mod safety;
 mod serve;

@@ -18,10 +18,10 @@ use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tracing::{debug, trace, warn};
 
+use crate::auth::{Nonce, SharedSecret};
 use crate::codec::{
     self, format_request, parse_server_line, CodecError, ErrorCode, Event, EventName, Identity,
     Pose, Reply, ReplyBody, Request, RobotState, ServerLine, MAX_LINE, MAX_SEQ, PROTO_VERSION,
-    PROTO_VERSION_MIN,
 };
 use crate::lineio::{LineRead, LineReader};
 
@@ -57,6 +57,18 @@ pub enum RobotError {
     /// The connection is closed; reconnect to continue.
     #[error("disconnected")]
     Disconnected,
+    /// Authentication failed (`E_AUTH`, a wrong server proof, or no secret configured): the
+    /// text says which side lacks the shared secret.
+    #[error("robotlink authentication: {0}")]
+    Auth(String),
+    /// The server speaks an older protocol (no authentication); cellcal does not drive it.
+    #[error(
+        "the robot controller speaks an older robotlink protocol without authentication (it \
+         answered HELLO {PROTO_VERSION} with: {0}); cellcal refuses to drive it: install the \
+         controller application of this cellcal version (deploy/staubli) with the cell's shared \
+         secret"
+    )]
+    OldServer(String),
     /// Transport error while connecting.
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
@@ -69,6 +81,7 @@ impl RobotError {
             ErrorCode::Power => RobotError::PowerOff(text),
             ErrorCode::Timeout => RobotError::NotSettled(text),
             ErrorCode::Stopped => RobotError::Stopped(text),
+            ErrorCode::Auth => RobotError::Auth(text),
             code => RobotError::Rejected { code, text },
         }
     }
@@ -78,9 +91,11 @@ impl RobotError {
     }
 }
 
-/// Client timeouts and buffer sizes.
+/// Client timeouts, buffer sizes and the shared secret.
 #[derive(Debug, Clone)]
 pub struct ClientConfig {
+    /// The secret shared with the controller (`PROTOCOL.md` §3a); without it `hello` fails.
+    pub secret: Option<SharedSecret>,
     /// TCP connect timeout.
     pub connect_timeout: Duration,
     /// Reply timeout for every request except `WAIT`.
@@ -94,6 +109,7 @@ pub struct ClientConfig {
 impl Default for ClientConfig {
     fn default() -> Self {
         Self {
+            secret: None,
             connect_timeout: Duration::from_secs(5),
             request_timeout: Duration::from_secs(5),
             wait_margin: Duration::from_secs(2),
@@ -136,7 +152,8 @@ struct Shared {
     closed: bool,
     close_reason: Option<RobotError>,
     seq: u32,
-    /// Version agreed by `HELLO`; `None` before a successful `HELLO` (treated as v1).
+    /// Version of the last successful handshake; `None` before one (the server then handles
+    /// requests strictly in order, v1 rules).
     version: Option<u32>,
     normal: Option<Pending>,
     stop: Option<Pending>,
@@ -327,7 +344,8 @@ impl Link {
                 .await
                 .map(drop);
         }
-        // v1: STOP waits its turn, so it is only sent when nothing is outstanding.
+        // Not authenticated (in-order server): STOP waits its turn, so it is only sent when
+        // nothing is outstanding.
         let idle = match self.gate.try_lock() {
             Ok(gate) => {
                 let free = self.lock().normal.is_none();
@@ -343,7 +361,7 @@ impl Link {
                     .map(drop)
             }
             None => {
-                warn!("robotlink v1: request outstanding, stopping by closing the connection");
+                warn!("robotlink: not authenticated and a request outstanding; stopping by closing the connection");
                 self.close(RobotError::Disconnected);
                 Ok(())
             }
@@ -418,7 +436,7 @@ impl std::fmt::Debug for StopHandle {
 
 impl StopHandle {
     /// Stop the arm now. v2: `STOP` goes out at once, even while a `WAIT` is outstanding (which
-    /// then fails with [`RobotError::Stopped`]). v1 or no `HELLO` yet: an in-order `STOP` when
+    /// then fails with [`RobotError::Stopped`]). No handshake yet: an in-order `STOP` when
     /// nothing is outstanding, else the connection is closed (the server stops motion on
     /// disconnect) and `Ok` is returned. Cancel-safe: a dropped call either sent nothing or
     /// sent the whole `STOP`, whose late reply is dropped.
@@ -510,7 +528,8 @@ impl RobotClient {
         self.link.lock().closed
     }
 
-    /// Protocol version agreed by the last successful [`Self::hello`]; `None` before one.
+    /// Protocol version of the last successful [`Self::hello`] (always [`PROTO_VERSION`]);
+    /// `None` before one.
     pub fn protocol_version(&self) -> Option<u32> {
         self.link.lock().version
     }
@@ -522,31 +541,70 @@ impl RobotClient {
         tokio::task::yield_now().await;
     }
 
-    /// `HELLO`: offer [`PROTO_VERSION`]; on `E_ARGS` (an older server) fall back to
-    /// [`PROTO_VERSION_MIN`]. Records the agreed version ([`Self::protocol_version`]).
-    /// Cancel-safe like every request (see the module doc).
+    /// The v3 handshake: `HELLO 3` (the server's nonce), `AUTH` with this client's nonce and
+    /// proof of the shared secret, then the server's proof checked (mutual authentication;
+    /// `PROTOCOL.md` §3a). A server that does not prove it holds the secret is disconnected;
+    /// an older server ([`RobotError::OldServer`]) is refused. Records the version
+    /// ([`Self::protocol_version`]).
+    /// Cancel-safe like every request (see the module doc); a call dropped midway leaves the
+    /// connection unauthenticated (the server closes it after its authentication timeout).
     pub async fn hello(&self) -> Result<Identity, RobotError> {
-        match self.hello_version(PROTO_VERSION).await {
+        let secret = self.config.secret.as_ref().ok_or_else(|| {
+            RobotError::Auth(
+                "no shared secret configured: a robotlink v3 controller accepts only a client \
+                 that proves it holds the controller's secret ([robot_controller] secret_file)"
+                    .into(),
+            )
+        })?;
+        let timeout = self.config.request_timeout;
+        let hello = self
+            .request(
+                Request::Hello {
+                    proto_ver: PROTO_VERSION,
+                },
+                timeout,
+            )
+            .await;
+        let d = match hello {
             Err(RobotError::Rejected {
                 code: ErrorCode::Args,
                 text,
-            }) => {
-                debug!(%text, "robotlink: server refused v{PROTO_VERSION}, trying v{PROTO_VERSION_MIN}");
-                self.hello_version(PROTO_VERSION_MIN).await
+            }) => return Err(RobotError::OldServer(text)),
+            r => r?,
+        };
+        let server_nonce =
+            codec::parse_challenge(&d).map_err(|e| RobotError::from_codec("HELLO", e))?;
+        let client_nonce = Nonce::generate().map_err(|e| RobotError::Auth(e.to_string()))?;
+        let proof = secret.client_proof(&server_nonce, &client_nonce);
+        let auth = self
+            .request(
+                Request::Auth {
+                    client_nonce,
+                    proof,
+                },
+                timeout,
+            )
+            .await;
+        let d = match auth {
+            Err(RobotError::Auth(text)) => {
+                return Err(RobotError::Auth(format!(
+                    "the robot controller refused cellcal's proof ({text}): the configured \
+                     secret ([robot_controller] secret_file) is not the controller's"
+                )))
             }
-            r => r,
+            r => r?,
+        };
+        let (id, server_proof) =
+            codec::parse_auth_reply(&d).map_err(|e| RobotError::from_codec("AUTH", e))?;
+        if !secret.verify_server(&server_nonce, &client_nonce, &server_proof) {
+            self.link.close(RobotError::Disconnected);
+            return Err(RobotError::Auth(
+                "the robot controller did not prove it holds the shared secret: it is not the \
+                 configured controller, or its secret differs; disconnected"
+                    .into(),
+            ));
         }
-    }
-
-    /// `HELLO <proto_ver>`; on success the connection speaks `proto_ver`.
-    /// Cancel-safe (see the module doc); a call dropped after the server accepted leaves the
-    /// version unset, so `STOP` takes the conservative v1 path.
-    async fn hello_version(&self, proto_ver: u32) -> Result<Identity, RobotError> {
-        let d = self
-            .request(Request::Hello { proto_ver }, self.config.request_timeout)
-            .await?;
-        let id = codec::parse_identity(&d).map_err(|e| RobotError::from_codec("HELLO", e))?;
-        self.link.lock().version = Some(proto_ver);
+        self.link.lock().version = Some(PROTO_VERSION);
         Ok(id)
     }
 

@@ -6,10 +6,12 @@
 use std::fmt;
 use std::str::FromStr;
 
-/// Newest protocol version spoken by this crate (the client offers it first in `HELLO`).
-pub const PROTO_VERSION: u32 = 2;
-/// Oldest protocol version this crate still speaks (client fallback, server acceptance).
-pub const PROTO_VERSION_MIN: u32 = 1;
+use crate::auth::{Nonce, Proof};
+
+/// The protocol version spoken by this crate: v3, authenticated (`PROTOCOL.md` §3a). The
+/// client offers only it and the server accepts only it: v1 and v2 let anyone who reached the
+/// port move the arm.
+pub const PROTO_VERSION: u32 = 3;
 /// Longest accepted line in bytes, terminator excluded.
 pub const MAX_LINE: usize = 1024;
 /// Largest accepted sequence number; sequence numbers run `1..=MAX_SEQ`, `0` is reserved.
@@ -100,6 +102,8 @@ pub enum ErrorCode {
     Mode,
     /// `E_STOPPED` (v2): the request was ended by an out-of-band `STOP`.
     Stopped,
+    /// `E_AUTH` (v3): not authenticated, or the proof was wrong; the server closes.
+    Auth,
     /// Any other `E_*` code sent by a newer server.
     Other(String),
 }
@@ -118,6 +122,7 @@ impl ErrorCode {
             ErrorCode::Timeout => "E_TIMEOUT",
             ErrorCode::Mode => "E_MODE",
             ErrorCode::Stopped => "E_STOPPED",
+            ErrorCode::Auth => "E_AUTH",
             ErrorCode::Other(s) => s,
         }
     }
@@ -135,6 +140,7 @@ impl ErrorCode {
             "E_TIMEOUT" => ErrorCode::Timeout,
             "E_MODE" => ErrorCode::Mode,
             "E_STOPPED" => ErrorCode::Stopped,
+            "E_AUTH" => ErrorCode::Auth,
             other if is_code_token(other) => ErrorCode::Other(other.to_string()),
             other => {
                 return Err(CodecError::BadValue {
@@ -166,6 +172,13 @@ pub enum Request {
     Hello {
         /// Protocol version the client speaks.
         proto_ver: u32,
+    },
+    /// `AUTH <client_nonce> <client_proof>` (v3, after `HELLO 3`).
+    Auth {
+        /// The client's fresh nonce.
+        client_nonce: Nonce,
+        /// HMAC-SHA256 proof of the shared secret over both nonces ([`crate::auth`]).
+        proof: Proof,
     },
     /// `PING`.
     Ping,
@@ -203,6 +216,7 @@ impl Request {
     pub fn verb(&self) -> &'static str {
         match self {
             Request::Hello { .. } => "HELLO",
+            Request::Auth { .. } => "AUTH",
             Request::Ping => "PING",
             Request::State => "STATE",
             Request::Power(_) => "POWER",
@@ -464,6 +478,17 @@ pub fn parse_request(raw: &str) -> Result<RequestLine, CodecError> {
             })?;
             Request::Hello { proto_ver: v }
         }
+        "AUTH" => {
+            check_arity("AUTH", "2", n, n == 2)?;
+            let bad = |field: &str| CodecError::BadValue {
+                what: "AUTH",
+                field: field.to_string(),
+            };
+            Request::Auth {
+                client_nonce: Nonce::from_hex(args[0]).ok_or_else(|| bad(args[0]))?,
+                proof: Proof::from_hex(args[1]).ok_or_else(|| bad(args[1]))?,
+            }
+        }
         "PING" => {
             check_arity("PING", "0", n, n == 0)?;
             Request::Ping
@@ -533,6 +558,10 @@ pub fn format_request(seq: u32, req: &Request) -> String {
     let mut s = format!("{seq} {}", req.verb());
     match req {
         Request::Hello { proto_ver } => s.push_str(&format!(" {proto_ver}")),
+        Request::Auth {
+            client_nonce,
+            proof,
+        } => s.push_str(&format!(" {} {}", client_nonce.to_hex(), proof.to_hex())),
         Request::Power(on) => s.push_str(if *on { " ON" } else { " OFF" }),
         Request::Speed { pct } => {
             s.push(' ');
@@ -677,14 +706,28 @@ pub fn format_pose(p: &Pose) -> Vec<String> {
         .collect()
 }
 
-/// Parse `OK <ctrl> <arm> <sw>` data.
-pub fn parse_identity(data: &[String]) -> Result<Identity, CodecError> {
-    check_arity("HELLO reply", "3", data.len(), data.len() == 3)?;
-    Ok(Identity {
+/// Parse `OK <server_nonce>`, the data of a v3 `HELLO` reply.
+pub fn parse_challenge(data: &[String]) -> Result<Nonce, CodecError> {
+    check_arity("HELLO reply", "1", data.len(), data.len() == 1)?;
+    Nonce::from_hex(&data[0]).ok_or_else(|| CodecError::BadValue {
+        what: "HELLO reply (server nonce)",
+        field: data[0].clone(),
+    })
+}
+
+/// Parse `OK <ctrl> <arm> <sw> <server_proof>`, the data of an `AUTH` reply.
+pub fn parse_auth_reply(data: &[String]) -> Result<(Identity, Proof), CodecError> {
+    check_arity("AUTH reply", "4", data.len(), data.len() == 4)?;
+    let proof = Proof::from_hex(&data[3]).ok_or_else(|| CodecError::BadValue {
+        what: "AUTH reply (server proof)",
+        field: data[3].clone(),
+    })?;
+    let identity = Identity {
         ctrl: data[0].clone(),
         arm: data[1].clone(),
         sw: data[2].clone(),
-    })
+    };
+    Ok((identity, proof))
 }
 
 /// Format an identity as reply data fields (spaces inside fields are replaced by `_`).

@@ -1,5 +1,6 @@
 //! robotlink: driver for the cellcal robot line protocol (see `PROTOCOL.md`).
 //!
+//! * [`auth`]: the shared secret, nonces and HMAC-SHA256 proofs of a v3 session.
 //! * [`codec`]: pure parse/format of request, reply and event lines.
 //! * [`client`]: async [`RobotClient`] over TCP (or any async stream).
 //! * [`server`]: protocol server over a [`RobotBackend`], with fault injection for tests.
@@ -7,13 +8,17 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod auth;
 pub mod client;
 pub mod codec;
 mod lineio;
 pub mod server;
 pub mod sim;
 
+pub use auth::{Nonce, Proof, SecretError, SharedSecret};
 pub use client::{ClientConfig, RobotClient, RobotError, StopHandle};
 pub use codec::{ErrorCode, Event, EventName, Identity, Pose, RobotState};
-pub use server::{serve, serve_connection, BackendError, FaultConfig, FaultHandle, RobotBackend};
+pub use server::{
+    serve, serve_connection, BackendError, FaultConfig, FaultHandle, RobotBackend, ServerAccess,
+};
 pub use sim::{SimpleBackend, SimpleConfig};

@@ -1,16 +1,23 @@
 //! Protocol server over a [`RobotBackend`], with deterministic fault injection.
 //!
-//! The server owns the protocol (framing, sequencing, the one-client rule, `WAIT` polling,
-//! events); the backend owns the physics. A second client receives
-//! `* EVT REFUSED another client is connected` and is closed at once.
+//! The server owns the protocol (framing, sequencing, access, the one-client rule, `WAIT`
+//! polling, events); the backend owns the physics. A client whose address is not on the
+//! [`ServerAccess`] allow-list, or a second client, receives `* EVT REFUSED …` and is closed at
+//! once.
 //!
-//! A session reads its socket all the time; the executing request runs in its own task. After
-//! `HELLO 2` a `STOP` is handled at once (the backend stops, a running `WAIT` answers
+//! Access (protocol v3, `PROTOCOL.md` §3a): until the client has proved with `HELLO 3` + `AUTH`
+//! that it holds the shared secret, only `HELLO`, `AUTH` and `STOP` are answered; any other
+//! request gets `E_AUTH` and the connection is closed, as after a wrong proof or
+//! [`ServerAccess::auth_timeout`] without one. So nothing is powered or moved for a stranger.
+//!
+//! A session reads its socket all the time; the executing request runs in its own task. Once
+//! authenticated, a `STOP` is handled at once (the backend stops, a running `WAIT` answers
 //! `E_STOPPED`, then the `STOP` answers `OK`) and any other request meanwhile gets `E_BUSY`.
-//! Before that, or after `HELLO 1`, lines are handled strictly in order (v1).
+//! Before that, lines are handled strictly in order.
 
 use std::collections::VecDeque;
 use std::future::Future;
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex as StdMutex};
 use std::time::{Duration, Instant};
@@ -21,10 +28,10 @@ use tokio::sync::{oneshot, watch, Mutex};
 use tokio::task::JoinHandle;
 use tracing::{debug, info, warn};
 
+use crate::auth::{Nonce, Proof, SharedSecret};
 use crate::codec::{
     self, format_event, format_reply, parse_request, request_seq, ErrorCode, Event, EventName,
     Identity, Pose, Reply, ReplyBody, Request, RobotState, MAX_LINE, PROTO_VERSION,
-    PROTO_VERSION_MIN,
 };
 use crate::lineio::{LineRead, LineReader};
 
@@ -133,7 +140,8 @@ pub struct FaultConfig {
     pub non_numeric: u32,
     /// After accepting the next N `MOVEJ`, reply OK and then drop the connection.
     pub disconnect_during_move: u32,
-    /// Highest protocol version `HELLO` accepts (set 1 to act as a v1 server).
+    /// Highest protocol version `HELLO` accepts; below 3 the server answers `HELLO 3` as an
+    /// older server would (`E_ARGS`). It never serves v1/v2 without authentication.
     pub max_proto_version: u32,
 }
 
@@ -212,10 +220,48 @@ const MONITOR_PERIOD: Duration = Duration::from_millis(10);
 const WRITE_TIMEOUT: Duration = Duration::from_secs(2);
 /// How long a new client waits for the previous session to end before being refused.
 const REFUSE_GRACE: Duration = Duration::from_millis(200);
-/// Lines a v1 peer may queue behind the executing request before the server closes.
+/// Lines a peer may queue behind the executing request before the server closes (in-order
+/// mode, before authentication).
 const V1_BACKLOG_MAX: usize = 16;
+/// The session's mode before authentication: requests strictly in order (v1 rules).
+const IN_ORDER: u32 = 1;
 
-/// Accept clients on `listener` until `shutdown` completes; one client at a time.
+/// Who may use a server: the shared secret every client must prove it holds, the client
+/// addresses it accepts connections from, and how long a client has to authenticate.
+#[derive(Debug, Clone)]
+pub struct ServerAccess {
+    /// The secret of `PROTOCOL.md` §3a.
+    pub secret: SharedSecret,
+    /// Client addresses accepted (IPv4-mapped IPv6 addresses count as IPv4); any other peer is
+    /// refused before it can send a line.
+    pub allow: Vec<IpAddr>,
+    /// A connection that has not authenticated within this time is closed (it would otherwise
+    /// hold the one-client slot).
+    pub auth_timeout: Duration,
+}
+
+impl ServerAccess {
+    /// Access for `secret` from the loopback addresses only, 5 s to authenticate.
+    pub fn loopback(secret: SharedSecret) -> ServerAccess {
+        ServerAccess {
+            secret,
+            allow: vec![
+                IpAddr::V4(Ipv4Addr::LOCALHOST),
+                IpAddr::V6(Ipv6Addr::LOCALHOST),
+            ],
+            auth_timeout: Duration::from_secs(5),
+        }
+    }
+
+    /// Whether a client at `ip` may connect.
+    pub fn allows(&self, ip: IpAddr) -> bool {
+        let ip = ip.to_canonical();
+        self.allow.iter().any(|a| a.to_canonical() == ip)
+    }
+}
+
+/// Accept clients on `listener` until `shutdown` completes; one client at a time, and only
+/// from the addresses `access` allows, each of which must authenticate (`PROTOCOL.md` §3a).
 ///
 /// Cancel-safe in the sense that dropping it drops the listener and aborts the session tasks,
 /// whose connections close (and whose sessions stop motion) when the tasks are dropped.
@@ -223,8 +269,10 @@ pub async fn serve(
     listener: TcpListener,
     backend: Arc<dyn RobotBackend>,
     faults: FaultHandle,
+    access: ServerAccess,
     shutdown: impl Future<Output = ()>,
 ) -> std::io::Result<()> {
+    let access = Arc::new(access);
     let (stop_tx, stop_rx) = watch::channel(false);
     let busy = Arc::new(AtomicBool::new(false));
     let mut tasks = tokio::task::JoinSet::new();
@@ -242,11 +290,17 @@ pub async fn serve(
                     }
                 };
                 let _ = stream.set_nodelay(true);
+                if !access.allows(peer.ip()) {
+                    warn!(%peer, "refusing a client whose address is not allowed");
+                    tasks.spawn(refuse(stream, "address not allowed"));
+                    continue;
+                }
                 tasks.spawn(session_or_refusal(
                     stream,
                     peer,
                     backend.clone(),
                     faults.clone(),
+                    access.clone(),
                     busy.clone(),
                     stop_rx.clone(),
                 ));
@@ -267,30 +321,36 @@ pub async fn serve(
 /// Cancel-safe: a drop ends the session as [`serve_connection`] does; the one-client flag stays
 /// set, but it belongs to the [`serve`] call that dropped it.
 async fn session_or_refusal(
-    mut stream: tokio::net::TcpStream,
+    stream: tokio::net::TcpStream,
     peer: std::net::SocketAddr,
     backend: Arc<dyn RobotBackend>,
     faults: FaultHandle,
+    access: Arc<ServerAccess>,
     busy: Arc<AtomicBool>,
     stop_rx: watch::Receiver<bool>,
 ) {
     if !claim_client_slot(&busy).await {
         info!(%peer, "refusing second client");
-        let line = format_event(&Event {
-            name: EventName::Refused,
-            data: "another client is connected".into(),
-        });
-        let _ = tokio::time::timeout(WRITE_TIMEOUT, async {
-            stream.write_all(line.as_bytes()).await?;
-            stream.shutdown().await
-        })
-        .await;
+        refuse(stream, "another client is connected").await;
         return;
     }
     info!(%peer, "client connected");
-    serve_connection(stream, backend, faults, stop_rx).await;
+    serve_connection(stream, backend, faults, access, stop_rx).await;
     busy.store(false, Ordering::SeqCst);
     info!(%peer, "client disconnected");
+}
+
+/// Send `* EVT REFUSED <why>` and close. Cancel-safe: a drop closes the connection anyway.
+async fn refuse(mut stream: tokio::net::TcpStream, why: &str) {
+    let line = format_event(&Event {
+        name: EventName::Refused,
+        data: why.into(),
+    });
+    let _ = tokio::time::timeout(WRITE_TIMEOUT, async {
+        stream.write_all(line.as_bytes()).await?;
+        stream.shutdown().await
+    })
+    .await;
 }
 
 /// Take the one-client slot, polling for up to [`REFUSE_GRACE`] while the previous session ends.
@@ -354,8 +414,14 @@ impl<W> Clone for Replier<W> {
 struct Conn<W> {
     out: Replier<W>,
     arm: Arm,
-    /// Negotiated protocol version; 1 until a `HELLO 2` succeeds.
+    /// 1 (requests strictly in order) until the client authenticated, then 3.
     version: u32,
+    /// Who may use the server (the secret).
+    access: Arc<ServerAccess>,
+    /// The nonce of the last `HELLO 3`, until an `AUTH` spends it.
+    challenge: Option<Nonce>,
+    /// The client proved it holds the secret.
+    authenticated: bool,
     speed_pct: f64,
     /// Set by the never_settle fault for the current move.
     never_settle: bool,
@@ -365,8 +431,9 @@ struct Conn<W> {
     power_cmd_off: Arc<AtomicBool>,
 }
 
-/// Serve one client on any stream until it disconnects, sends a malformed line, or `stop` flips.
-/// Motion is always stopped when this returns.
+/// Serve one client on any stream until it disconnects, sends a malformed line, fails to
+/// authenticate (in `access.auth_timeout`), or `stop` flips. Motion is always stopped when this
+/// returns. The address allow-list is [`serve`]'s: this serves whoever is on `stream`.
 ///
 /// Cancel-safe: if the future is dropped the arm is stopped, the event monitor ends and the
 /// connection closes, just as when it returns.
@@ -374,6 +441,7 @@ pub async fn serve_connection<S>(
     stream: S,
     backend: Arc<dyn RobotBackend>,
     faults: FaultHandle,
+    access: Arc<ServerAccess>,
     mut stop: watch::Receiver<bool>,
 ) where
     S: AsyncRead + AsyncWrite + Send + 'static,
@@ -402,7 +470,10 @@ pub async fn serve_connection<S>(
                 backend: backend.clone(),
                 faults,
             },
-            version: PROTO_VERSION_MIN,
+            version: IN_ORDER,
+            access,
+            challenge: None,
+            authenticated: false,
             speed_pct: 100.0,
             never_settle: false,
             extra_settle: Duration::ZERO,
@@ -566,6 +637,7 @@ enum Input {
     Read(std::io::Result<LineRead>),
     Done(Outcome),
     Shutdown,
+    AuthTimeout,
 }
 
 impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
@@ -576,6 +648,7 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
     where
         R: tokio::io::AsyncBufRead + Unpin,
     {
+        let auth_deadline = tokio::time::Instant::now() + self.conn.access.auth_timeout;
         loop {
             if self.inflight.is_none() {
                 if let Some(line) = self.backlog.pop_front() {
@@ -591,6 +664,9 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
                 r = lines.next_line() => Input::Read(r),
                 o = in_flight_done(&mut self.inflight) => Input::Done(o),
                 _ = stopped(stop) => Input::Shutdown,
+                _ = tokio::time::sleep_until(auth_deadline), if !self.conn.authenticated => {
+                    Input::AuthTimeout
+                }
             };
             let outcome = match input {
                 Input::Read(Ok(LineRead::Line(l))) => self.on_line(l).await,
@@ -606,6 +682,14 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
                 Input::Done(o) => {
                     self.inflight = None;
                     o
+                }
+                Input::AuthTimeout => {
+                    warn!("robotlink: client did not authenticate in time; closing");
+                    self.conn
+                        .out
+                        .event(EventName::Refused, "authentication timeout")
+                        .await;
+                    Outcome::Close
                 }
             };
             if outcome == Outcome::Close {
@@ -631,6 +715,24 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Session<W> {
             Ok(r) => r,
             Err(e) => return self.reject_line(&line, e).await,
         };
+        if !self.conn.authenticated
+            && !matches!(
+                req.request,
+                Request::Hello { .. } | Request::Auth { .. } | Request::Stop
+            )
+        {
+            warn!(
+                verb = req.request.verb(),
+                "robotlink: request before authentication; closing"
+            );
+            let text = format!(
+                "{} refused: not authenticated; a robotlink v3 client sends HELLO 3 and AUTH \
+                 with a proof of the shared secret first",
+                req.request.verb()
+            );
+            let _ = self.conn.out.error(req.seq, ErrorCode::Auth, &text).await;
+            return Outcome::Close;
+        }
         if self.finish_replying().await == Outcome::Close {
             return Outcome::Close;
         }
@@ -712,6 +814,8 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
         let numeric = matches!(req, Request::Joints | Request::Pose | Request::Wait { .. });
         let is_move = matches!(req, Request::MoveJ { .. });
         let step = self.execute(req);
+        // A failed authentication ends the session right after its reply.
+        let fatal = matches!(&step, Step::Done(Answer::Err(ErrorCode::Auth, _)));
         let (cancel_tx, cancel_rx) = oneshot::channel();
         let replying = Arc::new(AtomicBool::new(false));
         let out = self.out.clone();
@@ -723,7 +827,7 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
                 Step::Wait(job) => job.run(cancel_rx).await,
             };
             let accepted_move = is_move && matches!(answer, Answer::Ok(_));
-            if out.reply_marking(seq, answer, numeric, &flag).await == Outcome::Close {
+            if out.reply_marking(seq, answer, numeric, &flag).await == Outcome::Close || fatal {
                 return Outcome::Close;
             }
             if accepted_move && take(&mut lock_faults(&faults).disconnect_during_move) {
@@ -742,6 +846,10 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
     fn execute(&mut self, req: Request) -> Step {
         Step::Done(match req {
             Request::Hello { proto_ver } => self.hello(proto_ver),
+            Request::Auth {
+                client_nonce,
+                proof,
+            } => self.auth(client_nonce, proof),
             Request::Ping => Answer::Ok(vec![]),
             Request::State => self.state(),
             Request::Power(on) => self.power(on),
@@ -770,22 +878,63 @@ impl<W: AsyncWrite + Send + Unpin + 'static> Conn<W> {
         })
     }
 
-    /// `HELLO`: accept any version in `PROTO_VERSION_MIN..=PROTO_VERSION` and switch to it.
+    /// `HELLO 3`: a fresh server nonce (the challenge of `AUTH`). Older versions are refused
+    /// with a text that tells the operator what to do; so is a second `HELLO` once authenticated.
     fn hello(&mut self, proto_ver: u32) -> Answer {
-        let max = lock_faults(&self.arm.faults)
-            .max_proto_version
-            .clamp(PROTO_VERSION_MIN, PROTO_VERSION);
-        if !(PROTO_VERSION_MIN..=max).contains(&proto_ver) {
+        let max = lock_faults(&self.arm.faults).max_proto_version;
+        if proto_ver == PROTO_VERSION && max < PROTO_VERSION {
+            // fault: answer as a server of an older protocol version would
+            let text = format!("unsupported protocol version {proto_ver}, server speaks 1..{max}");
+            return Answer::Err(ErrorCode::Args, text);
+        }
+        if proto_ver != PROTO_VERSION {
             return Answer::Err(
                 ErrorCode::Args,
                 format!(
-                    "unsupported protocol version {proto_ver}, server speaks \
-                     {PROTO_VERSION_MIN}..{max}"
+                    "unsupported protocol version {proto_ver}: this server speaks only robotlink \
+                     v{PROTO_VERSION} (authenticated); v1 and v2 let anyone who reaches the port \
+                     move the arm. Update cellcal on the host and give it this controller's \
+                     shared secret ([robot_controller] secret_file)"
                 ),
             );
         }
-        self.version = proto_ver;
-        Answer::Ok(codec::format_identity(&self.arm.backend.identity()))
+        if self.authenticated {
+            return Answer::Err(ErrorCode::Args, "already authenticated".into());
+        }
+        match Nonce::generate() {
+            Ok(n) => {
+                self.challenge = Some(n);
+                Answer::Ok(vec![n.to_hex()])
+            }
+            Err(e) => Answer::Err(ErrorCode::Auth, e.to_string()),
+        }
+    }
+
+    /// `AUTH`: check the client's proof against the nonce of the last `HELLO 3` (spent either
+    /// way); on success the session is authenticated (v3 rules) and the reply carries the
+    /// identity and the server's own proof. Any failure is `E_AUTH` (the session then closes).
+    fn auth(&mut self, client_nonce: Nonce, proof: Proof) -> Answer {
+        if self.authenticated {
+            return Answer::Err(ErrorCode::Args, "already authenticated".into());
+        }
+        let Some(server_nonce) = self.challenge.take() else {
+            return Answer::Err(ErrorCode::Auth, "AUTH without a HELLO 3 challenge".into());
+        };
+        let secret = &self.access.secret;
+        if !secret.verify_client(&server_nonce, &client_nonce, &proof) {
+            warn!("robotlink: authentication failed (wrong proof); closing");
+            return Answer::Err(
+                ErrorCode::Auth,
+                "authentication failed: the client does not hold this controller's shared secret"
+                    .into(),
+            );
+        }
+        self.authenticated = true;
+        self.version = PROTO_VERSION;
+        info!("robotlink: client authenticated");
+        let mut data = codec::format_identity(&self.arm.backend.identity());
+        data.push(secret.server_proof(&server_nonce, &client_nonce).to_hex());
+        Answer::Ok(data)
     }
 
     fn state(&self) -> Answer {
@@ -980,6 +1129,21 @@ impl<W: AsyncWrite + Send + Unpin> Replier<W> {
             Ok(()) => Outcome::Continue,
             Err(_) => Outcome::Close,
         }
+    }
+
+    /// Write an event line (used right before closing). Not cancel-safe: a drop mid-write leaves
+    /// half a line; it is only written right before closing.
+    async fn event(&self, name: EventName, data: &str) {
+        let line = format_event(&Event {
+            name,
+            data: data.into(),
+        });
+        let mut w = self.writer.lock().await;
+        let _ = tokio::time::timeout(WRITE_TIMEOUT, async {
+            w.write_all(line.as_bytes()).await?;
+            w.flush().await
+        })
+        .await;
     }
 
     /// Write an error reply (used right before closing).

@@ -8,6 +8,8 @@ fuzz_target!(|data: &[u8]| {
             let _ = robotlink::codec::parse_joints(d);
             let _ = robotlink::codec::parse_state(d);
             let _ = robotlink::codec::parse_pose(d);
+            let _ = robotlink::codec::parse_challenge(d);
+            let _ = robotlink::codec::parse_auth_reply(d);
         }
     }
 });

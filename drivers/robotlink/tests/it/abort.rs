@@ -1,16 +1,15 @@
-//! Abort during a move (protocol v2 out-of-band STOP, v1 fallback by closing) and cancel-safety
-//! of request futures. The latency bound (200 ms from sending STOP to a stopped arm) is the
+//! Abort during a move (out-of-band STOP once authenticated; before that, by closing) and
+//! cancel-safety of request futures. The latency bound (200 ms from sending STOP to a stopped arm) is the
 //! acceptance criterion; the measured figures are printed (`--nocapture`).
 
 use std::time::{Duration, Instant};
 
 use robotlink::{RobotBackend, RobotClient, RobotError, SimpleBackend, SimpleConfig};
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 
 use std::future::Future;
 use std::task::Poll;
 
-use crate::common::{close, Harness};
+use crate::common::{close, secret, Harness, Raw};
 
 /// Poll `f` exactly once, then drop it; its output if it was ready.
 async fn poll_once_then_drop<F: Future>(f: F) -> Option<F::Output> {
@@ -61,7 +60,7 @@ async fn assert_frozen_short(b: &SimpleBackend) {
 async fn stop_overtakes_an_outstanding_wait() {
     let h = slow_arm().await;
     let c = h.ready_client().await;
-    assert_eq!(c.protocol_version(), Some(2));
+    assert_eq!(c.protocol_version(), Some(3));
     c.move_joints(FAR, None).await.unwrap();
     let stopper = async {
         tokio::time::sleep(WHEN).await;
@@ -123,141 +122,65 @@ async fn stop_handle_stops_from_another_task() {
 }
 
 #[tokio::test]
-async fn v1_server_is_negotiated_and_stop_closes_the_connection() {
+async fn stop_is_accepted_before_the_handshake() {
+    // STOP is the one request a client that has not authenticated may send: it can only stop.
     let h = slow_arm().await;
-    h.faults().max_proto_version = 1;
-    let c = h.ready_client().await;
-    assert_eq!(c.protocol_version(), Some(1), "HELLO 2 → E_ARGS → HELLO 1");
-    // Idle: an ordinary in-order STOP, the connection stays.
-    c.stop().await.unwrap();
-    assert!(!c.is_closed());
-    c.move_joints(FAR, None).await.unwrap();
-    let stopper = async {
-        tokio::time::sleep(WHEN).await;
-        let sent = Instant::now();
-        c.stop().await.unwrap();
-        stopped_after(&h.backend, sent).await
-    };
-    let (wait, latency) = tokio::join!(c.wait_settled(Duration::from_secs(10)), stopper);
-    eprintln!("STOP latency, v1 fallback (close), WAIT outstanding: {latency:?}");
-    assert!(latency < STOP_BOUND, "{latency:?}");
-    assert!(matches!(wait, Err(RobotError::Disconnected)), "{wait:?}");
-    assert!(c.is_closed());
-    assert_frozen_short(&h.backend).await;
-    drop(c);
-    // Dropped WAIT then stop() on v1: also by closing.
-    let c = connect_when_free(&h).await;
-    assert_eq!(c.protocol_version(), Some(1));
-    c.power(true).await.unwrap();
-    c.move_joints(FAR, None).await.unwrap();
-    let r = tokio::time::timeout(WHEN, c.wait_settled(Duration::from_secs(10))).await;
-    assert!(r.is_err());
+    h.backend.set_power(true).unwrap();
+    h.backend.start_move(FAR, 100.0).unwrap();
+    let c = h.client().await;
     let sent = Instant::now();
     c.stop().await.unwrap();
     let latency = stopped_after(&h.backend, sent).await;
-    eprintln!("STOP latency, v1 fallback (close), dropped WAIT then stop(): {latency:?}");
     assert!(latency < STOP_BOUND, "{latency:?}");
+    assert!(!c.is_closed());
+    // The handshake still works on the same connection.
+    c.hello().await.unwrap();
+    c.ping().await.unwrap();
     h.stop().await;
 }
 
-/// A new client with HELLO done, once the previous session has ended.
-async fn connect_when_free(h: &Harness) -> RobotClient {
-    for _ in 0..50 {
-        let c = h.client().await;
-        if c.hello().await.is_ok() {
-            return c;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    panic!("server did not accept a new client");
-}
-
-struct Raw {
-    rd: BufReader<tokio::net::tcp::OwnedReadHalf>,
-    wr: tokio::net::tcp::OwnedWriteHalf,
-}
-
-impl Raw {
-    async fn connect(h: &Harness) -> Raw {
-        let s = tokio::net::TcpStream::connect(h.addr).await.unwrap();
-        let (rd, wr) = s.into_split();
-        Raw {
-            rd: BufReader::new(rd),
-            wr,
-        }
-    }
-
-    async fn send(&mut self, line: &str) {
-        self.wr.write_all(line.as_bytes()).await.unwrap();
-        self.wr.write_all(b"\n").await.unwrap();
-    }
-
-    async fn recv(&mut self) -> String {
-        let mut l = String::new();
-        tokio::time::timeout(Duration::from_secs(2), self.rd.read_line(&mut l))
-            .await
-            .expect("a line within 2 s")
-            .unwrap();
-        l.trim_end().to_string()
-    }
-
-    /// The next line, asserted to start with `prefix`.
-    async fn expect(&mut self, prefix: &str) {
-        let l = self.recv().await;
-        assert!(l.starts_with(prefix), "expected {prefix:?}, got {l:?}");
-    }
-
-    async fn exchange(&mut self, line: &str) -> String {
-        self.send(line).await;
-        self.recv().await
-    }
-
-    /// A raw session after `HELLO <version>` and `POWER ON`, the 4.5 s move accepted as seq 3.
-    async fn moving(h: &Harness, version: u32) -> Raw {
-        let mut s = Raw::connect(h).await;
-        let hello = s.exchange(&format!("1 HELLO {version}")).await;
-        assert!(hello.starts_with("1 OK"), "{hello}");
-        assert_eq!(s.exchange("2 POWER ON").await, "2 OK");
-        assert_eq!(s.exchange("3 MOVEJ 90 0 0 0 0 0").await, "3 OK");
-        s
-    }
+/// A raw session after the handshake and `POWER ON`, the 4.5 s move accepted as seq 4.
+async fn raw_moving(h: &Harness) -> Raw {
+    let mut s = Raw::connect(h).await;
+    let auth = s.authenticate(&secret()).await;
+    assert!(auth.starts_with("2 OK"), "{auth}");
+    assert_eq!(s.exchange("3 POWER ON").await, "3 OK");
+    assert_eq!(s.exchange("4 MOVEJ 90 0 0 0 0 0").await, "4 OK");
+    s
 }
 
 #[tokio::test]
-async fn v2_server_answers_stop_at_once_and_busy_for_other_requests() {
+async fn authenticated_server_answers_stop_at_once_and_busy_for_other_requests() {
     let h = slow_arm().await;
-    let mut s = Raw::moving(&h, 2).await;
-    s.send("4 WAIT 10000").await;
+    let mut s = raw_moving(&h).await;
+    s.send("5 WAIT 10000").await;
     tokio::time::sleep(Duration::from_millis(100)).await;
     // Another request while WAIT executes: E_BUSY at once, the WAIT goes on.
-    let busy = s.exchange("5 JOINTS").await;
-    assert!(busy.starts_with("5 ERR E_BUSY"), "{busy}");
+    let busy = s.exchange("6 JOINTS").await;
+    assert!(busy.starts_with("6 ERR E_BUSY"), "{busy}");
     assert!(h.backend.is_moving());
     // A malformed argument is still E_ARGS, the WAIT goes on.
-    assert!(s.exchange("6 WAIT x").await.starts_with("6 ERR E_ARGS"));
-    s.send("7 STOP").await;
+    assert!(s.exchange("7 WAIT x").await.starts_with("7 ERR E_ARGS"));
+    s.send("8 STOP").await;
     // The interrupted WAIT answers first, then the STOP.
-    s.expect("4 ERR E_STOPPED").await;
-    s.expect("7 OK").await;
+    s.expect("5 ERR E_STOPPED").await;
+    s.expect("8 OK").await;
     assert!(!h.backend.is_moving());
-    s.send("8 JOINTS").await;
-    s.expect("8 OK ").await;
+    s.send("9 JOINTS").await;
+    s.expect("9 OK ").await;
     h.stop().await;
 }
 
 #[tokio::test]
-async fn v1_session_keeps_requests_in_order() {
-    // Before HELLO, or after HELLO 1, a STOP sent during WAIT waits for the WAIT (v1 rules).
+async fn before_authentication_requests_are_handled_in_order() {
+    // Before the handshake a STOP sent behind another request waits for it (v1 rules).
     let h = slow_arm().await;
-    let mut s = Raw::moving(&h, 1).await;
-    s.send("4 WAIT 200").await;
-    s.send("5 STOP").await;
-    s.expect("4 ERR E_TIMEOUT").await;
-    s.expect("5 OK").await;
-    assert!(!h.backend.is_moving());
-    // HELLO 3 is refused with E_ARGS (a v2 client then falls back).
-    s.send("6 HELLO 3").await;
-    s.expect("6 ERR E_ARGS").await;
+    h.faults().delay_reply = 1;
+    let mut s = Raw::connect(&h).await;
+    s.send("1 HELLO 3").await;
+    s.send("2 STOP").await;
+    s.expect("1 OK ").await;
+    s.expect("2 OK").await;
     h.stop().await;
 }
 
@@ -315,6 +238,7 @@ async fn a_dropped_server_session_stops_the_arm_and_closes_the_connection() {
         b,
         dynb,
         robotlink::FaultConfig::handle(),
+        std::sync::Arc::new(robotlink::ServerAccess::loopback(secret())),
         stop_rx,
     ));
     let c = RobotClient::from_stream(a, Harness::config());

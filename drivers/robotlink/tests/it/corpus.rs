@@ -1,9 +1,12 @@
 //! Feeds every file in `tests/corpus/` through the parser named by its prefix.
 //! File name: `<parser>_<class>_<label>.txt`; every non-empty line is one case.
-//! parser: `req` (parse_request), `srv` (parse_server_line), `joints` / `state` (typed reply data).
+//! parser: `req` (parse_request), `srv` (parse_server_line), `joints` / `state` / `challenge` /
+//! `authreply` (typed reply data).
 //! class: `ok`, `args` (request error that is E_ARGS), `syntax` (request error that is E_SYNTAX), `err`.
 
-use robotlink::codec::{parse_joints, parse_request, parse_server_line, parse_state};
+use robotlink::codec::{
+    parse_auth_reply, parse_challenge, parse_joints, parse_request, parse_server_line, parse_state,
+};
 
 #[test]
 fn corpus_files_parse_as_expected() {
@@ -31,6 +34,8 @@ fn corpus_files_parse_as_expected() {
                 "srv" => parse_server_line(line).map(drop),
                 "joints" => parse_joints(&fields()).map(drop),
                 "state" => parse_state(&fields()).map(drop),
+                "challenge" => parse_challenge(&fields()).map(drop),
+                "authreply" => parse_auth_reply(&fields()).map(drop),
                 p => panic!("{name}: unknown parser {p}"),
             };
             match (class.as_str(), &res) {

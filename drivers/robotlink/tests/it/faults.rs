@@ -126,6 +126,7 @@ async fn client_timeout_on_delayed_reply() {
     )
     .await
     .unwrap();
+    c.hello().await.unwrap();
     c.power(true).await.unwrap();
     {
         let mut f = h.faults();

@@ -12,6 +12,10 @@ fn num() -> impl Strategy<Value = f64> {
 fn request() -> impl Strategy<Value = Request> {
     prop_oneof![
         (0u32..1000).prop_map(|v| Request::Hello { proto_ver: v }),
+        (any::<[u8; 16]>(), any::<[u8; 32]>()).prop_map(|(n, p)| Request::Auth {
+            client_nonce: robotlink::Nonce(n),
+            proof: robotlink::Proof(p),
+        }),
         Just(Request::Ping),
         Just(Request::State),
         any::<bool>().prop_map(Request::Power),
@@ -43,6 +47,7 @@ fn code() -> impl Strategy<Value = ErrorCode> {
         Just(ErrorCode::Timeout),
         Just(ErrorCode::Mode),
         Just(ErrorCode::Stopped),
+        Just(ErrorCode::Auth),
         "E_[A-Z0-9_]{1,10}".prop_filter_map("known", |s| {
             match ErrorCode::parse(&s) {
                 Ok(ErrorCode::Other(o)) => Some(ErrorCode::Other(o)),
@@ -126,10 +131,12 @@ proptest! {
         let fields: Vec<String> = s.split_whitespace().map(str::to_string).collect();
         let _ = parse_joints(&fields);
         let _ = parse_state(&fields);
+        let _ = robotlink::codec::parse_challenge(&fields);
+        let _ = robotlink::codec::parse_auth_reply(&fields);
     }
 
     #[test]
-    fn structured_garbage_never_panics(seq in "[0-9]{0,8}", verb in "(HELLO|PING|MOVEJ|WAIT|POWER|SPEED|OK|ERR|\\*|EVT)",
+    fn structured_garbage_never_panics(seq in "[0-9]{0,8}", verb in "(HELLO|AUTH|PING|MOVEJ|WAIT|POWER|SPEED|OK|ERR|\\*|EVT)",
                                         args in prop::collection::vec("[-+0-9.eEa-z_=]{0,6}", 0..9)) {
         let line = format!("{seq} {verb} {}", args.join(" "));
         let _ = parse_request(&line);

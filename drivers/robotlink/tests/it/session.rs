@@ -3,7 +3,7 @@ use std::time::{Duration, Instant};
 use robotlink::{ClientConfig, ErrorCode, EventName, RobotBackend, RobotClient, RobotError};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 
-use crate::common::{close, eventually, Harness};
+use crate::common::{close, eventually, secret, Harness, Raw};
 
 #[tokio::test]
 async fn normal_session() {
@@ -39,6 +39,7 @@ async fn normal_session() {
 async fn motion_needs_power_and_limits() {
     let h = Harness::start().await;
     let c = h.client().await;
+    c.hello().await.unwrap();
     let e = c.move_joints([1.0; 6], None).await.unwrap_err();
     assert!(matches!(e, RobotError::PowerOff(_)), "{e:?}");
     c.power(true).await.unwrap();
@@ -105,7 +106,7 @@ async fn second_client_refused() {
     let mut ok = false;
     for _ in 0..50 {
         let c3 = h.client().await;
-        if c3.ping().await.is_ok() {
+        if c3.hello().await.is_ok() {
             ok = true;
             break;
         }
@@ -181,27 +182,14 @@ async fn hardware_estop_and_power_loss_during_wait() {
 #[tokio::test]
 async fn malformed_line_closes_and_args_error_does_not() {
     let h = Harness::start().await;
-    let s = tokio::net::TcpStream::connect(h.addr).await.unwrap();
-    let (rd, mut wr) = s.into_split();
-    let mut rd = BufReader::new(rd);
-    let mut line = String::new();
-    wr.write_all(b"7 MOVEJ 1 2\r\n").await.unwrap();
-    rd.read_line(&mut line).await.unwrap();
-    assert!(line.starts_with("7 ERR E_ARGS"), "{line}");
-    line.clear();
-    wr.write_all(b"8 PING\n").await.unwrap();
-    rd.read_line(&mut line).await.unwrap();
-    assert_eq!(line, "8 OK\n");
-    line.clear();
-    wr.write_all(b"9 LAUNCH\n").await.unwrap();
-    rd.read_line(&mut line).await.unwrap();
-    assert!(line.starts_with("9 ERR E_SYNTAX"), "{line}");
-    line.clear();
-    let n = tokio::time::timeout(Duration::from_secs(1), rd.read_line(&mut line))
-        .await
-        .unwrap()
-        .unwrap();
-    assert_eq!(n, 0, "server must close after a malformed line");
+    let mut s = Raw::connect(&h).await;
+    assert!(s.authenticate(&secret()).await.starts_with("2 OK "));
+    let l = s.exchange("7 MOVEJ 1 2\r").await;
+    assert!(l.starts_with("7 ERR E_ARGS"), "{l}");
+    assert_eq!(s.exchange("8 PING").await, "8 OK");
+    let l = s.exchange("9 LAUNCH").await;
+    assert!(l.starts_with("9 ERR E_SYNTAX"), "{l}");
+    assert!(s.closed().await, "server must close after a malformed line");
     h.stop().await;
 }
 
