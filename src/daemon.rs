@@ -782,17 +782,21 @@ impl Daemon {
         let state = &view.state;
         Err(DaemonError::Conflict(match (loaded, holder) {
             (Some(other), _) => format!(
-                "campaign {id} is not loaded ({state}): nothing of it moves; campaign {other} is                  the loaded one — send {what} to campaign {other}"
+                "campaign {id} is not loaded ({state}): nothing of it moves; campaign {other} is \
+                 the loaded one — send {what} to campaign {other}"
             ),
             (None, Some(h)) => format!(
                 "campaign {id} is run by another process, {h}, not by this daemon: stop it there"
             ),
             (None, None) if stops => return Ok(view),
             (None, None) if matches!(cmd, ClientCommand::Reregister) => format!(
-                "campaign {id} is not loaded ({state}): reregister resumes a paused campaign;                  an operator loads it with arm and start (a resumed campaign whose tracker                  moved pauses, then reregister)"
+                "campaign {id} is not loaded ({state}): reregister resumes a paused campaign; \
+                 an operator loads it with arm and start (a resumed campaign whose tracker \
+                 moved pauses, then reregister)"
             ),
             (None, None) => format!(
-                "campaign {id} is not loaded ({state}): nothing to {what}; only an operator                  loads a stored campaign (arm, start or resume)"
+                "campaign {id} is not loaded ({state}): nothing to {what}; only an operator \
+                 loads a stored campaign (arm, start or resume)"
             ),
         }))
     }

@@ -28,9 +28,7 @@ use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
 use crate::sim::{start_cell, RunningSimCell, SimTechnician, SimWorldConfig};
-use crate::store::{
-    CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, ISO9283_KIND,
-};
+use crate::store::{CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, ISO9283_KIND};
 use crate::wall_clock::now_unix_ms;
 
 /// Why a session could not be set up.

@@ -11,8 +11,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use super::serve::{
-    fast_config, get, post, post_as, role_tokens, start, start_as_operator, wait_for_state,
-    Server,
+    fast_config, get, post, post_as, role_tokens, start, start_as_operator, wait_for_state, Server,
 };
 use cellcal::store::Store;
 
@@ -97,17 +96,16 @@ fn two_run_arm_started_together_on_one_store_one_is_refused_naming_the_other() {
     };
     let winner_pid = winner.id();
     let (code, err) = finish(loser);
-    terminate(&winner);
-    let (won, _) = finish(winner);
     assert_eq!(code, Some(2), "the second commander is refused: {err}");
     assert!(
         err.contains("commanded by") && err.contains(&format!("pid {winner_pid} ")),
         "names the holder: {err}"
     );
-    assert!(
-        matches!(won, Some(0 | 143)),
-        "the first ran until stopped: {won:?}"
-    );
+    // the first measures on, until stopped
+    wait_for_a_pose(&store);
+    terminate(&winner);
+    let (won, err) = finish(winner);
+    assert!(matches!(won, Some(0 | 143)), "{won:?}: {err}");
     assert_eq!(
         campaigns(&store).len(),
         1,
@@ -233,7 +231,11 @@ fn a_commander_killed_mid_run_leaves_an_interrupted_campaign_and_a_cell_taken_ov
     // ABORT on it answers its true state; nothing is loaded
     let commands = format!("/api/campaigns/{id}/commands");
     let (code, v) = post(&s, &commands, r#"{"command": "abort"}"#);
-    assert_eq!((code, v["state"].clone()), (200, "interrupted".into()), "{v}");
+    assert_eq!(
+        (code, v["state"].clone()),
+        (200, "interrupted".into()),
+        "{v}"
+    );
     drop(s);
     // a daemon started now marks it interrupted in the store and journals why
     let s = start(&cfg, &store);
@@ -286,7 +288,10 @@ fn only_an_operator_loads_a_stored_campaign() {
     }
     // … and nothing changed: state, lock, devices; the operator's create goes through
     let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
-    assert_eq!((v["state"].clone(), v["loaded"].clone()), ("aborted".into(), false.into()));
+    assert_eq!(
+        (v["state"].clone(), v["loaded"].clone()),
+        ("aborted".into(), false.into())
+    );
     assert_eq!(
         Store::open_reader(&store)
             .expect("reader")
