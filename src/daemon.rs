@@ -309,8 +309,10 @@ struct Loaded {
 }
 
 impl Loaded {
+    /// Its engine has not returned (once it has, the campaign is let go and no longer loaded,
+    /// though the task may still stop the simulated cell).
     fn running(&self) -> bool {
-        !self.task.is_finished()
+        !self.ended.is_cancelled() && !self.task.is_finished()
     }
 }
 
@@ -1162,7 +1164,9 @@ fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
         // before a start there is nothing to pause
         ClientCommand::Pause => |s| s != "running",
         ClientCommand::Resume | ClientCommand::Reregister => |s| s != "paused",
-        ClientCommand::Abort => |s| matches!(s, "aborted" | "done" | "failed"),
+        // until the run has ended and let go of the campaign and the cell: the reply's
+        // `loaded: false` is true, and a next command loads it again
+        ClientCommand::Abort => |_| false,
         ClientCommand::Answer { .. } => return None,
     })
 }
@@ -1177,13 +1181,26 @@ struct StateWait {
 impl StateWait {
     /// Until the engine's state is one `settled` accepts, the run ends, or `limit` passes.
     /// Cancel-safe (it only waits).
-    async fn settle(mut self, limit: Duration) {
-        let settled = self.settled;
-        let reached = self.state.wait_for(|s| s.as_deref().is_some_and(settled));
+    async fn settle(self, limit: Duration) {
+        let StateWait {
+            mut state,
+            ended,
+            settled,
+        } = self;
+        let reached = async {
+            // the observer is gone after the run's final state: the end is what is left
+            if state
+                .wait_for(|s| s.as_deref().is_some_and(settled))
+                .await
+                .is_err()
+            {
+                std::future::pending::<()>().await;
+            }
+        };
         let _ = tokio::time::timeout(limit, async {
             tokio::select! {
                 _ = reached => {}
-                _ = self.ended.cancelled() => {}
+                _ = ended.cancelled() => {}
             }
         })
         .await;

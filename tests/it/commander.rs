@@ -70,6 +70,19 @@ fn campaigns(store: &Path) -> Vec<cellcal::store::CampaignRow> {
         .expect("list")
 }
 
+/// Wait until campaign `id`'s engine has ended (`loaded: false`).
+fn wait_unloaded(s: &Server, id: i64) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let (_, v) = get(s, &format!("/api/campaigns/{id}"));
+        if v["loaded"] == false {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "never unloaded: {v}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 fn journal_text(s: &Server, id: i64) -> String {
     let (code, v) = get(s, &format!("/api/campaigns/{id}/events"));
     assert_eq!(code, 200, "{v}");
@@ -273,6 +286,7 @@ fn only_an_operator_loads_a_stored_campaign() {
     let commands = format!("/api/campaigns/{id}/commands");
     let (code, v) = post(&s, &commands, r#"{"command": "abort"}"#);
     assert_eq!((code, v["state"].clone()), (200, "aborted".into()), "{v}");
+    wait_unloaded(&s, id);
     let before = get(&s, "/api/devices").1;
     // a technician's pause, or an answer with a wrong seq, on the stored campaign: refused
     for body in [
@@ -329,7 +343,12 @@ fn a_campaign_created_with_overrides_resumes_with_its_own_plan() {
     let id = v["id"].as_i64().expect("id");
     let commands = format!("/api/campaigns/{id}/commands");
     let plan = get(&s, &format!("/api/campaigns/{id}/plan")).1;
-    assert_eq!(post(&s, &commands, r#"{"command": "abort"}"#).0, 200);
+    let (code, v) = post(&s, &commands, r#"{"command": "abort"}"#);
+    assert_eq!(
+        (code, v["state"].clone(), v["loaded"].clone()),
+        (200, "aborted".into(), false.into()),
+        "an abort answers once the run has ended: {v}"
+    );
     let (code, v) = post(&s, &commands, r#"{"command": "arm"}"#);
     assert_eq!(
         (code, v["armed"].clone()),
