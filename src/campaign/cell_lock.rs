@@ -147,7 +147,7 @@ pub enum CellLockError {
         /// The cell.
         cell: String,
         /// Who holds it, when its record could be read.
-        holder: Option<CellHolder>,
+        holder: Option<Box<CellHolder>>,
     },
     /// The lock directory or file cannot be used.
     #[error(
@@ -223,7 +223,7 @@ impl CellLock {
                 Err(TryLockError::WouldBlock) => {
                     return Err(CellLockError::Busy {
                         cell: key.to_string(),
-                        holder: wait_for_record(&path),
+                        holder: wait_for_record(&path).map(Box::new),
                     })
                 }
                 Err(TryLockError::Error(e)) => return Err(io(&path)(e)),
