@@ -24,6 +24,8 @@ use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
+use crate::campaign::cell_lock::CellLockError;
+use crate::campaign::lock::{is_dead, mark_interrupted};
 use crate::campaign::report::{campaign_report, ReportError};
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
 use crate::campaign::stored::{load_stored, stored_model_toml, StoredError};
@@ -34,7 +36,9 @@ use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext};
 use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::metrics::Metrics;
-use crate::store::{CampaignRow, EventRecord, JournalEntry, Store, StoreError, StoreReader};
+use crate::store::{
+    CampaignRow, EventRecord, JournalEntry, LockHolder, Store, StoreError, StoreReader,
+};
 
 mod observe;
 use observe::{CellWatch, Observer};
@@ -154,7 +158,8 @@ pub struct CampaignView {
     /// Creation time (ms since the Unix epoch).
     pub created_at_ms: i64,
     /// Last stored state (`idle`, `armed`, `running`, `paused`, `identifying`, `done`,
-    /// `aborted`, `failed`, or `created` before the engine first ran).
+    /// `aborted`, `failed`, or `created` before the engine first ran), or `interrupted`: stored
+    /// in a state of a run whose process is gone (nothing of it moves; resumable).
     pub state: String,
     /// Observation model.
     pub model: String,
@@ -304,8 +309,10 @@ struct Loaded {
 }
 
 impl Loaded {
+    /// Its engine has not returned (once it has, the campaign is let go and no longer loaded,
+    /// though the task may still stop the simulated cell).
     fn running(&self) -> bool {
-        !self.task.is_finished()
+        !self.ended.is_cancelled() && !self.task.is_finished()
     }
 }
 
@@ -372,12 +379,17 @@ fn lock<T>(m: &StdMutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 /// Session errors that are a conflict with the campaign's state, not a daemon failure: a done
-/// campaign, a changed configuration, a campaign another process runs.
-fn refusal(e: SessionError) -> DaemonError {
+/// campaign, a changed configuration, a campaign another process runs, a cell another process
+/// commands, a stored plan that cannot be routed (`resumed`).
+fn refusal(e: SessionError, resumed: bool) -> DaemonError {
     match e {
         SessionError::Done(_)
         | SessionError::ConfigChanged { .. }
+        | SessionError::Cell(CellLockError::Busy { .. })
         | SessionError::Store(StoreError::Locked { .. }) => DaemonError::Conflict(e.to_string()),
+        e @ SessionError::Plan(_) if resumed => DaemonError::Conflict(e.to_string()),
+        // a new campaign's plan follows the client's overrides
+        e @ SessionError::Plan(_) => DaemonError::BadRequest(e.to_string()),
         // an infeasible campaign is the client's request to fix, before anything starts
         SessionError::Infeasible(f) => DaemonError::BadRequest(f.to_string()),
         // so is an ISO 9283 cube the robot cannot reach under the planning checks
@@ -439,7 +451,14 @@ impl Daemon {
         store_path: &Path,
         opts: DaemonOptions,
     ) -> Result<Daemon, DaemonError> {
-        let writer = Store::open(store_path)?;
+        let mut writer = Store::open(store_path)?;
+        for (id, was) in mark_interrupted(&mut writer)? {
+            tracing::warn!(
+                campaign = id,
+                stored = was.as_str(),
+                "campaign interrupted: the process that ran it is gone"
+            );
+        }
         let first = Store::open_reader(store_path)?;
         Ok(Daemon {
             cfg,
@@ -511,11 +530,20 @@ impl Daemon {
                     context: p.prompt.context.clone(),
                 })
         });
+        let here = l.is_some_and(Loaded::running);
+        let state = match v.holder {
+            Some(h) if !is_dead(&h) => v.row.state,
+            // no live process runs it: a run's state is history
+            _ if !here && crate::campaign::lock::is_run_state(&v.row.state) => {
+                crate::campaign::lock::INTERRUPTED.to_owned()
+            }
+            _ => v.row.state,
+        };
         CampaignView {
             id: v.row.id,
             name: v.row.name,
             created_at_ms: v.row.created_at_ms,
-            state: v.row.state,
+            state,
             model: v.row.model,
             poses_done: v.done,
             poses_total: v.total,
@@ -614,7 +642,7 @@ impl Daemon {
             self.opts.event_capacity,
         )
         .await
-        .map_err(refusal)?;
+        .map_err(|e| refusal(e, id.is_some()))?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
         let (run_start, (done, total)) = self
@@ -651,8 +679,8 @@ impl Daemon {
             };
             drop(devices);
             drop(ctx);
-            // let go of the campaign (a store write) before announcing the end
-            let held = session.lock;
+            // let go of the campaign (a store write) and the cell before announcing the end
+            let held = (session.lock, session.cell);
             let _ = tokio::task::spawn_blocking(move || drop(held)).await;
             *lock(&text_slot) = Some(text);
             end.cancel();
@@ -697,24 +725,82 @@ impl Daemon {
         state_rx
     }
 
-    /// Apply a client command to campaign `id` (loading a stored campaign to resume it) and
-    /// answer with the campaign once the engine has taken it: the reply's `state` is the state
-    /// the command leads to (`arm` → `armed`, `start` → `running`, `abort` → `aborted`, …),
-    /// waiting at most [`COMMAND_SETTLE`] (a pause takes effect after the current pose, so a
-    /// slow pose may still answer `running`). Cancel-safe: a command is applied at once (a
-    /// load runs in its own task); a dropped call only stops the waiting.
+    /// Apply a client command to campaign `id` and answer with the campaign once the engine
+    /// has taken it: the reply's `state` is the state the command leads to (`arm` → `armed`,
+    /// `start` → `running`, `abort` → `aborted`, …), waiting at most [`COMMAND_SETTLE`] (a
+    /// pause takes effect after the current pose, so a slow pose may still answer `running`).
+    /// Only `arm`, `start` and `resume` (an operator's) load a stored campaign that is not
+    /// loaded; any other command on it changes nothing ([`Daemon::not_loaded`]). Cancel-safe: a
+    /// command is applied at once (a load runs in its own task); a dropped call only stops the
+    /// waiting.
     pub async fn command(
         self: &Arc<Self>,
         id: i64,
         cmd: ClientCommand,
     ) -> Result<CampaignView, DaemonError> {
-        if !matches!(cmd, ClientCommand::Abort | ClientCommand::Disarm) {
-            self.ensure_loaded(id).await?;
+        let loaded = self.running_id();
+        if loaded != Some(id) {
+            match cmd {
+                ClientCommand::Arm | ClientCommand::Start | ClientCommand::Resume => {
+                    self.ensure_loaded(id).await?
+                }
+                _ => return self.not_loaded(id, &cmd, loaded).await,
+            }
         }
         if let Some(wait) = self.apply_to_loaded(id, cmd)? {
             wait.settle(COMMAND_SETTLE).await;
         }
         self.get(id).await
+    }
+
+    /// The id of the campaign whose engine runs in this daemon, if any.
+    fn running_id(&self) -> Option<i64> {
+        let slot = lock(&self.slot);
+        slot.loaded.as_ref().filter(|l| l.running()).map(|l| l.id)
+    }
+
+    /// The answer to `cmd` on campaign `id`, which is not loaded (`loaded` is): nothing is
+    /// loaded or changed. An abort or disarm answers the campaign's true state when nothing of
+    /// it can move; a conflict names the loaded campaign, or the live process that runs `id`.
+    /// Cancel-safe (reads only).
+    async fn not_loaded(
+        &self,
+        id: i64,
+        cmd: &ClientCommand,
+        loaded: Option<i64>,
+    ) -> Result<CampaignView, DaemonError> {
+        let v = self.read(move |s| stored_view(s, s.campaign(id)?)).await?;
+        let holder = v.holder.clone().filter(|h| !is_dead(h));
+        let view = self.view_of(v);
+        let stops = matches!(cmd, ClientCommand::Abort | ClientCommand::Disarm);
+        let what = match cmd {
+            ClientCommand::Abort => "abort",
+            ClientCommand::Disarm => "disarm",
+            ClientCommand::Pause => "pause",
+            ClientCommand::Reregister => "reregister",
+            ClientCommand::Answer { .. } => "answer",
+            ClientCommand::Arm | ClientCommand::Start | ClientCommand::Resume => "load",
+        };
+        let state = &view.state;
+        Err(DaemonError::Conflict(match (loaded, holder) {
+            (Some(other), _) => format!(
+                "campaign {id} is not loaded ({state}): nothing of it moves; campaign {other} is \
+                 the loaded one — send {what} to campaign {other}"
+            ),
+            (None, Some(h)) => format!(
+                "campaign {id} is run by another process, {h}, not by this daemon: stop it there"
+            ),
+            (None, None) if stops => return Ok(view),
+            (None, None) if matches!(cmd, ClientCommand::Reregister) => format!(
+                "campaign {id} is not loaded ({state}): reregister resumes a paused campaign; \
+                 an operator loads it with arm and start (a resumed campaign whose tracker \
+                 moved pauses, then reregister)"
+            ),
+            (None, None) => format!(
+                "campaign {id} is not loaded ({state}): nothing to {what}; only an operator \
+                 loads a stored campaign (arm, start or resume)"
+            ),
+        }))
     }
 
     /// Apply `cmd` to campaign `id` if it is the running one, returning how to wait for the
@@ -776,6 +862,13 @@ impl Daemon {
             ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
             ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
             ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
+            // a re-registration belongs to the resume it comes with: never remembered
+            ClientCommand::Reregister if l.state.borrow().as_deref() != Some("paused") => {
+                return Err(DaemonError::Conflict(format!(
+                    "campaign {id} is not paused: reregister resumes a paused campaign (it is \
+                     not remembered for a later start)"
+                )));
+            }
             ClientCommand::Reregister => l.control.apply(&CampaignCommand::Reregister),
             ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
         }
@@ -1071,7 +1164,9 @@ fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
         // before a start there is nothing to pause
         ClientCommand::Pause => |s| s != "running",
         ClientCommand::Resume | ClientCommand::Reregister => |s| s != "paused",
-        ClientCommand::Abort => |s| matches!(s, "aborted" | "done" | "failed"),
+        // until the run has ended and let go of the campaign and the cell: the reply's
+        // `loaded: false` is true, and a next command loads it again
+        ClientCommand::Abort => |_| false,
         ClientCommand::Answer { .. } => return None,
     })
 }
@@ -1086,13 +1181,26 @@ struct StateWait {
 impl StateWait {
     /// Until the engine's state is one `settled` accepts, the run ends, or `limit` passes.
     /// Cancel-safe (it only waits).
-    async fn settle(mut self, limit: Duration) {
-        let settled = self.settled;
-        let reached = self.state.wait_for(|s| s.as_deref().is_some_and(settled));
+    async fn settle(self, limit: Duration) {
+        let StateWait {
+            mut state,
+            ended,
+            settled,
+        } = self;
+        let reached = async {
+            // the observer is gone after the run's final state: the end is what is left
+            if state
+                .wait_for(|s| s.as_deref().is_some_and(settled))
+                .await
+                .is_err()
+            {
+                std::future::pending::<()>().await;
+            }
+        };
         let _ = tokio::time::timeout(limit, async {
             tokio::select! {
                 _ = reached => {}
-                _ = self.ended.cancelled() => {}
+                _ = ended.cancelled() => {}
             }
         })
         .await;
@@ -1102,6 +1210,8 @@ impl StateWait {
 /// What a view needs from the store.
 struct StoredView {
     row: CampaignRow,
+    /// The process holding the campaign (its lock row), if any.
+    holder: Option<LockHolder>,
     done: usize,
     total: usize,
     has_result: bool,
@@ -1113,8 +1223,10 @@ fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
     let (done, total) = s.pose_counts(row.id)?;
     let has_result = s.has_result(row.id)?;
     let quality = s.result_quality(row.id)?;
+    let holder = s.campaign_holder(row.id)?;
     Ok(StoredView {
         row,
+        holder,
         done,
         total,
         has_result,

@@ -334,7 +334,7 @@ async fn list(State(d): State<Shared>) -> Result<Response, ApiError> {
         (status = 400, description = "a bad override, or a campaign that cannot run", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 403, description = "the role may not create", body = ErrorBody),
-        (status = 409, description = "a campaign is loaded", body = ErrorBody),
+        (status = 409, description = "a campaign is loaded, or another process commands the cell", body = ErrorBody),
         (status = 413, description = "body over 64 KiB", body = ErrorBody),
         (status = 415, description = "body not declared application/json", body = ErrorBody)))]
 async fn create(
@@ -378,7 +378,7 @@ async fn one(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Resp
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 403, description = "the role may not do that", body = ErrorBody),
         (status = 404, description = "no such campaign", body = ErrorBody),
-        (status = 409, description = "conflicts with the cell's current use (not armed, a stale question number, …)", body = ErrorBody),
+        (status = 409, description = "conflicts with the cell's current use (not armed, a stale question number, a campaign that is not loaded — only arm, start and resume load one —, another process commanding the cell, …)", body = ErrorBody),
         (status = 413, description = "body over 64 KiB", body = ErrorBody),
         (status = 415, description = "body not declared application/json", body = ErrorBody)))]
 async fn command(

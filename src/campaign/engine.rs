@@ -777,6 +777,8 @@ impl Run<'_> {
     /// `Stop::Aborted` on the abort token instead.
     async fn paused(&self, reason: String) -> Result<(), Stop> {
         let mut pause = self.ctx.control.pause.subscribe();
+        // a re-registration belongs to the resume it comes with, not to one before this pause
+        self.ctx.control.take_reregister();
         self.set_state(CampaignState::Paused { reason }).await?;
         while *pause.borrow_and_update() {
             tokio::select! {

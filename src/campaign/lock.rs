@@ -3,7 +3,8 @@
 
 use std::sync::{Arc, Mutex};
 
-use crate::store::{Acquired, LockHolder, Store, StoreError};
+use super::events::CampaignEvent;
+use crate::store::{Acquired, EventRecord, LockHolder, Store, StoreError};
 use crate::wall_clock::now_unix_ms;
 
 /// Holds a campaign for this process until dropped (one short SQLite write on the store the
@@ -47,6 +48,58 @@ impl Drop for CampaignLock {
         let mut s = self.store.lock().unwrap_or_else(|p| p.into_inner());
         let _ = s.unlock_campaign(self.campaign_id, &self.me);
     }
+}
+
+/// The state shown for a campaign stored in a run's state whose process is gone.
+pub const INTERRUPTED: &str = "interrupted";
+
+/// The stored states only a running engine is in (a campaign left in one by a process that is
+/// gone is [`INTERRUPTED`]).
+pub const RUN_STATES: [&str; 5] = ["idle", "armed", "running", "paused", "identifying"];
+
+/// Whether `state` is one of [`RUN_STATES`].
+pub fn is_run_state(state: &str) -> bool {
+    RUN_STATES.contains(&state)
+}
+
+/// Mark every campaign stored in a run's state that no live process holds [`INTERRUPTED`]
+/// (nothing of it moves; it stays resumable) and journal why; returns each one's id and the
+/// state it had. Blocking (store writes).
+pub fn mark_interrupted(store: &mut Store) -> Result<Vec<(i64, String)>, StoreError> {
+    let mut out = Vec::new();
+    for row in store.list_campaigns()? {
+        let Some((was, holder)) =
+            store.interrupt_unheld(row.id, &RUN_STATES, INTERRUPTED, is_dead)?
+        else {
+            continue;
+        };
+        let who = holder.map_or_else(
+            || "the process that ran it".to_owned(),
+            |h| format!("the process that ran it ({h})"),
+        );
+        let text = format!(
+            "interrupted: stored `{was}`, but {who} is gone; nothing of it moves. Resume it to \
+             measure on"
+        );
+        journal_note(store, row.id, text)?;
+        out.push((row.id, was));
+    }
+    Ok(out)
+}
+
+/// Journal a note in campaign `id`'s events (outside a run: nothing publishes it live).
+pub(crate) fn journal_note(store: &mut Store, id: i64, text: String) -> Result<(), StoreError> {
+    let event = CampaignEvent::Note { text };
+    store.add_event(
+        id,
+        &EventRecord {
+            at_ms: now_unix_ms(),
+            kind: event.kind().to_owned(),
+            message: serde_json::to_string(&event)
+                .map_err(|e| StoreError::Invalid(e.to_string()))?,
+        },
+    )?;
+    Ok(())
 }
 
 /// This process as a lock holder.

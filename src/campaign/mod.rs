@@ -6,6 +6,7 @@
 //! measure → stage to P2 → measure → stage back → **store commits** → next pose. The robot is
 //! never sent anywhere before the pose's measurements are durable.
 
+pub mod cell_lock;
 pub mod engine;
 pub mod events;
 pub mod feasibility;

@@ -8,8 +8,9 @@ use std::sync::{Arc, Mutex};
 use nalgebra::Vector3;
 use robotlink::SharedSecret;
 
+use super::cell_lock::{lock_dir, CellKey, CellLock, CellLockError};
 use super::engine::{CampaignContext, Devices, FaultPolicy};
-use super::events::{CampaignEvent, Control};
+use super::events::Control;
 use super::feasibility;
 use super::lock::CampaignLock;
 use crate::cell::stage_manual::{ManualStage, ManualStageConfig};
@@ -28,9 +29,7 @@ use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
 use crate::sim::{start_cell_with, RunningSimCell, SimTechnician, SimWorldConfig};
-use crate::store::{
-    CampaignKind, CampaignRow, EventRecord, NewCampaign, PlannedPose, Store, ISO9283_KIND,
-};
+use crate::store::{CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, ISO9283_KIND};
 use crate::wall_clock::now_unix_ms;
 
 /// Why a session could not be set up.
@@ -83,6 +82,9 @@ pub enum SessionError {
     /// The ISO 9283 poses cannot be planned.
     #[error("planning: {0}")]
     Iso(#[from] IsoPlanError),
+    /// Another process commands the cell (or its lock cannot be taken).
+    #[error(transparent)]
+    Cell(#[from] CellLockError),
 }
 
 /// A stored campaign to resume.
@@ -117,6 +119,9 @@ pub struct Session {
     pub resumed: bool,
     /// This process is the campaign's one runner while this is held.
     pub lock: CampaignLock,
+    /// This process is the cell's one commander while this is held (`None`: an in-memory
+    /// store with a simulated robot, a cell no other process can reach).
+    pub cell: Option<CellLock>,
 }
 
 /// Planning request from the configuration.
@@ -146,8 +151,10 @@ pub const EVENT_CAPACITY: usize = 1024;
 /// Set up a campaign session on the store at `path` (opened, migrated, as the session's only
 /// writer). `campaign` resumes a stored campaign (refused when it is done, or when its
 /// configuration or robot model changed unless accepted); otherwise a new one is planned and
-/// stored (the split is fixed before the first measurement). Either way this process then
-/// holds the campaign ([`CampaignLock`]) until the session is dropped; only then are the
+/// stored (the split is fixed before the first measurement). Before anything is planned or
+/// stored this process takes the cell ([`CellLock`]: refused while another process commands
+/// it); it then holds the cell and the campaign ([`CampaignLock`]) until the session is
+/// dropped; only then are the
 /// simulated devices (if any) started and the adapters built. Not cancel-safe: a dropped call may
 /// leave a stored campaign that no session runs (and a simulated cell to be dropped).
 pub async fn open_session(
@@ -194,7 +201,20 @@ pub async fn open_session_with(
             cfg.clone(),
         );
         tokio::task::spawn_blocking(move || {
-            plan_and_store(&store, &nominal, &req, &cfg, campaign, robot_text)
+            let cell = take_cell(&store, &cfg, campaign.map(|r| r.id))?;
+            let mut prepared = plan_and_store(&store, &nominal, &req, &cfg, campaign, robot_text)?;
+            if let Some((mut cell, previous)) = cell {
+                cell.set_campaign(prepared.campaign_id)?;
+                if let Some(h) = previous {
+                    let text = format!(
+                        "took over the cell ({}) from {h}, which died holding it",
+                        h.cell
+                    );
+                    note(&mut *lock_store(&store)?, prepared.campaign_id, text)?;
+                }
+                prepared.cell = Some(cell);
+            }
+            Ok::<_, SessionError>(prepared)
         })
         .await
         .map_err(|e| SessionError::Invalid(format!("planning task failed: {e}")))??
@@ -205,6 +225,8 @@ pub async fn open_session_with(
         iso,
         model_of_resumed,
         lock,
+        cell,
+        plan_request: req,
     } = prepared;
     let sim = simulated_cell(&cfg, &nominal, robot_secret.clone()).await?;
     let devices = cell_devices(&cfg, sim.as_ref(), robot_secret, prompter)?;
@@ -234,7 +256,28 @@ pub async fn open_session_with(
         sim,
         resumed,
         lock,
+        cell,
     })
+}
+
+/// Take the cell for this process ([`CellKey::of`] the configuration and the store's file),
+/// before anything is planned or stored. Blocking.
+fn take_cell(
+    store: &Mutex<Store>,
+    cfg: &CellConfig,
+    campaign: Option<i64>,
+) -> Result<Option<(CellLock, Option<super::cell_lock::CellHolder>)>, SessionError> {
+    let path = lock_store(store)?.path().map(Path::to_owned);
+    let Some(key) = CellKey::of(cfg, path.as_deref()) else {
+        return Ok(None);
+    };
+    let store_path = path.unwrap_or_else(|| ":memory:".into());
+    Ok(Some(CellLock::acquire(
+        &lock_dir(cfg),
+        &key,
+        &store_path,
+        campaign,
+    )?))
 }
 
 /// A campaign ready to run: new or resumed, held by this process.
@@ -246,6 +289,10 @@ struct Prepared {
     /// The observation model a resumed campaign was created with.
     model_of_resumed: Option<String>,
     lock: CampaignLock,
+    /// The cell, once [`open_session_with`] has recorded the campaign in it.
+    cell: Option<CellLock>,
+    /// The planning request of the campaign (a resumed one's own seed and pose counts).
+    plan_request: PlanRequest,
 }
 
 /// Check a campaign to resume (or plan and store a new one), then take it for this process
@@ -269,7 +316,13 @@ fn plan_and_store(
             .map(|r| stored_campaign(&s, r, &cfg.text, &robot_text))
             .transpose()?
     };
-    let fresh = plan_campaign(nominal, req)?;
+    // a resumed calibration's hub is planned from its own request (its seed and pose counts,
+    // which a creation's overrides may have set), as when it was created
+    let own_req = match &resumed {
+        Some(s) if s.iso.is_none() => own_request(req, s),
+        _ => req.clone(),
+    };
+    let fresh = plan_campaign(nominal, &own_req)?;
     let (campaign_id, plan, iso, model_of_resumed, accepted_changes) = match resumed {
         Some(s) if s.iso.is_some() || cfg.iso9283.is_some() => {
             let iso =
@@ -343,7 +396,20 @@ fn plan_and_store(
         iso,
         model_of_resumed,
         lock,
+        cell: None,
+        plan_request: own_req,
     })
+}
+
+/// The planning request a stored calibration was created with: the configuration's cell and
+/// workspace, the campaign's own seed, pose count and identification count.
+fn own_request(req: &PlanRequest, s: &StoredCampaign) -> PlanRequest {
+    PlanRequest {
+        seed: s.seed,
+        poses: s.poses.len(),
+        ident: s.poses.iter().filter(|p| p.set == PoseSet::Ident).count(),
+        ..req.clone()
+    }
 }
 
 fn lock_store(store: &Mutex<Store>) -> Result<std::sync::MutexGuard<'_, Store>, SessionError> {
@@ -356,6 +422,8 @@ fn lock_store(store: &Mutex<Store>) -> Result<std::sync::MutexGuard<'_, Store>, 
 struct StoredCampaign {
     id: i64,
     model: String,
+    /// The planning seed it was created with.
+    seed: u64,
     poses: Vec<PlanEntry>,
     /// The stored ISO 9283 plan of an ISO campaign.
     iso: Option<IsoPlan>,
@@ -402,6 +470,7 @@ fn stored_campaign(
     Ok(StoredCampaign {
         id: r.id,
         model: row.model,
+        seed: row.seed,
         poses,
         iso,
         accepted_changes: changes,
@@ -639,7 +708,7 @@ fn config_changes(
     [
         (
             "configuration",
-            changed_keys(&row.config_toml, config_text, &["sim"])
+            changed_keys(&row.config_toml, config_text, &["sim", "lock_dir"])
                 .into_iter()
                 .filter(|k| k != "robot_controller.secret_file")
                 .collect(),
@@ -656,15 +725,5 @@ fn config_changes(
 
 /// Journal a note in the store (before the engine runs).
 fn note(store: &mut Store, id: i64, text: String) -> Result<(), SessionError> {
-    let event = CampaignEvent::Note { text };
-    store.add_event(
-        id,
-        &EventRecord {
-            at_ms: now_unix_ms(),
-            kind: event.kind().to_owned(),
-            message: serde_json::to_string(&event)
-                .map_err(|e| SessionError::Invalid(e.to_string()))?,
-        },
-    )?;
-    Ok(())
+    Ok(super::lock::journal_note(store, id, text)?)
 }

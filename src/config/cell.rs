@@ -485,6 +485,7 @@ fn is_origin(s: &str) -> bool {
 struct CellFile {
     robot: Option<PathBuf>,
     store: Option<PathBuf>,
+    lock_dir: Option<PathBuf>,
     #[serde(default)]
     tracker: TrackerSection,
     #[serde(default, rename = "robot_controller")]
@@ -512,6 +513,9 @@ pub struct CellConfig {
     pub robot: PathBuf,
     /// SQLite store (resolved).
     pub store: PathBuf,
+    /// Directory of the host-wide cell locks (resolved; see
+    /// [`crate::campaign::cell_lock::lock_dir`]).
+    pub lock_dir: Option<PathBuf>,
     /// Tracker.
     pub tracker: TrackerSection,
     /// Robot controller.
@@ -601,6 +605,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
                 .unwrap_or_else(|| PathBuf::from("robots/staubli_tx60.toml")),
         ),
         store: resolve(f.store.unwrap_or_else(|| PathBuf::from("cellcal.db"))),
+        lock_dir: f.lock_dir.map(resolve),
         tracker: f.tracker,
         robot_controller: RobotSection {
             secret_file: f.robot_controller.secret_file.clone().map(resolve),

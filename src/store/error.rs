@@ -64,6 +64,15 @@ pub enum StoreError {
         /// Number of migrations this code knows.
         known: i64,
     },
+    /// The database file cannot be created.
+    #[error("cannot create the campaign database {path}")]
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What failed.
+        #[source]
+        source: std::io::Error,
+    },
     /// A stored value cannot be parsed back (edited or damaged database).
     #[error("corrupt value in the campaign database: {0}")]
     Corrupt(String),

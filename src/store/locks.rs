@@ -98,6 +98,40 @@ impl Store {
         Ok(n > 0)
     }
 
+    /// Set campaign `id`'s state to `to` if it is one of `from` and no live process holds it
+    /// (no lock row, or a holder for which `is_dead` returns true); returns the state it had
+    /// and the dead holder. Atomic: a process taking the campaign meanwhile keeps its state.
+    pub fn interrupt_unheld(
+        &mut self,
+        id: i64,
+        from: &[&str],
+        to: &str,
+        is_dead: impl Fn(&LockHolder) -> bool,
+    ) -> Result<Option<(String, Option<LockHolder>)>, StoreError> {
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .ctx("begin interrupt campaign")?;
+        let state: String = tx
+            .query_row("SELECT state FROM campaigns WHERE id = ?1", [id], |r| {
+                r.get(0)
+            })
+            .optional()
+            .ctx("read a campaign state")?
+            .ok_or(StoreError::NoCampaign(id))?;
+        let held = holder(&tx, id)?;
+        if !from.contains(&state.as_str()) || held.as_ref().is_some_and(|h| !is_dead(h)) {
+            return Ok(None);
+        }
+        tx.execute(
+            "UPDATE campaigns SET state = ?2 WHERE id = ?1",
+            params![id, to],
+        )
+        .ctx("set the campaign state")?;
+        tx.commit().ctx("commit interrupt campaign")?;
+        Ok(Some((state, held)))
+    }
+
     /// The process holding campaign `id`, if any.
     pub fn campaign_holder(&self, id: i64) -> Result<Option<LockHolder>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;

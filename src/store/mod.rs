@@ -75,7 +75,10 @@ pub struct Store {
 impl Store {
     /// Create or open the database at `path`, set WAL, `synchronous=FULL`, foreign keys and
     /// the busy timeout, and apply pending migrations.
+    /// A new file is created mode 0600 whatever the umask (SQLite gives its `-wal` and `-shm`
+    /// files the database file's mode).
     pub fn open(path: &Path) -> Result<Store, StoreError> {
+        create_private(path)?;
         let conn = Connection::open(path).ctx("open the database file")?;
         Store::init(conn)
     }
@@ -100,6 +103,11 @@ impl Store {
             .ctx("enable foreign keys")?;
         schema::migrate(&mut conn)?;
         Ok(Store { conn })
+    }
+
+    /// The database file (`None` for an in-memory database).
+    pub fn path(&self) -> Option<&Path> {
+        self.conn.path().filter(|p| !p.is_empty()).map(Path::new)
     }
 
     /// The file's `PRAGMA user_version` (equals [`schema_version`] once open).
@@ -146,6 +154,27 @@ impl Store {
     #[cfg(test)]
     pub(crate) fn raw(&mut self) -> &mut Connection {
         &mut self.conn
+    }
+}
+
+/// Create `path` empty with mode 0600 (whatever the umask) unless it exists.
+fn create_private(path: &Path) -> Result<(), StoreError> {
+    use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+    let created = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(path);
+    let io = |source| StoreError::File {
+        path: path.to_owned(),
+        source,
+    };
+    match created {
+        Ok(f) => f
+            .set_permissions(std::fs::Permissions::from_mode(0o600))
+            .map_err(io),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => Err(io(e)),
     }
 }
 

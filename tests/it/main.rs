@@ -8,6 +8,7 @@ mod campaign;
 mod cell_sim;
 mod cli;
 mod cockpit;
+mod commander;
 mod common;
 mod compensate;
 mod deploy;

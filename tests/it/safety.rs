@@ -167,7 +167,7 @@ fn two_runners_on_one_campaign_the_second_is_refused_naming_the_first() {
     let (code, err) = finish(spawn_run(&cfg, &store, &["--arm", "--campaign", "1"]));
     assert_eq!(code, Some(2), "{err}");
     assert!(
-        err.contains(&format!("pid {}", first.id())) && err.contains("being run by"),
+        err.contains(&format!("pid {}", first.id())) && err.contains("commanded by"),
         "{err}"
     );
     signal(&first, nix::sys::signal::Signal::SIGTERM);

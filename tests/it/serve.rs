@@ -31,6 +31,11 @@ impl Server {
     pub(crate) fn alive(&mut self) -> bool {
         matches!(self.child.try_wait(), Ok(None))
     }
+
+    /// The daemon's process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
 }
 
 impl Drop for Server {
@@ -686,7 +691,11 @@ fn reads_stay_fast_while_a_30000_pose_campaign_is_planned() {
         let t = Instant::now();
         let (code, v) = post(&s, &abort, r#"{"command": "abort"}"#);
         worst[3] = worst[3].max(t.elapsed());
-        assert_eq!(code, 200, "{v}");
+        // 409 once the new campaign is loaded: the abort names it
+        let names_loaded = v["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("is the loaded one"));
+        assert!(code == 200 || (code == 409 && names_loaded), "{v}");
         rounds += 1;
         std::thread::sleep(Duration::from_millis(20));
     }

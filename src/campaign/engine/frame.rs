@@ -103,6 +103,8 @@ impl Run<'_> {
         &mut self,
         poses_done: usize,
     ) -> Result<Vector3<f64>, Stop> {
+        // a re-registration asked for applies to this check only, moved or not
+        let reregister = self.ctx.control.take_reregister();
         let id = self.ctx.campaign_id;
         let refs = self.store(move |s| s.frame_refs(id)).await?;
         let max = self.ctx.cfg.campaign.drift_max_mm;
@@ -135,7 +137,7 @@ impl Run<'_> {
         if moved <= max {
             return Ok(stored);
         }
-        if self.ctx.control.take_reregister() {
+        if reregister {
             return self.reregister(&refs, poses_done, moved).await;
         }
         Err(Stop::Fault(format!(
