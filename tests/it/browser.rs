@@ -398,6 +398,7 @@ async fn check_context(c: &Client, q: &Value) {
 async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
     let started = Instant::now();
     let (mut answered, mut off_done, mut escape_done, mut shot) = (0usize, false, false, false);
+    let (mut clear_checked, mut cleared) = (false, 0usize);
     let mut last_seq = None;
     let mut contexts = Vec::new();
     while let Some(v) = next_question(c, s, id, &last_seq).await {
@@ -424,6 +425,13 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
             }
         }
         let focus = focused_id(c).await;
+        if q["id"] == "confirm_clear" {
+            confirm_clear_on_page(c, s, id, q, focus.as_deref(), !clear_checked).await;
+            clear_checked = true;
+            cleared += 1;
+            answered += 1;
+            continue;
+        }
         let Some(expected) = q["expected_mm"].as_f64() else {
             // a confirmation: Enter on the focused Confirm button
             assert_eq!(focus.as_deref(), Some("prompt-confirm"), "{v}");
@@ -484,6 +492,8 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
         keys(c, &format!("{reading}{ENTER}")).await;
         answered += 1;
     }
+    // before every move after the first pose's answers the cell was confirmed clear
+    assert!(cleared >= POSES - 1, "{cleared} confirm_clear questions");
     // the context named every pose and both stage positions
     let poses: std::collections::HashSet<u64> =
         contexts.iter().filter_map(|(p, _)| p.as_u64()).collect();
@@ -492,6 +502,46 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
         assert!(contexts.iter().any(|(_, at)| at == p), "{p}: {contexts:?}");
     }
     answered
+}
+
+/// A `confirm_clear` question (after a manual stage answer, before the robot moves): the page
+/// offers only its own button `prompt-clear`, never focused, and no reading field or Confirm;
+/// with `try_enter`, Enter first, which must leave the question open and the robot where it
+/// is; then the button releases it.
+async fn confirm_clear_on_page(
+    c: &Client,
+    s: &Server,
+    id: i64,
+    q: &Value,
+    focus: Option<&str>,
+    try_enter: bool,
+) {
+    assert!(shown(c, "prompt-clear").await, "the clear button: {q}");
+    assert!(!shown(c, "prompt-confirm").await, "no Confirm: {q}");
+    assert!(!shown(c, "prompt-value").await, "no reading: {q}");
+    assert_ne!(
+        focus,
+        Some("prompt-clear"),
+        "the clear button is never focused"
+    );
+    let seq = q["seq"].as_u64().expect("seq");
+    if try_enter {
+        let done = |v: &Value| v["poses_done"].as_u64();
+        let (_, before) = get(s, &format!("/api/campaigns/{id}"));
+        keys(c, &ENTER.to_string()).await;
+        tokio::time::sleep(Duration::from_millis(400)).await;
+        let (_, after) = get(s, &format!("/api/campaigns/{id}"));
+        assert_eq!(after["prompt"]["seq"].as_u64(), Some(seq), "Enter: {after}");
+        assert_eq!(done(&after), done(&before), "Enter moved nothing: {after}");
+        assert!(shown(c, "prompt-clear").await, "still asked after Enter");
+        screenshot_of(c, "prompt-panel", "prompt-clear.png").await;
+    }
+    click(c, "prompt-clear").await;
+    until("the cell confirmed clear", 30, || async move {
+        let (_, v) = get(s, &format!("/api/campaigns/{id}"));
+        (v["prompt"]["seq"].as_u64() != Some(seq)).then_some(())
+    })
+    .await;
 }
 
 /// The dashboard panels while poses are measured: device status as `GET /api/devices` says (or
@@ -692,6 +742,7 @@ async fn offered(c: &Client) -> Vec<&'static str> {
         "cmd-resume",
         "prompt-value",
         "prompt-confirm",
+        "prompt-clear",
         "prompt-abort",
         "abort",
     ] {

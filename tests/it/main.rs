@@ -29,6 +29,7 @@ mod serve;
 mod setup;
 mod sigma0;
 mod significance;
+mod stop;
 mod store;
 mod terminal;
 mod validation;
