@@ -206,7 +206,8 @@ function renderView(v) {
   $('cmd-disarm').disabled = !v || !v.armed;
   $('cmd-start').disabled = !v || !v.armed || ['running', 'paused', 'identifying', 'done'].includes(state);
   $('cmd-pause').disabled = !v || state !== 'running';
-  $('cmd-resume').disabled = !v || state !== 'paused';
+  // a disarmed campaign resumes only once armed again (the API answers 409)
+  $('cmd-resume').disabled = !v || state !== 'paused' || !v.armed;
   renderPrompt(v);
 }
 

@@ -7,9 +7,11 @@
 //! threshold is an *operator fault*: with [`FaultPolicy::Pause`] the campaign pauses with the
 //! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
 //! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
-//! in `failed`, resumable. A safety refusal (not armed, target outside the limits or the
-//! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
-//! campaign resumable at the first unmeasured pose. Every event (state change, measured pose,
+//! in `failed`, resumable. A safety refusal (target outside the limits or the
+//! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and the stage
+//! and leaves the campaign resumable at the first unmeasured pose; a disarm does the same and
+//! pauses (resumed only once armed again). With a manual stage, no robot move follows a stage
+//! answer before the technician confirmed the cell clear ([`Run::ensure_clear`]). Every event (state change, measured pose,
 //! fault, drift check, setup, note, result) is journalled in the store's `events` table before
 //! it is emitted, and emitted with its journal sequence number ([`journal_event`]). Whatever
 //! ends a run, the stored state is a final one ([`run_campaign`]).

@@ -869,3 +869,53 @@ async fn the_page_abort_stops_a_running_campaign() {
     assert_eq!(v["state"], "aborted");
     c.close().await.expect("close");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_disarm_stops_and_pauses_a_running_campaign() {
+    let Some(driver) = chromedriver() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    // the Zaber stage: the campaign runs without questions until disarmed
+    let s = start(
+        &fast_config(dir.path(), "serial", 300, 100),
+        &dir.path().join("c.db"),
+    );
+    let c = browser(&driver).await;
+    sign_in(&c, &s).await;
+    let id = create_from_page(&c, &s, 300, 100).await;
+    arm_and_start(&c).await;
+    let server = &s;
+    until("poses measured", 60, || async move {
+        let (_, v) = get(server, &format!("/api/campaigns/{id}"));
+        (v["poses_done"].as_u64().unwrap_or(0) >= 3).then_some(())
+    })
+    .await;
+    click(&c, "cmd-disarm").await;
+    until_text(&c, "campaign-state", "paused", 20).await;
+    let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+    assert_eq!(v["armed"], Value::Bool(false), "{v}");
+    let done = v["poses_done"].as_u64().expect("poses done");
+    assert!(done < 300, "stopped before the end: {v}");
+    // the engine told the robot and the stage to stop
+    let (_, journal) = get(&s, &format!("/api/campaigns/{id}/events"));
+    let stopped = journal
+        .as_array()
+        .expect("journal")
+        .iter()
+        .any(|e| e["kind"] == "stopped" && e["event"]["reason"] == "disarm");
+    assert!(stopped, "a `stopped` event for the disarm");
+    // nothing moves or is measured while disarmed, and Resume is not offered
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+    assert_eq!(
+        v["poses_done"].as_u64(),
+        Some(done),
+        "nothing measured: {v}"
+    );
+    assert_eq!(v["state"], "paused", "{v}");
+    assert!(!by_id(&c, "cmd-resume")
+        .await
+        .is_enabled()
+        .await
+        .expect("enabled"));
+    c.close().await.expect("close");
+}

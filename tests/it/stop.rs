@@ -404,12 +404,17 @@ struct StageStop {
     outcome: Outcome,
     /// The run's `stopped` events and states, in order.
     events: Vec<CampaignEvent>,
+    /// When the command was applied.
+    applied: Instant,
+    /// The robot's side of the run.
+    proxy: Proxy,
 }
 
 /// A simulated cell with a slow Zaber stage (2 mm/s: the 10 mm travel to P2 takes 5 s) and no
 /// setup steps, run in process until the stage is on its way to P2; then `cmd` is applied and
 /// the stage must stand still (its simulated position read until it no longer changes) and stay
-/// there. A run that pauses instead of ending is aborted once the stage stood still.
+/// there. A run that pauses instead of ending is resumed (as a terminal's Enter would, still
+/// disarmed), then aborted once the stage stood still.
 async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
     let text = config_text("stage_speed_mm_s = 2.0\n", "", "")
         .replace("stage_speed_mm_s = 100000.0\n", "")
@@ -421,6 +426,11 @@ async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
     let session = sim_session(dir.path(), &text).await;
     let (ctx, mut devices) = (session.ctx, session.devices);
     let sim = session.sim.expect("sim");
+    let proxy = Proxy::start(sim.robot_addr);
+    devices.robot = Box::new(LinkRobot::new(cellcal::cell::LinkRobotConfig {
+        address: proxy.addr.to_string(),
+        ..sim.robot_config()
+    }));
     let stage = sim.stage_sim.clone().expect("a Zaber stage");
     let control = ctx.control.clone();
     let mut events = control.events.subscribe();
@@ -433,6 +443,7 @@ async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
         }
         let t = Instant::now();
         control.apply(&cmd);
+        let applied = t;
         let mut last = stage.position_steps();
         let stood = loop {
             tokio::time::sleep(Duration::from_millis(5)).await;
@@ -455,16 +466,19 @@ async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
         let at = last as f64 / k;
         eprintln!("stage stopped at {at:.3} mm, {stood:?} after the command");
         assert!(at < 9.0, "stopped before P2: {at} mm");
-        stood
+        (stood, applied)
     });
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
     let abort = ctx.control.clone();
-    let (outcome, stood) = tokio::time::timeout(
+    let (outcome, (stood, applied)) = tokio::time::timeout(
         Duration::from_secs(60),
         futures_join(run_campaign(&ctx, &mut devices), async move {
-            // a disarm pauses (the run does not end by itself): abort it once checked
+            // a disarm pauses (the run does not end by itself): a resume while disarmed
+            // leaves it paused; then abort it
             let stood = watcher.await.expect("watcher");
+            abort.apply(&CampaignCommand::Resume);
+            tokio::time::sleep(Duration::from_millis(500)).await;
             abort.apply(&CampaignCommand::Abort);
             stood
         }),
@@ -486,6 +500,8 @@ async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
         stood,
         outcome,
         events: seen,
+        applied,
+        proxy,
     }
 }
 
@@ -547,10 +563,18 @@ async fn disarm_stops_the_motorised_stage_within_200_ms_and_pauses() {
         Some(&("disarm".into(), "stopped".into(), "stopped".into())),
         "{stops:?}"
     );
-    let paused = r.events.iter().any(|e| {
-        matches!(e, CampaignEvent::State { state: CampaignState::Paused { reason } } if reason.starts_with("disarmed"))
-    });
-    assert!(paused, "{:?}", r.events);
+    let paused = |why: &str| {
+        r.events.iter().any(|e| {
+            matches!(e, CampaignEvent::State { state: CampaignState::Paused { reason } } if reason.starts_with(why))
+        })
+    };
+    assert!(paused("disarmed"), "{:?}", r.events);
+    // the resume while disarmed kept it paused: nothing powered on or moved after the disarm
+    assert!(paused("not armed"), "{:?}", r.events);
+    for verb in ["POWER ON", "MOVEJ"] {
+        let sent = r.proxy.sent(verb, r.applied);
+        assert!(sent.is_empty(), "{verb} after the disarm: {sent:#?}");
+    }
     // paused, resumable; the abort that followed ended it
     assert!(matches!(r.outcome, Outcome::Aborted), "{:?}", r.outcome);
 }
@@ -657,4 +681,93 @@ async fn confirm_clear_false_asks_nothing_more_and_a_serial_stage_refuses_it() {
     let path = write_config(dir.path(), &text);
     let e = parse_cell_config(&text, &path).expect_err("refused");
     assert!(e.to_string().contains("stage.confirm_clear"), "{e}");
+}
+
+/// `cellcal run --arm` on a cell whose "real" Zaber stage is a simulated one on a pty hosted by
+/// this test (2 mm/s), sent `sig` while the stage moves to P2: how long until the stage's
+/// position stopped changing, and the run's exit code.
+async fn signal_stops_the_stage(sig: nix::sys::signal::Signal) -> (Duration, Option<i32>) {
+    let k = sim_steps_per_mm();
+    let stage = zaber::sim::StageSim::new(zaber::sim::StageSimConfig {
+        speed_steps_s: 2.0 * k,
+        ..zaber::sim::StageSimConfig::default()
+    });
+    let pty = zaber::pty::spawn_stage_pty(stage.clone()).expect("stage pty");
+    let text = config_text("", "", "")
+        .replace(
+            "[stage]\nmode = \"sim\"\n",
+            &format!(
+                "[stage]\nmode = \"real\"\nserial_path = \"{}\"\n",
+                pty.path()
+            ),
+        )
+        .replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 14")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), &text);
+    let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
+        .args(["run", "--arm", "--quiet", "--on-fault", "fail", "--config"])
+        .arg(&cfg)
+        .arg("--store")
+        .arg(dir.path().join("c.db"))
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn cellcal run");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(stage.is_busy() && stage.position_steps() as f64 / k > 2.0) {
+        assert!(Instant::now() < deadline, "the stage never moved to P2");
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    let t = Instant::now();
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), sig).expect("signal");
+    let mut last = stage.position_steps();
+    let stood = loop {
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        let now = stage.position_steps();
+        if now == last && !stage.is_busy() {
+            break t.elapsed();
+        }
+        last = now;
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "the stage never stopped"
+        );
+    };
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(
+        stage.position_steps(),
+        last,
+        "the stage stays where it stopped"
+    );
+    let at = last as f64 / k;
+    eprintln!("{sig}: stage stopped at {at:.3} mm, {stood:?} after the signal");
+    assert!(at < 9.0, "stopped before P2: {at} mm");
+    let code = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status.code();
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "run did not exit");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    pty.shutdown();
+    (stood, code)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_and_sighup_stop_the_motorised_stage_within_200_ms() {
+    for (sig, exit) in [
+        (nix::sys::signal::Signal::SIGTERM, 143),
+        (nix::sys::signal::Signal::SIGHUP, 129),
+    ] {
+        let (stood, code) = signal_stops_the_stage(sig).await;
+        assert_eq!(code, Some(exit), "{sig}");
+        assert!(
+            stood < Duration::from_millis(200),
+            "{sig}: stage stood after {stood:?}"
+        );
+    }
 }
