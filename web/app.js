@@ -331,8 +331,13 @@ async function confirmPrompt(ev) {
     }
     body.value_mm = x;
   }
+  await answerWith(v.id, seq, body);
+}
+
+/** Send the answer `body` to question `seq` of campaign `id`; the panel closes once taken. */
+async function answerWith(id, seq, body) {
   try {
-    await commandOn(v.id, body);
+    await commandOn(id, body);
     ui.answered.add(seq);
     $('prompt-panel').hidden = true;
     ui.promptSeq = null;
@@ -347,15 +352,7 @@ async function confirmClear() {
   const v = ui.view;
   if (!v || !v.prompt || v.prompt.id !== 'confirm_clear' || ui.promptSeq === null) return;
   const seq = ui.promptSeq;
-  try {
-    await commandOn(v.id, { command: 'confirm_clear', seq });
-    ui.answered.add(seq);
-    $('prompt-panel').hidden = true;
-    ui.promptSeq = null;
-  } catch (e) {
-    $('prompt-error').textContent = e.message;
-  }
-  refresh();
+  await answerWith(v.id, seq, { command: 'confirm_clear', seq });
 }
 
 // ---- commands --------------------------------------------------------------------------

@@ -710,15 +710,21 @@ impl Run<'_> {
                 self.stage_mm = Some(v);
                 Ok(v)
             }
-            Err(e) if e.kind == FaultKind::Aborted => {
-                self.fault(e.device, e.kind, &e.message, "abort").await?;
-                Err(Stop::Aborted)
-            }
-            Err(e) => {
-                self.fault(e.device, e.kind, &e.message, "pause").await?;
-                Err(Stop::Fault(e.to_string()))
-            }
+            Err(e) => Err(self.stage_failed(e).await?),
         }
+    }
+
+    /// Journal a stage (or technician) failure and say how the run stops: the technician's
+    /// abort aborts, anything else pauses. Cancel-safe as [`journal_event`].
+    async fn stage_failed(&self, e: CellError) -> Result<Stop, CampaignError> {
+        let aborted = e.kind == FaultKind::Aborted;
+        let action = if aborted { "abort" } else { "pause" };
+        self.fault(e.device, e.kind, &e.message, action).await?;
+        Ok(if aborted {
+            Stop::Aborted
+        } else {
+            Stop::Fault(e.to_string())
+        })
     }
 
     /// Before robot motion: when a technician may have a hand at the stage, ask them to
@@ -736,14 +742,7 @@ impl Run<'_> {
                 self.hand_at_stage = false;
                 Ok(())
             }
-            Err(e) if e.kind == FaultKind::Aborted => {
-                self.fault(e.device, e.kind, &e.message, "abort").await?;
-                Err(Stop::Aborted)
-            }
-            Err(e) => {
-                self.fault(e.device, e.kind, &e.message, "pause").await?;
-                Err(Stop::Fault(e.to_string()))
-            }
+            Err(e) => Err(self.stage_failed(e).await?),
         }
     }
 

@@ -115,6 +115,14 @@ fn pump(from: TcpStream, mut to: TcpStream, from_client: bool, log: Arc<Mutex<Ve
     });
 }
 
+/// 20 poses (14 to identify) and no setup steps: the subject here is stopping, not measuring.
+fn twenty_poses_no_setup(text: String) -> String {
+    text.replace("poses = 300", "poses = 20")
+        .replace("ident = 100", "ident = 14")
+        .replace("tool_frame = true", "tool_frame = false")
+        .replace("base_registration = true", "base_registration = false")
+}
+
 /// A loopback port nobody listens on now (for the simulated controller behind the proxy).
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
@@ -128,7 +136,7 @@ fn free_port() -> u16 {
 /// robot at the proxy's address, the simulated one at `robot_port`), a `stage` of that kind,
 /// and the role tokens.
 fn proxied_config(robot_port: u16, proxy: SocketAddr, stage: &str) -> String {
-    config_text("", "", "")
+    twenty_poses_no_setup(config_text("", "", ""))
         .replace("move_speed_deg_s = 200000.0\n", "move_speed_deg_s = 10.0\n")
         .replace(
             "[robot_controller]\nmode = \"sim\"\n",
@@ -136,11 +144,39 @@ fn proxied_config(robot_port: u16, proxy: SocketAddr, stage: &str) -> String {
         )
         .replace("robot_port = 0", &format!("robot_port = {robot_port}"))
         .replace("kind = \"serial\"", &format!("kind = \"{stage}\""))
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false")
         + &role_tokens()
+}
+
+/// The operator's `commands` to campaign `id`, one after the other, each answered 200.
+fn operator_commands(s: &super::serve::Server, id: i64, commands: &[&str]) {
+    for c in commands {
+        let (code, v) = command(s, "operator-token", id, &format!(r#"{{"command": "{c}"}}"#));
+        assert_eq!(code, 200, "{c}: {v}");
+    }
+}
+
+/// A daemon (`serve`, role tokens) on [`proxied_config`] with a `stage` of that kind (`edit`
+/// applied to the configuration text) and a campaign created by the operator: the directory,
+/// the proxy, the daemon and the campaign id.
+fn proxied_daemon(
+    stage: &str,
+    edit: impl FnOnce(String) -> String,
+) -> (tempfile::TempDir, Proxy, super::serve::Server, i64) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let robot_port = free_port();
+    let proxy = Proxy::start(SocketAddr::from(([127, 0, 0, 1], robot_port)));
+    let text = edit(proxied_config(robot_port, proxy.addr, stage));
+    let cfg = write_config(dir.path(), &text);
+    let s = start_as_operator(&cfg, &dir.path().join("c.db"));
+    let (code, v) = post_as(&s, "operator-token", "/api/campaigns", "{}");
+    assert_eq!(code, 201, "{v}");
+    let id = v["id"].as_i64().expect("id");
+    (dir, proxy, s, id)
+}
+
+/// A technician's command (JSON `body`) to campaign `id`: status and body.
+fn technician(s: &super::serve::Server, id: i64, body: &str) -> (u16, Value) {
+    command(s, "technician-token", id, body)
 }
 
 /// Send `command` to campaign `id` as `token`: status and body.
@@ -177,25 +213,9 @@ fn mid_move(proxy: &Proxy, after: Instant) -> Line {
 
 #[test]
 fn disarm_over_rest_stops_the_arm_within_200_ms_and_nothing_moves_or_powers_on_until_armed() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let robot_port = free_port();
-    let proxy = Proxy::start(SocketAddr::from(([127, 0, 0, 1], robot_port)));
-    let text = proxied_config(robot_port, proxy.addr, "serial");
-    let cfg = write_config(dir.path(), &text);
-    let s = start_as_operator(&cfg, &dir.path().join("c.db"));
-    let (code, v) = post_as(&s, "operator-token", "/api/campaigns", "{}");
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
+    let (_dir, proxy, s, id) = proxied_daemon("serial", |t| t);
     let t0 = Instant::now();
-    for c in ["arm", "start"] {
-        let (code, v) = command(
-            &s,
-            "operator-token",
-            id,
-            &format!(r#"{{"command": "{c}"}}"#),
-        );
-        assert_eq!(code, 200, "{c}: {v}");
-    }
+    operator_commands(&s, id, &["arm", "start"]);
     // the arm on its way (10 deg/s), then a disarm
     mid_move(&proxy, t0);
     let disarmed = Instant::now();
@@ -246,15 +266,7 @@ fn disarm_over_rest_stops_the_arm_within_200_ms_and_nothing_moves_or_powers_on_u
     assert_eq!(v["state"], "paused", "{v}");
     // armed and resumed: power on again, then motion
     let resumed = Instant::now();
-    for c in ["arm", "resume"] {
-        let (code, v) = command(
-            &s,
-            "operator-token",
-            id,
-            &format!(r#"{{"command": "{c}"}}"#),
-        );
-        assert_eq!(code, 200, "{c}: {v}");
-    }
+    operator_commands(&s, id, &["arm", "resume"]);
     let power = proxy.until_sent("POWER ON", resumed);
     let movej = proxy.until_sent("MOVEJ", resumed);
     assert!(power.at < movej.at, "power on before the next move");
@@ -296,25 +308,10 @@ fn journal_kind(s: &super::serve::Server, id: i64, kind: &str) -> Vec<Value> {
 
 #[test]
 fn a_manual_stage_answer_releases_no_motion_until_the_cell_is_confirmed_clear_over_rest() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let robot_port = free_port();
-    let proxy = Proxy::start(SocketAddr::from(([127, 0, 0, 1], robot_port)));
-    let text = proxied_config(robot_port, proxy.addr, "manual")
-        .replace("move_speed_deg_s = 10.0\n", "move_speed_deg_s = 2000.0\n");
-    let cfg = write_config(dir.path(), &text);
-    let s = start_as_operator(&cfg, &dir.path().join("c.db"));
-    let (code, v) = post_as(&s, "operator-token", "/api/campaigns", "{}");
-    assert_eq!(code, 201, "{v}");
-    let id = v["id"].as_i64().expect("id");
-    for c in ["arm", "start"] {
-        let (code, v) = command(
-            &s,
-            "operator-token",
-            id,
-            &format!(r#"{{"command": "{c}"}}"#),
-        );
-        assert_eq!(code, 200, "{c}: {v}");
-    }
+    let (_dir, proxy, s, id) = proxied_daemon("manual", |t| {
+        t.replace("move_speed_deg_s = 10.0\n", "move_speed_deg_s = 2000.0\n")
+    });
+    operator_commands(&s, id, &["arm", "start"]);
     let question = |last: u64| {
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
@@ -336,12 +333,8 @@ fn a_manual_stage_answer_releases_no_motion_until_the_cell_is_confirmed_clear_ov
         if q["id"] == CONFIRM_CLEAR {
             assert_eq!(q["expected_mm"], Value::Null, "{q}");
             // an ordinary answer does not release the robot
-            let (code, e) = command(
-                &s,
-                "technician-token",
-                id,
-                &format!(r#"{{"command": "answer", "seq": {seq}}}"#),
-            );
+            let (code, e) =
+                technician(&s, id, &format!(r#"{{"command": "answer", "seq": {seq}}}"#));
             assert_eq!(code, 409, "{e}");
             assert!(e["error"]
                 .as_str()
@@ -351,9 +344,8 @@ fn a_manual_stage_answer_releases_no_motion_until_the_cell_is_confirmed_clear_ov
             assert_eq!(v["prompt"]["seq"], seq, "still open: {v}");
             // nothing moved since the stage answer; the confirmation releases the move
             let before = Instant::now();
-            let (code, v) = command(
+            let (code, v) = technician(
                 &s,
-                "technician-token",
                 id,
                 &format!(r#"{{"command": "confirm_clear", "seq": {seq}}}"#),
             );
@@ -364,17 +356,15 @@ fn a_manual_stage_answer_releases_no_motion_until_the_cell_is_confirmed_clear_ov
             continue;
         }
         // a stage question: confirm_clear does not answer it
-        let (code, e) = command(
+        let (code, e) = technician(
             &s,
-            "technician-token",
             id,
             &format!(r#"{{"command": "confirm_clear", "seq": {seq}}}"#),
         );
         assert_eq!(code, 409, "{e}");
         let mm = q["expected_mm"].as_f64().expect("a reading");
-        let (code, v) = command(
+        let (code, v) = technician(
             &s,
-            "technician-token",
             id,
             &format!(r#"{{"command": "answer", "seq": {seq}, "value_mm": {mm}}}"#),
         );
@@ -399,8 +389,6 @@ fn a_manual_stage_answer_releases_no_motion_until_the_cell_is_confirmed_clear_ov
 
 /// What [`stage_stops_on`] saw.
 struct StageStop {
-    /// From the command until the stage's position no longer changed.
-    stood: Duration,
     outcome: Outcome,
     /// The run's `stopped` events and states, in order.
     events: Vec<CampaignEvent>,
@@ -415,58 +403,27 @@ struct StageStop {
 /// the stage must stand still (its simulated position read until it no longer changes) and stay
 /// there. A run that pauses instead of ending is resumed (as a terminal's Enter would, still
 /// disarmed), then aborted once the stage stood still.
-async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
-    let text = config_text("stage_speed_mm_s = 2.0\n", "", "")
-        .replace("stage_speed_mm_s = 100000.0\n", "")
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+/// The stage must stand within 200 ms, and the run's first `stopped` event (`reason`) say
+/// that robot and stage stopped.
+async fn stage_stops_on(cmd: CampaignCommand, reason: &str) -> StageStop {
+    let text = twenty_poses_no_setup(config_text("stage_speed_mm_s = 2.0\n", "", ""))
+        .replace("stage_speed_mm_s = 100000.0\n", "");
     let dir = tempfile::tempdir().expect("tempdir");
     let session = sim_session(dir.path(), &text).await;
     let (ctx, mut devices) = (session.ctx, session.devices);
     let sim = session.sim.expect("sim");
-    let proxy = Proxy::start(sim.robot_addr);
-    devices.robot = Box::new(LinkRobot::new(cellcal::cell::LinkRobotConfig {
-        address: proxy.addr.to_string(),
-        ..sim.robot_config()
-    }));
+    let proxy = through_proxy(&sim, &mut devices);
     let stage = sim.stage_sim.clone().expect("a Zaber stage");
     let control = ctx.control.clone();
     let mut events = control.events.subscribe();
     let watcher = tokio::spawn(async move {
-        let k = sim_steps_per_mm();
-        let deadline = Instant::now() + Duration::from_secs(60);
-        while !(stage.is_busy() && stage.position_steps() as f64 / k > 2.0) {
-            assert!(Instant::now() < deadline, "the stage never moved to P2");
-            tokio::time::sleep(Duration::from_millis(1)).await;
-        }
-        let t = Instant::now();
+        until_on_its_way(&stage).await;
+        let applied = Instant::now();
         control.apply(&cmd);
-        let applied = t;
-        let mut last = stage.position_steps();
-        let stood = loop {
-            tokio::time::sleep(Duration::from_millis(5)).await;
-            let now = stage.position_steps();
-            if now == last && !stage.is_busy() {
-                break t.elapsed();
-            }
-            last = now;
-            assert!(
-                t.elapsed() < Duration::from_secs(10),
-                "the stage never stopped"
-            );
-        };
-        tokio::time::sleep(Duration::from_millis(500)).await;
-        assert_eq!(
-            stage.position_steps(),
-            last,
-            "the stage stays where it stopped"
-        );
-        let at = last as f64 / k;
-        eprintln!("stage stopped at {at:.3} mm, {stood:?} after the command");
-        assert!(at < 9.0, "stopped before P2: {at} mm");
-        (stood, applied)
+        (
+            until_it_stands(&stage, applied, "the command").await,
+            applied,
+        )
     });
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
@@ -496,13 +453,35 @@ async fn stage_stops_on(cmd: CampaignCommand) -> StageStop {
         }
     }
     sim.stop().await;
+    assert!(
+        stood < Duration::from_millis(200),
+        "stage stood after {stood:?}"
+    );
+    let stops = stops(&seen);
+    assert_eq!(
+        stops.first(),
+        Some(&(reason.into(), "stopped".into(), "stopped".into())),
+        "{stops:?}"
+    );
     StageStop {
-        stood,
         outcome,
         events: seen,
         applied,
         proxy,
     }
+}
+
+/// Put a logging proxy between the session's robot adapter and the simulated controller.
+fn through_proxy(
+    sim: &cellcal::sim::RunningSimCell,
+    devices: &mut cellcal::campaign::Devices,
+) -> Proxy {
+    let proxy = Proxy::start(sim.robot_addr);
+    devices.robot = Box::new(LinkRobot::new(cellcal::cell::LinkRobotConfig {
+        address: proxy.addr.to_string(),
+        ..sim.robot_config()
+    }));
+    proxy
 }
 
 /// Both futures to completion.
@@ -511,6 +490,44 @@ async fn futures_join<A: std::future::Future, B: std::future::Future>(
     b: B,
 ) -> (A::Output, B::Output) {
     tokio::join!(a, b)
+}
+
+/// Wait (≤ 60 s) until `stage` is on its way to P2, past 2 mm.
+async fn until_on_its_way(stage: &zaber::sim::StageSim) {
+    let k = sim_steps_per_mm();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(stage.is_busy() && stage.position_steps() as f64 / k > 2.0) {
+        assert!(Instant::now() < deadline, "the stage never moved to P2");
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+}
+
+/// How long after `t` the position of `stage` stopped changing (read every 5 ms); it must
+/// then stay there (500 ms) short of P2.
+async fn until_it_stands(stage: &zaber::sim::StageSim, t: Instant, what: &str) -> Duration {
+    let mut last = stage.position_steps();
+    let stood = loop {
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        let now = stage.position_steps();
+        if now == last && !stage.is_busy() {
+            break t.elapsed();
+        }
+        last = now;
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "the stage never stopped"
+        );
+    };
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(
+        stage.position_steps(),
+        last,
+        "the stage stays where it stopped"
+    );
+    let at = last as f64 / sim_steps_per_mm();
+    eprintln!("stage stopped at {at:.3} mm, {stood:?} after {what}");
+    assert!(at < 9.0, "stopped before P2: {at} mm");
+    stood
 }
 
 /// The simulated stage's microsteps per mm (config/cell.sim.toml).
@@ -535,34 +552,13 @@ fn stops(events: &[CampaignEvent]) -> Vec<(String, String, String)> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn abort_stops_the_motorised_stage_within_200_ms() {
-    let r = stage_stops_on(CampaignCommand::Abort).await;
+    let r = stage_stops_on(CampaignCommand::Abort, "abort").await;
     assert!(matches!(r.outcome, Outcome::Aborted), "{:?}", r.outcome);
-    assert!(
-        r.stood < Duration::from_millis(200),
-        "stage stood after {:?}",
-        r.stood
-    );
-    let stops = stops(&r.events);
-    assert!(
-        stops.contains(&("abort".into(), "stopped".into(), "stopped".into())),
-        "{stops:?}"
-    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn disarm_stops_the_motorised_stage_within_200_ms_and_pauses() {
-    let r = stage_stops_on(CampaignCommand::Disarm).await;
-    assert!(
-        r.stood < Duration::from_millis(200),
-        "stage stood after {:?}",
-        r.stood
-    );
-    let stops = stops(&r.events);
-    assert_eq!(
-        stops.first(),
-        Some(&("disarm".into(), "stopped".into(), "stopped".into())),
-        "{stops:?}"
-    );
+    let r = stage_stops_on(CampaignCommand::Disarm, "disarm").await;
     let paused = |why: &str| {
         r.events.iter().any(|e| {
             matches!(e, CampaignEvent::State { state: CampaignState::Paused { reason } } if reason.starts_with(why))
@@ -584,12 +580,8 @@ async fn disarm_stops_the_motorised_stage_within_200_ms_and_pauses() {
 /// time, and the proxy.
 async fn manual_run(confirm_clear: Option<bool>) -> (Vec<(Instant, String)>, Proxy) {
     let key = confirm_clear.map_or(String::new(), |b| format!("confirm_clear = {b}\n"));
-    let text = config_text("", "", "")
-        .replace("kind = \"serial\"", &format!("kind = \"manual\"\n{key}"))
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = twenty_poses_no_setup(config_text("", "", ""))
+        .replace("kind = \"serial\"", &format!("kind = \"manual\"\n{key}"));
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg_path = write_config(dir.path(), &text);
     let cfg = parse_cell_config(&text, &cfg_path).expect("config");
@@ -622,11 +614,7 @@ async fn manual_run(confirm_clear: Option<bool>) -> (Vec<(Instant, String)>, Pro
     .expect("session");
     let (ctx, mut devices) = (session.ctx, session.devices);
     let sim = session.sim.expect("sim");
-    let proxy = Proxy::start(sim.robot_addr);
-    devices.robot = Box::new(LinkRobot::new(cellcal::cell::LinkRobotConfig {
-        address: proxy.addr.to_string(),
-        ..sim.robot_config()
-    }));
+    let proxy = through_proxy(&sim, &mut devices);
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
     let outcome = tokio::time::timeout(Duration::from_secs(120), run_campaign(&ctx, &mut devices))
@@ -693,18 +681,13 @@ async fn signal_stops_the_stage(sig: nix::sys::signal::Signal) -> (Duration, Opt
         ..zaber::sim::StageSimConfig::default()
     });
     let pty = zaber::pty::spawn_stage_pty(stage.clone()).expect("stage pty");
-    let text = config_text("", "", "")
-        .replace(
-            "[stage]\nmode = \"sim\"\n",
-            &format!(
-                "[stage]\nmode = \"real\"\nserial_path = \"{}\"\n",
-                pty.path()
-            ),
-        )
-        .replace("poses = 300", "poses = 20")
-        .replace("ident = 100", "ident = 14")
-        .replace("tool_frame = true", "tool_frame = false")
-        .replace("base_registration = true", "base_registration = false");
+    let text = twenty_poses_no_setup(config_text("", "", "")).replace(
+        "[stage]\nmode = \"sim\"\n",
+        &format!(
+            "[stage]\nmode = \"real\"\nserial_path = \"{}\"\n",
+            pty.path()
+        ),
+    );
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = write_config(dir.path(), &text);
     let mut child = std::process::Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
@@ -717,35 +700,10 @@ async fn signal_stops_the_stage(sig: nix::sys::signal::Signal) -> (Duration, Opt
         .stderr(std::process::Stdio::null())
         .spawn()
         .expect("spawn cellcal run");
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !(stage.is_busy() && stage.position_steps() as f64 / k > 2.0) {
-        assert!(Instant::now() < deadline, "the stage never moved to P2");
-        tokio::time::sleep(Duration::from_millis(1)).await;
-    }
+    until_on_its_way(&stage).await;
     let t = Instant::now();
     nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), sig).expect("signal");
-    let mut last = stage.position_steps();
-    let stood = loop {
-        tokio::time::sleep(Duration::from_millis(5)).await;
-        let now = stage.position_steps();
-        if now == last && !stage.is_busy() {
-            break t.elapsed();
-        }
-        last = now;
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "the stage never stopped"
-        );
-    };
-    tokio::time::sleep(Duration::from_millis(500)).await;
-    assert_eq!(
-        stage.position_steps(),
-        last,
-        "the stage stays where it stopped"
-    );
-    let at = last as f64 / k;
-    eprintln!("{sig}: stage stopped at {at:.3} mm, {stood:?} after the signal");
-    assert!(at < 9.0, "stopped before P2: {at} mm");
+    let stood = until_it_stands(&stage, t, sig.as_str()).await;
     let code = loop {
         if let Some(status) = child.try_wait().expect("wait") {
             break status.code();
