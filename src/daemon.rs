@@ -32,7 +32,7 @@ use crate::campaign::stored::{load_stored, stored_model_toml, StoredError};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
-use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext};
+use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext, CONFIRM_CLEAR};
 use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::metrics::Metrics;
@@ -106,7 +106,8 @@ impl CampaignOverrides {
 pub enum ClientCommand {
     /// Allow motion.
     Arm,
-    /// Disallow motion (the engine refuses to move while disarmed).
+    /// Disallow motion: a running campaign stops the robot and the stage at once and pauses
+    /// (resumable once armed again); the engine moves nothing while disarmed.
     Disarm,
     /// Start, or resume a stored campaign (requires arm).
     Start,
@@ -129,6 +130,29 @@ pub enum ClientCommand {
         #[serde(default)]
         abort: bool,
     },
+    /// Confirm the cell clear: the answer to the open `confirm_clear` question `seq` (asked
+    /// after a manual stage answer; the robot moves only after it). No other question takes
+    /// it, and `answer` does not answer that one.
+    ConfirmClear {
+        /// Sequence number of the `confirm_clear` question.
+        seq: u64,
+    },
+}
+
+/// What `POST /api/cell/stop` stopped.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct CellStopView {
+    /// The campaign that was loaded and running (now aborted), or null when none was.
+    pub campaign: Option<i64>,
+    /// Its state after the stop (`aborted`, or the final state it had reached), null without
+    /// a campaign.
+    pub state: Option<String>,
+    /// The robot's answer to the stop: `stopped`, or why not (`not connected`, …); null when
+    /// no campaign was running (the daemon holds no device connection then: nothing moves).
+    pub robot: Option<String>,
+    /// The stage's answer: `stopped`, `manual` (nothing motorised), or why not; null as
+    /// `robot`.
+    pub stage: Option<String>,
 }
 
 /// A question waiting for the technician, as clients see it.
@@ -831,6 +855,13 @@ impl Daemon {
                     Some(p) if p.seq == seq => {
                         let answer = match (abort, value_mm) {
                             (true, _) => Answer::Abort,
+                            (false, _) if p.prompt.id == CONFIRM_CLEAR => {
+                                *slot = Some(p);
+                                return Err(DaemonError::Conflict(format!(
+                                    "question {seq} asks to confirm the cell clear: send \
+                                     {{\"command\": \"confirm_clear\", \"seq\": {seq}}}"
+                                )));
+                            }
                             (false, Some(v)) if v.is_finite() => Answer::Number(v),
                             (false, Some(v)) => {
                                 *slot = Some(p);
@@ -851,6 +882,33 @@ impl Daemon {
                         }));
                     }
                 }
+            }
+            ClientCommand::ConfirmClear { seq } => {
+                let mut slot = lock(&l.pending);
+                match slot.take().filter(PendingPrompt::is_open) {
+                    Some(p) if p.seq == seq && p.prompt.id == CONFIRM_CLEAR => {
+                        p.answer(Answer::Clear);
+                    }
+                    other => {
+                        let open = other.as_ref().map(|p| (p.seq, p.prompt.id.clone()));
+                        *slot = other;
+                        return Err(DaemonError::Conflict(match open {
+                            Some((w, id)) if id == CONFIRM_CLEAR => {
+                                format!("question {seq} is not open; {w} is")
+                            }
+                            Some((w, _)) => format!(
+                                "no `{CONFIRM_CLEAR}` question {seq} is open (question {w} is \
+                                 answered with `answer`)"
+                            ),
+                            None => format!("question {seq} is not open; none is"),
+                        }));
+                    }
+                }
+            }
+            ClientCommand::Resume | ClientCommand::Reregister if !l.control.is_armed() => {
+                return Err(DaemonError::Conflict(format!(
+                    "campaign {id} is not armed: arm it first (nothing is powered or moved while disarmed)"
+                )));
             }
             ClientCommand::Arm => l.control.apply(&CampaignCommand::Arm),
             ClientCommand::Disarm => l.control.apply(&CampaignCommand::Disarm),
@@ -1136,6 +1194,53 @@ impl Daemon {
         page.map_err(|e| DaemonError::Conflict(e.to_string()))
     }
 
+    /// Stop the cell: abort the loaded campaign, if one is running, and wait (at most
+    /// [`COMMAND_SETTLE`]) until its engine has told the robot and the stage to stop; answers
+    /// with what each said. Without a running campaign the daemon holds no device connection
+    /// and nothing moves. Cancel-safe: the abort is applied before the only wait.
+    pub async fn cell_stop(&self) -> Result<CellStopView, DaemonError> {
+        let running = {
+            let slot = lock(&self.slot);
+            slot.loaded.as_ref().filter(|l| l.running()).map(|l| {
+                let events = l.control.events.subscribe();
+                l.control.apply(&CampaignCommand::Abort);
+                (l.id, events, l.ended.clone())
+            })
+        };
+        let Some((id, mut events, ended)) = running else {
+            return Ok(CellStopView {
+                campaign: None,
+                state: None,
+                robot: None,
+                stage: None,
+            });
+        };
+        let mut said = (None, None);
+        let _ = tokio::time::timeout(COMMAND_SETTLE, async {
+            loop {
+                tokio::select! {
+                    biased;
+                    e = events.recv() => match e.map(|j| j.event) {
+                        Ok(CampaignEvent::Stopped { robot, stage, .. }) => {
+                            said = (Some(robot), Some(stage));
+                        }
+                        Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => {}
+                        Err(broadcast::error::RecvError::Closed) => break,
+                    },
+                    _ = ended.cancelled() => break,
+                }
+            }
+        })
+        .await;
+        let state = self.get(id).await.ok().map(|v| v.state);
+        Ok(CellStopView {
+            campaign: Some(id),
+            state,
+            robot: said.0,
+            stage: said.1,
+        })
+    }
+
     /// Refuse new campaigns, wait for one being loaded, abort the loaded campaign (if running)
     /// and wait for its engine to stop the robot. Not cancel-safe: a dropped call may leave the
     /// campaign aborting on its own.
@@ -1159,7 +1264,8 @@ pub const COMMAND_SETTLE: Duration = Duration::from_secs(5);
 fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
     Some(match cmd {
         ClientCommand::Arm => |s| s != "idle",
-        ClientCommand::Disarm => |s| s != "armed",
+        // a running campaign pauses on a disarm
+        ClientCommand::Disarm => |s| !matches!(s, "armed" | "running"),
         ClientCommand::Start => |s| !matches!(s, "idle" | "armed"),
         // before a start there is nothing to pause
         ClientCommand::Pause => |s| s != "running",
@@ -1167,7 +1273,7 @@ fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
         // until the run has ended and let go of the campaign and the cell: the reply's
         // `loaded: false` is true, and a next command loads it again
         ClientCommand::Abort => |_| false,
-        ClientCommand::Answer { .. } => return None,
+        ClientCommand::Answer { .. } | ClientCommand::ConfirmClear { .. } => return None,
     })
 }
 

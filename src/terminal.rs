@@ -8,10 +8,22 @@ use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::broadcast;
 
 use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};
-use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter};
+use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, CONFIRM_CLEAR};
 
-/// Asks the technician on the terminal; `a` (or end of input) aborts.
+/// Asks the technician on the terminal; `a` (or end of input) aborts. The question that
+/// releases the robot after a manual stage answer ([`CONFIRM_CLEAR`]) takes only its own key,
+/// `c` (never a bare Enter, which answers the other questions).
 pub struct TerminalPrompter;
+
+/// The answer to a [`CONFIRM_CLEAR`] question: `c` confirms the cell clear, `a` aborts; `None`
+/// for anything else (a bare Enter included).
+fn parse_clear(line: &str) -> Option<Answer> {
+    match line.trim() {
+        "c" | "C" | "clear" => Some(Answer::Clear),
+        "a" | "A" | "abort" => Some(Answer::Abort),
+        _ => None,
+    }
+}
 
 /// A typed answer: `a` aborts, an empty line confirms, else a reading in mm (`10.003` or
 /// `10,003`); `None` when it is none of these.
@@ -37,8 +49,11 @@ impl Prompter for TerminalPrompter {
     async fn ask(&self, prompt: Prompt) -> Result<Answer, CellError> {
         tokio::task::spawn_blocking(move || {
             let stdin = std::io::stdin();
+            let clear = prompt.id == CONFIRM_CLEAR;
             loop {
-                let hint = if prompt.expected_mm.is_some() {
+                let hint = if clear {
+                    "type c and Enter when the cell is clear, or a to abort"
+                } else if prompt.expected_mm.is_some() {
                     "reading in mm, or a to abort"
                 } else {
                     "Enter to confirm, or a to abort"
@@ -53,6 +68,13 @@ impl Prompter for TerminalPrompter {
                 match stdin.lock().read_line(&mut line) {
                     Ok(0) | Err(_) => return Ok(Answer::Abort),
                     Ok(_) => {}
+                }
+                if clear {
+                    match parse_clear(&line) {
+                        Some(a) => return Ok(a),
+                        None => eprintln!("the robot moves only after c (cell clear); a aborts"),
+                    }
+                    continue;
                 }
                 match parse_answer(&line) {
                     Some(Answer::Confirmed) if prompt.expected_mm.is_some() => {
@@ -185,6 +207,11 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
                 bar.set_message(text);
             }
             Ok(CampaignEvent::Note { text }) => line(text),
+            Ok(CampaignEvent::Stopped {
+                reason,
+                robot,
+                stage,
+            }) => line(format!("stop ({reason}): robot {robot}; stage {stage}")),
             Ok(CampaignEvent::Devices {
                 tracker,
                 robot,
@@ -239,5 +266,13 @@ mod tests {
         assert_eq!(parse_answer("\n"), Some(Answer::Confirmed));
         assert_eq!(parse_answer("ten"), None);
         assert_eq!(parse_answer("NaN"), None);
+        assert_eq!(parse_clear("c\n"), Some(Answer::Clear));
+        assert_eq!(
+            parse_clear("\n"),
+            None,
+            "a bare Enter does not release the robot"
+        );
+        assert_eq!(parse_clear("10.0"), None);
+        assert_eq!(parse_clear("a"), Some(Answer::Abort));
     }
 }

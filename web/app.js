@@ -206,7 +206,8 @@ function renderView(v) {
   $('cmd-disarm').disabled = !v || !v.armed;
   $('cmd-start').disabled = !v || !v.armed || ['running', 'paused', 'identifying', 'done'].includes(state);
   $('cmd-pause').disabled = !v || state !== 'running';
-  $('cmd-resume').disabled = !v || state !== 'paused';
+  // a disarmed campaign resumes only once armed again (the API answers 409)
+  $('cmd-resume').disabled = !v || state !== 'paused' || !v.armed;
   renderPrompt(v);
 }
 
@@ -253,14 +254,18 @@ function renderPrompt(v) {
   $('prompt-error').textContent = '';
   const numeric = q.expected_mm != null;
   const canAnswer = may('answer');
+  // the question that releases the robot is answered only by its own button, never by Enter
+  const clear = q.id === 'confirm_clear';
   $('prompt-value').value = '';
-  $('prompt-value').hidden = !numeric || !canAnswer;
-  document.querySelector('label[for=prompt-value]').hidden = !numeric || !canAnswer;
-  $('prompt-confirm').hidden = !canAnswer;
-  $('prompt-hint').hidden = !canAnswer;
+  $('prompt-value').hidden = !numeric || !canAnswer || clear;
+  document.querySelector('label[for=prompt-value]').hidden = !numeric || !canAnswer || clear;
+  $('prompt-confirm').hidden = !canAnswer || clear;
+  $('prompt-clear').hidden = !canAnswer || !clear;
+  $('prompt-hint').hidden = !canAnswer || clear;
   panel.hidden = false;
   cue(panel);
-  if (canAnswer) (numeric ? $('prompt-value') : $('prompt-confirm')).focus();
+  if (canAnswer && !clear) (numeric ? $('prompt-value') : $('prompt-confirm')).focus();
+  if (clear && document.activeElement) document.activeElement.blur();
 }
 
 /** "Pose 3 of 20 · P2 · question 7": what the question is about, from the engine's context only. */
@@ -313,6 +318,8 @@ async function confirmPrompt(ev) {
   ev.preventDefault();
   const v = ui.view;
   if (!v || !v.prompt || ui.promptSeq === null) return;
+  // Enter never releases the robot: the confirm_clear question takes only its button
+  if (v.prompt.id === 'confirm_clear') return;
   const seq = ui.promptSeq;
   const body = { command: 'answer', seq };
   if (v.prompt.expected_mm != null) {
@@ -324,8 +331,13 @@ async function confirmPrompt(ev) {
     }
     body.value_mm = x;
   }
+  await answerWith(v.id, seq, body);
+}
+
+/** Send the answer `body` to question `seq` of campaign `id`; the panel closes once taken. */
+async function answerWith(id, seq, body) {
   try {
-    await commandOn(v.id, body);
+    await commandOn(id, body);
     ui.answered.add(seq);
     $('prompt-panel').hidden = true;
     ui.promptSeq = null;
@@ -333,6 +345,14 @@ async function confirmPrompt(ev) {
     $('prompt-error').textContent = e.message;
   }
   refresh();
+}
+
+/** The technician confirms the cell clear (its own button): the robot may move again. */
+async function confirmClear() {
+  const v = ui.view;
+  if (!v || !v.prompt || v.prompt.id !== 'confirm_clear' || ui.promptSeq === null) return;
+  const seq = ui.promptSeq;
+  await answerWith(v.id, seq, { command: 'confirm_clear', seq });
 }
 
 // ---- commands --------------------------------------------------------------------------
@@ -354,19 +374,14 @@ async function command(name) {
   refresh();
 }
 
-/** Abort whatever can move: the loaded campaign, else the selected one. Never asks. */
+/** Stop the cell (POST /api/cell/stop): the loaded campaign aborts, robot and stage stop. Never asks. */
 async function abortNow() {
   say('');
-  let id = ui.selected;
   try {
-    const list = await api('GET', '/api/campaigns');
-    const loaded = list.find((c) => c.loaded);
-    if (loaded) id = loaded.id;
-  } catch (_) { /* abort the selected one */ }
-  if (id === null) { say('nothing to abort'); return; }
-  try {
-    await commandOn(id, { command: 'abort' });
-    say('Aborted: the robot was told to stop.');
+    const r = await api('POST', '/api/cell/stop', {});
+    say(r.campaign === null
+      ? 'Nothing was running: no device is moving.'
+      : 'Aborted campaign #' + r.campaign + ': robot ' + (r.robot || 'not told') + ', stage ' + (r.stage || 'not told') + '.');
   } catch (e) {
     say('abort: ' + e.message);
   }
@@ -696,6 +711,7 @@ function wire() {
   $('create-form').addEventListener('submit', create);
   $('prompt-form').addEventListener('submit', confirmPrompt);
   $('prompt-abort').addEventListener('click', askAbort);
+  $('prompt-clear').addEventListener('click', confirmClear);
   $('cmd-arm').addEventListener('click', () => { $('arm-dialog').showModal(); $('arm-cancel').focus(); });
   $('arm-confirm').addEventListener('click', () => { $('arm-dialog').close(); command('arm'); });
   $('arm-cancel').addEventListener('click', () => $('arm-dialog').close());

@@ -16,7 +16,7 @@
 //! | `GET /api/campaigns` | every stored campaign (`CampaignView`) |
 //! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
 //! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
-//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` |
+//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator; `disarm` stops the robot and the stage and pauses) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` or `{"command": "confirm_clear", "seq"}` (the only answer to a `confirm_clear` question) |
 //! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
@@ -25,6 +25,7 @@
 //! | `GET /api/campaigns/{id}/measurements` | the measured poses (`[MeasurementRow]`); `?format=csv`: the identify CSV `cellcal export` writes |
 //! | `GET /api/campaigns/{id}/plan` | the stored plan (`PlanView`): poses in move order, set, joints (rad), done marks |
 //! | `GET /api/devices` | tracker, robot, stage: kind, address, simulated, connected, last fault (`DevicesView`) |
+//! | `POST /api/cell/stop` | stop the cell (any role): abort the loaded campaign and stop the robot and the stage → `CellStopView` (what each device answered) |
 //! | `GET /metrics` | Prometheus metrics, OpenMetrics text ([`crate::metrics`]); a token of any role |
 //! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
 
@@ -57,8 +58,8 @@ pub use guard::{Gate, Scheme};
 
 use crate::auth::{Action, Principal};
 use crate::daemon::{
-    CampaignOverrides, CampaignView, ClientCommand, Daemon, DaemonError, DevicesView, Followed,
-    MeasurementRow, PlanView, PromptView,
+    CampaignOverrides, CampaignView, CellStopView, ClientCommand, Daemon, DaemonError, DevicesView,
+    Followed, MeasurementRow, PlanView, PromptView,
 };
 
 /// Largest accepted request body (bytes); larger ones get 413.
@@ -150,7 +151,7 @@ fn action_of(cmd: &ClientCommand) -> Action {
         ClientCommand::Pause => Action::Pause,
         ClientCommand::Resume | ClientCommand::Reregister => Action::Resume,
         ClientCommand::Abort => Action::Abort,
-        ClientCommand::Answer { .. } => Action::Answer,
+        ClientCommand::Answer { .. } | ClientCommand::ConfirmClear { .. } => Action::Answer,
     }
 }
 
@@ -196,6 +197,7 @@ pub fn router(daemon: Arc<Daemon>, gate: Arc<Gate>) -> Router {
         .route("/api/campaigns/{id}/measurements", get(measurements))
         .route("/api/campaigns/{id}/plan", get(plan))
         .route("/api/devices", get(devices))
+        .route("/api/cell/stop", post(cell_stop))
         .route("/metrics", get(prometheus_metrics))
         .fallback(|| async { ApiError(StatusCode::NOT_FOUND, "no such endpoint".into()) })
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
@@ -619,6 +621,20 @@ async fn plan(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Res
 async fn devices(State(d): State<Shared>, caller: Caller) -> Result<Response, ApiError> {
     caller.may(Action::Read)?;
     Ok(Json(d.devices()).into_response())
+}
+
+/// Stop the cell: abort the loaded campaign and stop every device that moves (robot, stage);
+/// any role may. Answers with what was stopped and what each device said.
+///
+/// Cancel-safe: the abort is applied before the reply waits for the engine; a dropped request
+/// only loses the reply.
+#[utoipa::path(post, path = "/api/cell/stop", tag = "daemon",
+    responses((status = 200, description = "the campaign that was running (now aborted) and each device's answer to the stop; nulls when no campaign was running (nothing moves then)", body = CellStopView),
+        (status = 401, description = "no or unknown token", body = ErrorBody),
+        (status = 403, description = "the role may not do that", body = ErrorBody)))]
+async fn cell_stop(State(d): State<Shared>, caller: Caller) -> Result<Response, ApiError> {
+    caller.may(Action::Abort)?;
+    Ok(Json(d.cell_stop().await?).into_response())
 }
 
 /// Prometheus metrics (OpenMetrics text); any role's token (Prometheus: `bearer_token`).

@@ -33,6 +33,7 @@ use utoipa::{Modify, OpenApi};
         super::measurements,
         super::plan,
         super::devices,
+        super::cell_stop,
         super::prometheus_metrics,
         super::web::index,
         super::web::app_js,

@@ -7,9 +7,11 @@
 //! threshold is an *operator fault*: with [`FaultPolicy::Pause`] the campaign pauses with the
 //! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
 //! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
-//! in `failed`, resumable. A safety refusal (not armed, target outside the limits or the
-//! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and leaves the
-//! campaign resumable at the first unmeasured pose. Every event (state change, measured pose,
+//! in `failed`, resumable. A safety refusal (target outside the limits or the
+//! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and the stage
+//! and leaves the campaign resumable at the first unmeasured pose; a disarm does the same and
+//! pauses (resumed only once armed again). With a manual stage, no robot move follows a stage
+//! answer before the technician confirmed the cell clear ([`Run::ensure_clear`]). Every event (state change, measured pose,
 //! fault, drift check, setup, note, result) is journalled in the store's `events` table before
 //! it is emitted, and emitted with its journal sequence number ([`journal_event`]). Whatever
 //! ends a run, the stored state is a final one ([`run_campaign`]).
@@ -117,6 +119,9 @@ pub enum CampaignError {
 enum Stop {
     /// The operator aborted.
     Aborted,
+    /// The campaign was disarmed: every device is stopped and the campaign pauses until it is
+    /// armed and resumed (whatever the [`FaultPolicy`]: a disarm is an operator's act).
+    Disarmed,
     /// A safety refusal: never retried.
     Failed(String),
     /// A fault the operator can fix (pause and retry, or fail, per [`FaultPolicy`]).
@@ -211,18 +216,34 @@ fn check_travel(
     }
 }
 
-/// Await a device call unless the campaign is aborted first.
-/// Cancel-safe when `fut` is: on abort it drops `fut` (the device traits'
-/// contract makes that safe) and returns `Stop::Aborted`.
+/// Await a device call unless the campaign is aborted or disarmed first; a campaign not armed
+/// never starts it (no device call, power-on included, is made while disarmed).
+/// Cancel-safe when `fut` is: on abort or disarm it drops `fut` (the device traits'
+/// contract makes that safe) and returns `Stop::Aborted` or `Stop::Disarmed`.
 async fn guarded<T>(
-    abort: &tokio_util::sync::CancellationToken,
+    control: &Control,
     fut: impl Future<Output = Result<T, CellError>>,
 ) -> Result<Result<T, CellError>, Stop> {
+    let mut armed = control.armed.subscribe();
+    if control.abort.is_cancelled() {
+        return Err(Stop::Aborted);
+    }
+    if !*armed.borrow_and_update() {
+        return Err(Stop::Disarmed);
+    }
     tokio::select! {
+        biased;
+        _ = control.abort.cancelled() => Err(Stop::Aborted),
+        _ = armed.wait_for(|a| !*a) => Err(Stop::Disarmed),
         r = fut => Ok(r),
-        _ = abort.cancelled() => Err(Stop::Aborted),
     }
 }
+
+/// The longest wait for one device's answer to a stop.
+const STOP_BOUND: Duration = Duration::from_secs(2);
+
+/// Why a campaign paused on a disarm (and stays paused while disarmed).
+const DISARMED: &str = "disarmed: the robot and the stage were stopped; arm, then resume";
 
 /// Run `f` on the store on a blocking thread (the store's mutex is held only there).
 /// Cancel-safe in effect: a dropped call still runs `f` to completion; only its result is lost.
@@ -287,6 +308,9 @@ struct Run<'a> {
     /// The controller reported the robot settled at its last target and no robot command was
     /// sent since (false whenever that is not known).
     robot_settled: bool,
+    /// A technician may have a hand at the stage (a manual stage was asked to move) and has
+    /// not yet confirmed the cell clear: no robot motion until [`Run::ensure_clear`].
+    hand_at_stage: bool,
     /// What is being measured (the context of a technician question).
     step: Step,
 }
@@ -331,6 +355,7 @@ macro_rules! with_operator {
             match $step {
                 Ok(v) => break v,
                 Err(Stop::Fault(reason)) => $run.operator_pause(reason).await?,
+                Err(Stop::Disarmed) => $run.disarmed_pause().await?,
                 Err(e) => return Err(e),
             }
         }
@@ -449,13 +474,7 @@ impl Run<'_> {
         let mut last = String::new();
         self.aim_at = self.aim.as_ref().and_then(|a| a.ball(joints, stage_mm));
         for _ in 0..max {
-            let r = {
-                let t = &mut self.dev.tracker;
-                tokio::select! {
-                    r = t.measure() => r,
-                    _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
-                }
-            };
+            let r = guarded(&self.ctx.control, self.dev.tracker.measure()).await?;
             match r {
                 Ok(p) if p.std_total_mm.is_finite() && p.std_total_mm > gate => {
                     let note = format!(
@@ -599,10 +618,11 @@ impl Run<'_> {
             .settle_tolerance_deg
             .to_radians();
         let mut last = String::new();
+        self.ensure_clear().await?;
         self.robot_settled = false;
         for _ in 0..max {
             if !self.ctx.control.is_armed() {
-                return Err(Stop::Failed("the campaign is not armed: no motion".into()));
+                return Err(Stop::Disarmed);
             }
             let router = self
                 .router
@@ -610,15 +630,27 @@ impl Run<'_> {
                 .map_err(|e| Stop::Failed(format!("no move is routed: {e}")))?;
             let r = {
                 let robot = &mut self.dev.robot;
-                guarded(&self.ctx.control.abort, async {
+                let control = &self.ctx.control;
+                guarded(control, async {
                     let from = robot.joints().await?;
                     let vias = match approached_route(router, &from, approach, q) {
                         Ok(vias) => vias,
-                        Err(e) => return Ok(Err(e)),
+                        Err(e) => {
+                            return Ok(Err(Stop::Failed(format!(
+                                "no safe path to {q:?}: {e}: not sent"
+                            ))))
+                        }
                     };
+                    // every leg is checked: a disarm between legs sends no further MOVEJ
                     for via in &vias {
+                        if !control.is_armed() {
+                            return Ok(Err(Stop::Disarmed));
+                        }
                         robot.move_joints(via).await?;
                         robot.wait_settled(timeout).await?;
+                    }
+                    if !control.is_armed() {
+                        return Ok(Err(Stop::Disarmed));
                     }
                     robot.move_joints(q).await?;
                     robot.wait_settled(timeout).await.map(Ok)
@@ -637,11 +669,7 @@ impl Run<'_> {
                         last = why;
                     }
                 },
-                Ok(Err(e)) => {
-                    return Err(Stop::Failed(format!(
-                        "no safe path to {q:?}: {e}: not sent"
-                    )))
-                }
+                Ok(Err(stop)) => return Err(stop),
                 Err(e) if e.is_transient() => {
                     last = e.to_string();
                     self.recover(&e).await?;
@@ -670,24 +698,51 @@ impl Run<'_> {
         }
         self.stage_mm = None;
         let context = self.prompt_context(mm);
+        // from the question on, a hand may be at the stage until the cell is confirmed clear
+        self.hand_at_stage |= self.dev.stage.needs_clear();
         let r = {
             let stage = &mut self.dev.stage;
             stage.set_prompt_context(context);
-            guarded(&self.ctx.control.abort, stage.move_to(mm)).await?
+            guarded(&self.ctx.control, stage.move_to(mm)).await?
         };
         match r {
             Ok(v) => {
                 self.stage_mm = Some(v);
                 Ok(v)
             }
-            Err(e) if e.kind == FaultKind::Aborted => {
-                self.fault(e.device, e.kind, &e.message, "abort").await?;
-                Err(Stop::Aborted)
+            Err(e) => Err(self.stage_failed(e).await?),
+        }
+    }
+
+    /// Journal a stage (or technician) failure and say how the run stops: the technician's
+    /// abort aborts, anything else pauses. Cancel-safe as [`journal_event`].
+    async fn stage_failed(&self, e: CellError) -> Result<Stop, CampaignError> {
+        let aborted = e.kind == FaultKind::Aborted;
+        let action = if aborted { "abort" } else { "pause" };
+        self.fault(e.device, e.kind, &e.message, action).await?;
+        Ok(if aborted {
+            Stop::Aborted
+        } else {
+            Stop::Fault(e.to_string())
+        })
+    }
+
+    /// Before robot motion: when a technician may have a hand at the stage, ask them to
+    /// confirm the cell clear (the robot stands still meanwhile) and move nothing until they
+    /// do. Not cancel-safe: one step of the run, ended by the abort token (the question is
+    /// [`guarded`]), never by dropping it.
+    async fn ensure_clear(&mut self) -> Result<(), Stop> {
+        if !self.hand_at_stage {
+            return Ok(());
+        }
+        let context = self.prompt_context(self.stage_mm.unwrap_or(f64::NAN));
+        let r = guarded(&self.ctx.control, self.dev.stage.confirm_clear(context)).await?;
+        match r {
+            Ok(()) => {
+                self.hand_at_stage = false;
+                Ok(())
             }
-            Err(e) => {
-                self.fault(e.device, e.kind, &e.message, "pause").await?;
-                Err(Stop::Fault(e.to_string()))
-            }
+            Err(e) => Err(self.stage_failed(e).await?),
         }
     }
 
@@ -772,7 +827,8 @@ impl Run<'_> {
         }
     }
 
-    /// Stay paused with `reason` until the operator resumes (or aborts).
+    /// Stay paused with `reason` until the operator resumes (or aborts); a resume while
+    /// disarmed is refused (the campaign stays paused, nothing is prepared or powered on).
     /// Not cancel-safe: a drop while waiting leaves the stored state `paused`; it returns
     /// `Stop::Aborted` on the abort token instead.
     async fn paused(&self, reason: String) -> Result<(), Stop> {
@@ -780,11 +836,21 @@ impl Run<'_> {
         // a re-registration belongs to the resume it comes with, not to one before this pause
         self.ctx.control.take_reregister();
         self.set_state(CampaignState::Paused { reason }).await?;
-        while *pause.borrow_and_update() {
-            tokio::select! {
-                r = pause.changed() => if r.is_err() { return Err(Stop::Aborted) },
-                _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
+        loop {
+            while *pause.borrow_and_update() {
+                tokio::select! {
+                    r = pause.changed() => if r.is_err() { return Err(Stop::Aborted) },
+                    _ = self.ctx.control.abort.cancelled() => return Err(Stop::Aborted),
+                }
             }
+            if self.ctx.control.is_armed() {
+                break;
+            }
+            self.ctx.control.pause.send_replace(true);
+            self.set_state(CampaignState::Paused {
+                reason: "not armed: arm, then resume".into(),
+            })
+            .await?;
         }
         self.set_state(CampaignState::Running).await?;
         Ok(())
@@ -802,17 +868,35 @@ impl Run<'_> {
     /// devices are prepared again (a failure there pauses again).
     /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
     /// [`guarded`]), never by dropping it.
-    async fn operator_pause(&mut self, mut reason: String) -> Result<(), Stop> {
+    async fn operator_pause(&mut self, reason: String) -> Result<(), Stop> {
         if self.ctx.on_fault == FaultPolicy::Fail {
             return Err(Stop::Fault(reason));
         }
-        self.stop_robot().await;
+        self.halt("fault").await?;
+        self.pause_until_prepared(reason).await
+    }
+
+    /// A disarm: every device stopped at once, then paused (whatever the policy) until the
+    /// operator arms and resumes; the devices are prepared again before the step is retried.
+    /// Not cancel-safe: one step of the run, ended by the abort token, never by dropping it.
+    async fn disarmed_pause(&mut self) -> Result<(), Stop> {
+        self.halt("disarm").await?;
+        self.pause_until_prepared(DISARMED.into()).await
+    }
+
+    /// Pause with `reason`; on resume (armed) prepare the devices, pausing again while that
+    /// fails or the campaign is disarmed again. Not cancel-safe (as [`Run::paused`]).
+    async fn pause_until_prepared(&mut self, mut reason: String) -> Result<(), Stop> {
         loop {
             self.ctx.control.pause.send_replace(true);
             self.paused(reason).await?;
             match self.prepare().await {
                 Ok(()) => return Ok(()),
                 Err(Stop::Fault(r)) => reason = r,
+                Err(Stop::Disarmed) => {
+                    self.halt("disarm").await?;
+                    reason = DISARMED.into();
+                }
                 Err(e) => return Err(e),
             }
         }
@@ -829,15 +913,15 @@ impl Run<'_> {
             let r = match device {
                 DeviceKind::Robot => {
                     let r = &mut self.dev.robot;
-                    guarded(&self.ctx.control.abort, r.prepare(speed)).await?
+                    guarded(&self.ctx.control, r.prepare(speed)).await?
                 }
                 DeviceKind::Tracker => {
                     let t = &mut self.dev.tracker;
-                    guarded(&self.ctx.control.abort, t.prepare()).await?
+                    guarded(&self.ctx.control, t.prepare()).await?
                 }
                 _ => {
                     let s = &mut self.dev.stage;
-                    guarded(&self.ctx.control.abort, s.prepare()).await?
+                    guarded(&self.ctx.control, s.prepare()).await?
                 }
             };
             if let Err(e) = r {
@@ -895,8 +979,13 @@ impl Run<'_> {
             }),
             Err(Stop::Store(e)) => Err(Stop::Store(e)),
             Err(e) => {
+                if matches!(e, Stop::Aborted | Stop::Disarmed) {
+                    // stop what moves before the store write below
+                    self.stop_devices().await;
+                }
                 let why = match &e {
                     Stop::Aborted => "aborted".to_owned(),
+                    Stop::Disarmed => "disarmed".to_owned(),
                     Stop::Failed(r) | Stop::Fault(r) => r.clone(),
                     Stop::Store(_) => String::new(),
                 };
@@ -1095,6 +1184,7 @@ pub async fn run_campaign(
         aim: None,
         aim_at: None,
         robot_settled: false,
+        hand_at_stage: false,
         step: Step::Setup,
     };
     match run.run_to_end().await {
@@ -1146,12 +1236,22 @@ impl Run<'_> {
                 Ok(outcome)
             }
             Err(Stop::Aborted) => {
-                self.stop_robot().await;
+                self.halt("abort").await?;
                 self.set_state(CampaignState::Aborted).await?;
                 Ok(Outcome::Aborted)
             }
+            Err(Stop::Disarmed) => {
+                // every disarm inside a step pauses; one outside a step ends the run resumable
+                self.halt("disarm").await?;
+                let reason = DISARMED.to_owned();
+                self.set_state(CampaignState::Failed {
+                    reason: reason.clone(),
+                })
+                .await?;
+                Ok(Outcome::Failed(reason))
+            }
             Err(Stop::Failed(reason) | Stop::Fault(reason)) => {
-                self.stop_robot().await;
+                self.halt("fault").await?;
                 self.set_state(CampaignState::Failed {
                     reason: reason.clone(),
                 })
@@ -1162,18 +1262,47 @@ impl Run<'_> {
         }
     }
 
-    /// Stop the robot (bounded wait; the outcome does not depend on it). Cancel-safe: a
-    /// dropped stop only means the robot was not told again.
-    async fn stop_robot(&mut self) {
+    /// Tell the robot and the stage to stop, both at once (each bounded by [`STOP_BOUND`]; the
+    /// outcome does not depend on them); returns what each answered (`stopped`, `manual`, or
+    /// why not). Cancel-safe: a dropped stop only means a device was not told again.
+    async fn stop_devices(&mut self) -> (String, String) {
         self.robot_settled = false;
-        let _ = tokio::time::timeout(Duration::from_secs(2), self.dev.robot.stop()).await;
+        self.stage_mm = None;
+        let manual = self.dev.stage.is_manual();
+        let dev = &mut *self.dev;
+        let (robot, stage) = tokio::join!(
+            tokio::time::timeout(STOP_BOUND, dev.robot.stop()),
+            tokio::time::timeout(STOP_BOUND, dev.stage.stop()),
+        );
+        let said = |r: Result<Result<(), CellError>, _>| match r {
+            Ok(Ok(())) => "stopped".to_owned(),
+            Ok(Err(e)) => e.message,
+            Err(_) => format!("no answer within {} ms", STOP_BOUND.as_millis()),
+        };
+        let stage = match (manual, stage) {
+            (true, Ok(Ok(()))) => "manual".to_owned(),
+            (_, r) => said(r),
+        };
+        (said(robot), stage)
+    }
+
+    /// [`Run::stop_devices`], then journal what each device answered (a `stopped` event with
+    /// `why`). Not cancel-safe: a drop after the stops leaves the event unwritten.
+    async fn halt(&mut self, why: &str) -> Result<(), CampaignError> {
+        let (robot, stage) = self.stop_devices().await;
+        self.journal(CampaignEvent::Stopped {
+            reason: why.to_owned(),
+            robot,
+            stage,
+        })
+        .await
     }
 
     /// End a run that failed with `e`: stop the robot and store `failed` with the reason.
     /// Returns `Outcome::Failed`, or `e` itself when even that state cannot be written.
     /// Not cancel-safe: dropped before the state is written, the run keeps its last state.
     async fn fail_on_error(&mut self, e: CampaignError) -> Result<Outcome, CampaignError> {
-        self.stop_robot().await;
+        self.stop_devices().await;
         let reason = e.to_string();
         let failed = CampaignState::Failed {
             reason: reason.clone(),

@@ -14,7 +14,8 @@ use crate::cell::{Answer, DeviceKind, FaultKind, PromptContext};
 pub enum CampaignCommand {
     /// Allow motion.
     Arm,
-    /// Disallow motion (only while not running).
+    /// Disallow motion: a running campaign stops the robot and the stage at once and pauses
+    /// (resumable once armed again).
     Disarm,
     /// Start (or resume after a restart) the campaign; requires Arm.
     Start,
@@ -154,6 +155,16 @@ pub enum CampaignEvent {
         /// The stage's identity.
         stage: Option<String>,
     },
+    /// The engine told every device that moves to stop (abort, disarm, a fault that ends or
+    /// pauses the run): what each answered.
+    Stopped {
+        /// Why: `abort`, `disarm` or `fault`.
+        reason: String,
+        /// The robot's answer: `stopped`, or why not (`not connected`, the error).
+        robot: String,
+        /// The stage's answer: `stopped`, `manual` (nothing motorised), or why not.
+        stage: String,
+    },
     /// Free-text progress note.
     Note {
         /// Text.
@@ -178,7 +189,7 @@ impl CampaignEvent {
     }
 
     /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `devices`,
-    /// `note`, `result`).
+    /// `stopped`, `note`, `result`).
     pub fn kind(&self) -> &'static str {
         match self {
             CampaignEvent::State { .. } => "state",
@@ -188,6 +199,7 @@ impl CampaignEvent {
             CampaignEvent::Setup { .. } => "setup",
             CampaignEvent::Prompt { .. } => "prompt",
             CampaignEvent::Devices { .. } => "devices",
+            CampaignEvent::Stopped { .. } => "stopped",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",
         }
@@ -219,8 +231,8 @@ pub struct Journalled {
 /// Shared control state between the command listener and the engine.
 #[derive(Debug, Clone)]
 pub struct Control {
-    /// Motion allowed.
-    pub armed: Arc<AtomicBool>,
+    /// Motion allowed: the engine waits on it, so a disarm ends any device wait at once.
+    pub armed: watch::Sender<bool>,
     /// Abort requested (cancels every wait).
     pub abort: CancellationToken,
     /// Pause requested.
@@ -238,7 +250,7 @@ impl Control {
     /// New control state with an event channel of `capacity`.
     pub fn new(capacity: usize) -> Control {
         Control {
-            armed: Arc::new(AtomicBool::new(false)),
+            armed: watch::channel(false).0,
             abort: CancellationToken::new(),
             pause: watch::channel(false).0,
             start: watch::channel(false).0,
@@ -250,8 +262,12 @@ impl Control {
     /// Apply a command (answers are routed by the caller to the prompter).
     pub fn apply(&self, cmd: &CampaignCommand) {
         match cmd {
-            CampaignCommand::Arm => self.armed.store(true, Ordering::SeqCst),
-            CampaignCommand::Disarm => self.armed.store(false, Ordering::SeqCst),
+            CampaignCommand::Arm => {
+                self.armed.send_replace(true);
+            }
+            CampaignCommand::Disarm => {
+                self.armed.send_replace(false);
+            }
             CampaignCommand::Start => {
                 self.start.send_replace(true);
             }
@@ -277,7 +293,7 @@ impl Control {
 
     /// Whether motion is allowed.
     pub fn is_armed(&self) -> bool {
-        self.armed.load(Ordering::SeqCst)
+        *self.armed.borrow()
     }
 
     /// Publish an event the journal has stored (no receivers is fine); only the journalling

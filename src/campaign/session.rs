@@ -690,6 +690,7 @@ fn stage_device(
                 asker,
                 ManualStageConfig {
                     tolerance_mm: cfg.stage.tolerance_mm,
+                    confirm_clear: cfg.stage.confirm_clear(),
                     ..ManualStageConfig::default()
                 },
             ))

@@ -211,6 +211,24 @@ pub trait Stage: Send + Sync {
     /// What the engine is doing at the next [`Stage::move_to`] (a manual stage shows it with
     /// its question); a motorised stage ignores it.
     fn set_prompt_context(&mut self, _context: PromptContext) {}
+    /// Stop any stage motion now (a motorised stage: the driver's stop, then idle; a manual
+    /// stage has nothing to stop). Must be cancel-safe (see the trait) and work after a dropped
+    /// [`Stage::move_to`]; the engine bounds it with a timeout.
+    async fn stop(&mut self) -> Result<(), CellError> {
+        Ok(())
+    }
+    /// Whether a person may have a hand at the stage after a [`Stage::move_to`] (a manual
+    /// stage), so that no robot motion may follow before [`Stage::confirm_clear`].
+    fn needs_clear(&self) -> bool {
+        false
+    }
+    /// Ask the technician to confirm that the cell is clear before the robot moves again (a
+    /// prompt [`CONFIRM_CLEAR`] answered only by [`Answer::Clear`]); `Ok` at once when
+    /// [`Stage::needs_clear`] is false. Must be cancel-safe (see the trait): a dropped call
+    /// withdraws the question and confirms nothing.
+    async fn confirm_clear(&mut self, _context: PromptContext) -> Result<(), CellError> {
+        Ok(())
+    }
     /// What the device said it is at its last successful connection (model, serial, firmware),
     /// for the campaign journal and the report; `None` before one or when it cannot say.
     fn identity(&self) -> Option<String> {
@@ -241,7 +259,8 @@ pub struct PromptContext {
     /// The stage position asked for (`P1` or `P2`); null for any other position.
     pub position: Option<StagePosition>,
     /// The controller reported the robot settled at its target and the engine commands no
-    /// motion until this question is answered: safe to approach the stage.
+    /// motion until this question is answered (and, with `[stage] confirm_clear`, until the
+    /// technician confirmed the cell clear): safe to approach the stage.
     pub robot_stopped: bool,
     /// Why the previous answer to the same request was refused (out of tolerance, not a
     /// number); null on the first ask.
@@ -288,6 +307,10 @@ pub struct Prompt {
     pub context: PromptContext,
 }
 
+/// The id of the question that asks the technician to confirm the cell clear before the robot
+/// moves again; only [`Answer::Clear`] (or [`Answer::Abort`]) answers it.
+pub const CONFIRM_CLEAR: &str = "confirm_clear";
+
 /// The technician's answer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Answer {
@@ -295,6 +318,9 @@ pub enum Answer {
     Number(f64),
     /// Confirmed without a number.
     Confirmed,
+    /// The cell is clear: nobody at the stage, the robot may move (the deliberate answer to a
+    /// [`CONFIRM_CLEAR`] question; no other question takes it).
+    Clear,
     /// Abort the campaign.
     Abort,
 }

@@ -53,10 +53,12 @@ impl ScriptedPrompter {
         }
     }
 
-    /// The ideal technician: gives the expected number exactly, otherwise confirms.
+    /// The ideal technician: gives the expected number exactly, confirms the cell clear when
+    /// asked to, otherwise confirms.
     pub fn exact() -> ScriptedPrompter {
         ScriptedPrompter::from_fn(|p| match p.expected_mm {
             Some(v) => Answer::Number(v),
+            None if p.id == super::CONFIRM_CLEAR => Answer::Clear,
             None => Answer::Confirmed,
         })
     }

@@ -10,7 +10,13 @@ use tokio::io::{AsyncRead, AsyncWrite};
 use tracing::{info, warn};
 use zaber::{GaugeClient, GaugeError};
 
-use super::{Answer, CellError, DeviceKind, FaultKind, Prompt, PromptContext, Prompter, Stage};
+use super::{
+    Answer, CellError, DeviceKind, FaultKind, Prompt, PromptContext, Prompter, Stage, CONFIRM_CLEAR,
+};
+
+/// The question asked before the robot moves again after a manual stage move.
+const CLEAR_TEXT: &str = "Confirm that the cell is clear (no hand or tool at the stage or in the \
+     robot's reach): the robot moves next";
 
 /// Configuration of a [`ManualStage`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -20,6 +26,9 @@ pub struct ManualStageConfig {
     pub tolerance_mm: f64,
     /// How many times the technician is asked before the move fails.
     pub max_tries: u32,
+    /// After a move, the robot may not move again before the technician confirmed the cell
+    /// clear ([`Stage::confirm_clear`]; `[stage] confirm_clear`).
+    pub confirm_clear: bool,
 }
 
 impl Default for ManualStageConfig {
@@ -27,6 +36,7 @@ impl Default for ManualStageConfig {
         ManualStageConfig {
             tolerance_mm: 0.02,
             max_tries: 3,
+            confirm_clear: true,
         }
     }
 }
@@ -181,6 +191,56 @@ impl Stage for ManualStage {
 
     fn set_prompt_context(&mut self, context: PromptContext) {
         self.context = context;
+    }
+
+    fn needs_clear(&self) -> bool {
+        self.cfg.confirm_clear
+    }
+
+    /// Ask [`CONFIRM_CLEAR`] until the technician answers [`Answer::Clear`] (any other answer is
+    /// asked again, with the reason; abort aborts). Cancel-safe: a drop withdraws the question
+    /// (see [`Prompter`]) and confirms nothing.
+    async fn confirm_clear(&mut self, context: PromptContext) -> Result<(), CellError> {
+        if !self.cfg.confirm_clear {
+            return Ok(());
+        }
+        let mut retry: Option<String> = None;
+        for _ in 0..self.cfg.max_tries.max(1) {
+            let text = match &retry {
+                Some(why) => format!("{why}. {CLEAR_TEXT}"),
+                None => CLEAR_TEXT.to_owned(),
+            };
+            let prompt = Prompt {
+                id: CONFIRM_CLEAR.into(),
+                text,
+                expected_mm: None,
+                context: PromptContext {
+                    retry_reason: retry.take(),
+                    ..context.clone()
+                },
+            };
+            match self.prompter.ask(prompt).await? {
+                Answer::Clear => {
+                    info!("technician confirmed the cell clear");
+                    return Ok(());
+                }
+                Answer::Abort => {
+                    return Err(stage_err(
+                        FaultKind::Aborted,
+                        "the technician aborted instead of confirming the cell clear",
+                    ))
+                }
+                _ => {
+                    retry = Some(
+                        "Only the separate \"cell clear\" confirmation releases the robot".into(),
+                    )
+                }
+            }
+        }
+        Err(stage_err(
+            FaultKind::Rejected,
+            "the cell was not confirmed clear: the robot does not move",
+        ))
     }
 
     fn identity(&self) -> Option<String> {

@@ -216,6 +216,20 @@ impl Stage for ZaberStageAdapter {
         r.map_err(|e| self.after(e))
     }
 
+    /// The driver's `stop` (decelerate), then idle. Cancel-safe for the protocol (the driver
+    /// drains a late reply, also of a dropped move); a drop may leave the axis decelerating.
+    async fn stop(&mut self) -> Result<(), CellError> {
+        let Some(stage) = self.stage.as_mut() else {
+            return Err(CellError::new(
+                DeviceKind::Stage,
+                FaultKind::Disconnected,
+                "not connected",
+            ));
+        };
+        let r = stage.stop().await;
+        r.map_err(|e| self.after(e))
+    }
+
     fn identity(&self) -> Option<String> {
         self.identity.clone()
     }

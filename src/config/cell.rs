@@ -133,6 +133,9 @@ pub struct StageSection {
     /// Usable range of the stage or micrometer, `[min, max]` (mm): P1 and P1 + travel must lie
     /// inside it, and the Zaber driver refuses targets outside it.
     pub range_mm: [f64; 2],
+    /// After a manual stage answer, no robot motion until the technician confirms the cell
+    /// clear (its own step); unset = on for manual stages. Only manual stages take it.
+    pub confirm_clear: Option<bool>,
 }
 
 impl Default for StageSection {
@@ -148,6 +151,7 @@ impl Default for StageSection {
             axis: "+y".into(),
             tolerance_mm: 0.02,
             range_mm: [0.0, 25.0],
+            confirm_clear: None,
         }
     }
 }
@@ -162,6 +166,12 @@ impl StageSection {
             "-y" => Some(-Vector3::y()),
             _ => None,
         }
+    }
+
+    /// Whether the technician confirms the cell clear before the robot moves after a manual
+    /// stage answer (`confirm_clear`, on by default for manual stages).
+    pub fn confirm_clear(&self) -> bool {
+        self.kind != StageMode::Serial && self.confirm_clear.unwrap_or(true)
     }
 }
 
@@ -715,6 +725,11 @@ impl StageSection {
                 "must be below half of stage.travel_mm ({} mm), got {}",
                 self.travel_mm, self.tolerance_mm
             ),
+        )?;
+        rule(
+            !(self.kind == StageMode::Serial && self.confirm_clear == Some(true)),
+            "stage.confirm_clear",
+            "applies to manual stages only (nobody's hand is at a motorised stage)",
         )?;
         let [lo, hi] = self.range_mm;
         rule(

@@ -427,6 +427,7 @@ async fn check_context(c: &Client, q: &Value) {
 async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
     let started = Instant::now();
     let (mut answered, mut off_done, mut escape_done, mut shot) = (0usize, false, false, false);
+    let (mut clear_checked, mut cleared) = (false, 0usize);
     let mut last_seq = None;
     let mut contexts = Vec::new();
     while let Some(v) = next_question(c, s, id, &last_seq).await {
@@ -453,6 +454,13 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
             }
         }
         let focus = focused_id(c).await;
+        if q["id"] == "confirm_clear" {
+            confirm_clear_on_page(c, s, id, q, focus.as_deref(), !clear_checked).await;
+            clear_checked = true;
+            cleared += 1;
+            answered += 1;
+            continue;
+        }
         let Some(expected) = q["expected_mm"].as_f64() else {
             // a confirmation: Enter on the focused Confirm button
             assert_eq!(focus.as_deref(), Some("prompt-confirm"), "{v}");
@@ -513,6 +521,8 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
         keys(c, &format!("{reading}{ENTER}")).await;
         answered += 1;
     }
+    // before every move after the first pose's answers the cell was confirmed clear
+    assert!(cleared >= POSES - 1, "{cleared} confirm_clear questions");
     // the context named every pose and both stage positions
     let poses: std::collections::HashSet<u64> =
         contexts.iter().filter_map(|(p, _)| p.as_u64()).collect();
@@ -521,6 +531,46 @@ async fn answer_all(c: &Client, s: &Server, id: i64, how: Answering) -> usize {
         assert!(contexts.iter().any(|(_, at)| at == p), "{p}: {contexts:?}");
     }
     answered
+}
+
+/// A `confirm_clear` question (after a manual stage answer, before the robot moves): the page
+/// offers only its own button `prompt-clear`, never focused, and no reading field or Confirm;
+/// with `try_enter`, Enter first, which must leave the question open and the robot where it
+/// is; then the button releases it.
+async fn confirm_clear_on_page(
+    c: &Client,
+    s: &Server,
+    id: i64,
+    q: &Value,
+    focus: Option<&str>,
+    try_enter: bool,
+) {
+    assert!(shown(c, "prompt-clear").await, "the clear button: {q}");
+    assert!(!shown(c, "prompt-confirm").await, "no Confirm: {q}");
+    assert!(!shown(c, "prompt-value").await, "no reading: {q}");
+    assert_ne!(
+        focus,
+        Some("prompt-clear"),
+        "the clear button is never focused"
+    );
+    let seq = q["seq"].as_u64().expect("seq");
+    if try_enter {
+        let done = |v: &Value| v["poses_done"].as_u64();
+        let (_, before) = get(s, &format!("/api/campaigns/{id}"));
+        keys(c, &ENTER.to_string()).await;
+        tokio::time::sleep(Duration::from_millis(400)).await;
+        let (_, after) = get(s, &format!("/api/campaigns/{id}"));
+        assert_eq!(after["prompt"]["seq"].as_u64(), Some(seq), "Enter: {after}");
+        assert_eq!(done(&after), done(&before), "Enter moved nothing: {after}");
+        assert!(shown(c, "prompt-clear").await, "still asked after Enter");
+        screenshot_of(c, "prompt-panel", "prompt-clear.png").await;
+    }
+    click(c, "prompt-clear").await;
+    until("the cell confirmed clear", 30, || async move {
+        let (_, v) = get(s, &format!("/api/campaigns/{id}"));
+        (v["prompt"]["seq"].as_u64() != Some(seq)).then_some(())
+    })
+    .await;
 }
 
 /// The dashboard panels while poses are measured: device status as `GET /api/devices` says (or
@@ -724,6 +774,7 @@ async fn offered(c: &Client) -> Vec<&'static str> {
         "cmd-resume",
         "prompt-value",
         "prompt-confirm",
+        "prompt-clear",
         "prompt-abort",
         "abort",
     ] {
@@ -816,16 +867,21 @@ async fn the_page_offers_each_role_only_what_it_may_do() {
     c.close().await.expect("close");
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_page_abort_stops_a_running_campaign() {
-    let Some(driver) = chromedriver() else { return };
+/// A Zaber-stage campaign (it runs without questions) created, armed and started from the
+/// page of an operator, once 3 poses are measured; then `button` is clicked and the page must
+/// show `state`. The directory, the daemon, the page, the campaign id and the poses measured
+/// (the same 800 ms later: nothing measured after the click).
+async fn click_while_running(
+    driver: &Driver,
+    button: &str,
+    state: &str,
+) -> (tempfile::TempDir, Server, Client, i64, u64) {
     let dir = tempfile::tempdir().expect("tempdir");
-    // the Zaber stage: the campaign runs without questions until aborted
     let s = start(
         &fast_config(dir.path(), "serial", 300, 100),
         &dir.path().join("c.db"),
     );
-    let c = browser(&driver).await;
+    let c = browser(driver).await;
     sign_in(&c, &s).await;
     let id = create_from_page(&c, &s, 300, 100).await;
     arm_and_start(&c).await;
@@ -835,18 +891,48 @@ async fn the_page_abort_stops_a_running_campaign() {
         (v["poses_done"].as_u64().unwrap_or(0) >= 3).then_some(())
     })
     .await;
-    click(&c, "abort").await;
-    until_text(&c, "campaign-state", "aborted", 20).await;
+    click(&c, button).await;
+    until_text(&c, "campaign-state", state, 20).await;
     let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
     let done = v["poses_done"].as_u64().expect("poses done");
-    assert!(done < 300, "aborted before the end: {v}");
+    assert!(done < 300, "stopped before the end: {v}");
     tokio::time::sleep(Duration::from_millis(800)).await;
     let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
     assert_eq!(
         v["poses_done"].as_u64(),
         Some(done),
-        "nothing measured after the abort"
+        "nothing measured after {button}: {v}"
     );
-    assert_eq!(v["state"], "aborted");
+    assert_eq!(v["state"], state, "{v}");
+    (dir, s, c, id, done)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_abort_stops_a_running_campaign() {
+    let Some(driver) = chromedriver() else { return };
+    let (_dir, _s, c, _, _) = click_while_running(&driver, "abort", "aborted").await;
+    c.close().await.expect("close");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_disarm_stops_and_pauses_a_running_campaign() {
+    let Some(driver) = chromedriver() else { return };
+    let (_dir, s, c, id, _) = click_while_running(&driver, "cmd-disarm", "paused").await;
+    let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
+    assert_eq!(v["armed"], Value::Bool(false), "{v}");
+    // the engine told the robot and the stage to stop
+    let (_, journal) = get(&s, &format!("/api/campaigns/{id}/events"));
+    let stopped = journal
+        .as_array()
+        .expect("journal")
+        .iter()
+        .any(|e| e["kind"] == "stopped" && e["event"]["reason"] == "disarm");
+    assert!(stopped, "a `stopped` event for the disarm");
+    // resuming is not offered while disarmed
+    assert!(!by_id(&c, "cmd-resume")
+        .await
+        .is_enabled()
+        .await
+        .expect("enabled"));
     c.close().await.expect("close");
 }

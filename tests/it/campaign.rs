@@ -570,7 +570,14 @@ async fn manual_questions_carry_their_context_and_poses_their_deviation() {
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     let stage = &ctx.cfg.stage;
     let (p1, p2) = (stage.p1_mm, stage.p1_mm + stage.travel_mm);
-    let asked = prompter.asked();
+    let all = prompter.asked();
+    // after a stage answer the technician confirms the cell clear before the robot moves
+    // (its own question; the robot stands still meanwhile)
+    let (clears, asked): (Vec<_>, Vec<_>) = all
+        .into_iter()
+        .partition(|p| p.id == cellcal::cell::CONFIRM_CLEAR);
+    assert!(clears.len() >= 20, "{} clears", clears.len());
+    assert!(clears.iter().all(|p| p.context.robot_stopped), "{clears:?}");
     let steps: Vec<Option<&str>> = asked.iter().map(|p| p.context.step.as_deref()).collect();
     // base registration sets the stage at P1 once (the drift checks find it there), then the
     // poses ask for P2 and back to P1

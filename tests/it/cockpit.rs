@@ -133,6 +133,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         ("/api/campaigns/{id}/measurements", "get"),
         ("/api/campaigns/{id}/plan", "get"),
         ("/api/devices", "get"),
+        ("/api/cell/stop", "post"),
         ("/metrics", "get"),
     ] {
         let op = &paths
@@ -159,7 +160,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         }
     }
     assert!(
-        paths.len() == 19,
+        paths.len() == 20,
         "documented paths: {:?}",
         paths.keys().collect::<Vec<_>>()
     );

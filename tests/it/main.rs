@@ -32,6 +32,7 @@ mod serve;
 mod setup;
 mod sigma0;
 mod significance;
+mod stop;
 mod store;
 mod terminal;
 mod validation;

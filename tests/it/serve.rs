@@ -439,6 +439,7 @@ fn technician_questions_are_answered_over_rest() {
     post(&s, &path, r#"{"command": "start"}"#);
     let deadline = Instant::now() + Duration::from_secs(60);
     let mut answered = 0;
+    let mut cleared = 0;
     let mut checked_bad = false;
     loop {
         let (_, v) = get(&s, &format!("/api/campaigns/{id}"));
@@ -449,6 +450,17 @@ fn technician_questions_are_answered_over_rest() {
         assert!(Instant::now() < deadline, "campaign stuck: {v}");
         if let Some(q) = v["prompt"].as_object() {
             let seq = q["seq"].as_u64().expect("seq");
+            if q["id"] == "confirm_clear" {
+                // the cell is clear: its own command releases the robot
+                let (code, e) = post(
+                    &s,
+                    &path,
+                    &format!(r#"{{"command": "confirm_clear", "seq": {seq}}}"#),
+                );
+                assert_eq!(code, 200, "{e}");
+                cleared += 1;
+                continue;
+            }
             let want = q["expected_mm"].as_f64().expect("a reading is asked for");
             assert!(q["text"]
                 .as_str()
@@ -486,6 +498,8 @@ fn technician_questions_are_answered_over_rest() {
     }
     // one question for the drift reference at start, two per pose, and the P1 of each drift check
     assert!(answered >= 41, "{answered} questions answered");
+    // and the cell confirmed clear before every move that followed an answer
+    assert!(cleared >= 20, "{cleared} confirm_clear questions");
     let (code, _) = get(&s, &format!("/api/campaigns/{id}/result"));
     assert_eq!(code, 200);
 }

@@ -126,6 +126,16 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
         assert!(asked.contains(part), "{part}: {asked}");
     }
     t.send_line("0.000");
+    // before the robot moves to the first pose: the cell confirmed clear, with its own key (a
+    // bare Enter, which answers the other questions, does not release the robot)
+    let asked = t.expect("Confirm that the cell is clear");
+    for part in ["[pose 1 of 20", "robot stopped"] {
+        assert!(asked.contains(part), "{part}: {asked}");
+    }
+    t.expect("[type c and Enter when the cell is clear, or a to abort]");
+    t.send_line("");
+    t.expect("the robot moves only after c");
+    t.send_line("c");
     // first pose: P1 is already set, so the first question is P2
     let asked = t.expect("Set the micrometer to 10.000 mm and enter the reading");
     for part in ["[pose 1 of 20", "P2", "robot stopped", "safe to approach"] {
@@ -140,13 +150,17 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     t.send_line("0.001");
     t.expect("[1/20] pose");
-    // second pose
+    // second pose, once the cell is confirmed clear
+    t.expect("Confirm that the cell is clear");
+    t.send_line("c");
     t.expect("Set the micrometer to 10.000 mm and enter the reading");
     t.send_line("10");
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     t.send_line("0");
     t.expect("[2/20] pose");
     // third pose: abort at the question
+    t.expect("Confirm that the cell is clear");
+    t.send_line("c");
     t.expect("Set the micrometer to 10.000 mm and enter the reading");
     t.send_line("a");
     t.expect("aborted");
