@@ -11,6 +11,7 @@ mod cockpit;
 mod common;
 mod compensate;
 mod deploy;
+mod frame_first;
 mod frames;
 mod house;
 mod identifiability;

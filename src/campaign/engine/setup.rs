@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
+use crate::identify::IdentifyOptions;
 use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
@@ -93,6 +94,16 @@ impl SetupResult {
             model.base_rotation =
                 crate::model::rotation::from_rotation_vector(&Vector3::from(b.rotation_vector_rad));
         }
+    }
+}
+
+impl SetupResult {
+    /// The campaign's recipe: the measured tool and stage axis into `model` and `opts`, and the
+    /// registered base into `model` whenever there is one (`opts.registered_base`): held when
+    /// the base is not identified, else the base of the "before" (as the live deviation's).
+    pub fn apply_to_identification(&self, model: &mut RobotModel, opts: &mut IdentifyOptions) {
+        self.apply(model, &mut opts.obs.stage_axis, false);
+        opts.registered_base = self.base.is_some();
     }
 }
 
