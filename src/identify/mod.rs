@@ -299,7 +299,7 @@ fn unit_weight_sigma_mm(t: &crate::simulate::TrackerNoise) -> f64 {
 }
 
 /// The setup quantities an identification with `opts` holds, as the columns the setup-relative
-/// analysis frees: the tool unless identified, the stage axis' rotations when the model reads
+/// analysis frees: the tool unless identified, the stage axis' two turns when the model reads
 /// the stage direction (NP, OP), the base when it is a held registration.
 pub fn setup_quantities(opts: &IdentifyOptions) -> Vec<ParamId> {
     let mut v = Vec::new();
@@ -311,7 +311,11 @@ pub fn setup_quantities(opts: &IdentifyOptions) -> Vec<ParamId> {
         v.extend((0..3).map(ParamId::Tool));
     }
     if matches!(opts.obs.model, ObsModel::Np | ObsModel::Op) {
-        v.extend((0..3).map(ParamId::StageAxis));
+        // the two flange axes least along the stage axis: rotations about them span every
+        // turn of it (a rotation about the third would barely move it)
+        let u = opts.obs.stage_axis;
+        let along = (0..3).max_by(|a, b| u[*a].abs().total_cmp(&u[*b].abs()));
+        v.extend((0..3).filter(|i| Some(*i) != along).map(ParamId::StageAxis));
     }
     v
 }
@@ -333,10 +337,13 @@ fn setup_relative_reason(held: &[ParamId], reason: &str) -> String {
         Some(rest) => format!("a combination of{rest}"),
         None => reason.to_owned(),
     };
+    let what = match what.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+        _ => what.join(""),
+    };
     format!(
-        "relative to the setup's {}: were they free, it would be {reason}; its value and σ hold \
-         given the setup",
-        what.join(", ")
+        "relative to the setup's {what}: were they free, it would be {reason}; its value and σ \
+         hold given the setup"
     )
 }
 

@@ -82,8 +82,8 @@ fn setup_relative_lines(out: &mut String, r: &IdentifyReport) {
     }
     let _ = writeln!(
         out,
-        "\n* Relative to the setup: identified given the setup's measured tool and stage axis \
-         (and registered base); the setup would take them over were it free, so their values \
+        "\n* Relative to the setup: identified given the quantities the setup fixed (named in \
+         each line); were those free they would take these parameters over, so their values \
          and σ hold only given the setup, not as the robot's own geometry:"
     );
     for d in &r.setup_relative {

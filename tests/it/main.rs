@@ -28,6 +28,7 @@ mod robust;
 mod safety;
 mod serve;
 mod setup;
+mod setup_relative;
 mod sigma0;
 mod significance;
 mod store;

@@ -1,6 +1,6 @@
 //! Real laser-tracker data (`tests/data/realdata/`, provenance and licence there): the UR5 sets,
 //! position only, base and tool identified. Real data is ill-conditioned (scaled condition
-//! number ~1.6e7) and never at a noise floor; the solver must still converge to the
+//! number ~1.9e6 with the frames first) and never at a noise floor; the solver must still converge to the
 //! least-squares optimum an independent reference (SciPy LM from the same start) reaches:
 //! ident rms 0.1124 mm (`grid.csv`) and 0.1122 mm (`grid_ident_random_verify.csv`). The 7-DOF
 //! WAM set of the same source starts far from its optimum.
