@@ -13,7 +13,7 @@ use crate::analysis::metrics::Metrics;
 use crate::analysis::significance::Significance;
 use crate::campaign::engine::{BaseResult, ToolFrameResult};
 use crate::report::identify_json::{
-    BeforeAfter as MetricsPair, IdentifyReport, ParamStatus, ParameterJson,
+    BeforeAfter as MetricsPair, IdentifyReport, NotIdentifiable, ParamStatus, ParameterJson,
 };
 use crate::wall_clock::utc_text;
 
@@ -428,13 +428,21 @@ fn setup_relative(r: &IdentifyReport) -> String {
          that precision, and an error of the setup moves them. The corrected model predicts \
          well with this setup; its |error|/σ says nothing about the robot alone.</p>\n<table>\n",
     );
-    s.push_str(&header_row(&[
-        "parameter",
-        "kind",
+    s.push_str(&listed(
+        r,
+        &r.setup_relative,
+        "setup_relative",
         "σ were the setup free",
-        "reason",
-    ]));
-    for (i, d) in r.setup_relative.iter().enumerate() {
+    ));
+    s.push_str("</table>\n");
+    s
+}
+
+/// The table of `list` (`/{key}/i/…` in the JSON): name, kind, a predicted σ headed `sigma`
+/// (— when unbounded) and the reason.
+fn listed(r: &IdentifyReport, list: &[NotIdentifiable], key: &str, sigma: &str) -> String {
+    let mut s = header_row(&["parameter", "kind", sigma, "reason"]);
+    for (i, d) in list.iter().enumerate() {
         let unit = if r
             .parameters
             .iter()
@@ -444,24 +452,20 @@ fn setup_relative(r: &IdentifyReport) -> String {
         } else {
             "mm"
         };
-        let sigma = d.predicted_sigma.map_or_else(
-            || "unbounded".to_owned(),
-            |v| format!("{} {unit}", sci(v, 3)),
-        );
+        let sigma = d.predicted_sigma.map(|v| format!("{} {unit}", sci(v, 3)));
         let _ = writeln!(
             s,
             "<tr><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
-            json_text(&format!("/setup_relative/{i}/name"), &d.name),
-            json_text(&format!("/setup_relative/{i}/kind"), &d.kind),
+            json_text(&format!("/{key}/{i}/name"), &d.name),
+            json_text(&format!("/{key}/{i}/kind"), &d.kind),
             json_cell(
-                &format!("/setup_relative/{i}/predicted_sigma"),
+                &format!("/{key}/{i}/predicted_sigma"),
                 d.predicted_sigma,
-                &sigma
+                &sigma.unwrap_or_default()
             ),
-            json_text(&format!("/setup_relative/{i}/reason"), &d.reason),
+            json_text(&format!("/{key}/{i}/reason"), &d.reason),
         );
     }
-    s.push_str("</table>\n");
     s
 }
 
@@ -495,31 +499,12 @@ fn not_identifiable(r: &IdentifyReport) -> String {
          <i>dependent</i> / <i>poorly_determined</i>: these poses do not determine it within the \
          σ bound (predicted σ given).</p>\n<table>\n",
     );
-    s.push_str(&header_row(&["parameter", "kind", "predicted σ", "reason"]));
-    for (i, d) in r.not_identifiable.iter().enumerate() {
-        let unit = if r
-            .parameters
-            .iter()
-            .any(|p| p.name == d.name && p.unit == "rad")
-        {
-            "rad"
-        } else {
-            "mm"
-        };
-        let sigma = d.predicted_sigma.map(|v| format!("{} {unit}", sci(v, 3)));
-        let _ = writeln!(
-            s,
-            "<tr><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
-            json_text(&format!("/not_identifiable/{i}/name"), &d.name),
-            json_text(&format!("/not_identifiable/{i}/kind"), &d.kind),
-            json_cell(
-                &format!("/not_identifiable/{i}/predicted_sigma"),
-                d.predicted_sigma,
-                &sigma.unwrap_or_default()
-            ),
-            json_text(&format!("/not_identifiable/{i}/reason"), &d.reason),
-        );
-    }
+    s.push_str(&listed(
+        r,
+        &r.not_identifiable,
+        "not_identifiable",
+        "predicted σ",
+    ));
     s.push_str("</table>\n");
     s
 }
