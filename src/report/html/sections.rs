@@ -339,6 +339,17 @@ fn nominal_text(p: &ParameterJson) -> String {
     }
 }
 
+/// The status cell of parameter `i`, tagged with its JSON value.
+fn status_cell(i: usize, status: ParamStatus) -> String {
+    let shown = match status {
+        ParamStatus::Identified => "identified",
+        ParamStatus::SetupRelative => "identified, relative to the setup",
+        ParamStatus::NotIdentified => "held at nominal",
+    };
+    let attrs = json_attrs(&format!("/parameters/{i}/status"), status.name());
+    format!("<td {attrs}>{shown}</td>")
+}
+
 fn parameter_row(i: usize, p: &ParameterJson) -> String {
     let (err, unit) = display(p, p.error);
     let sigma = p.std.map(|s| display(p, s).0);
@@ -373,15 +384,7 @@ fn parameter_row(i: usize, p: &ParameterJson) -> String {
                 .map(|r| format!("{}{given}", fixed(r, 1)))
                 .unwrap_or_else(|| "—".into())
         ),
-        format!(
-            "<td {}>{}</td>",
-            json_attrs(&format!("/parameters/{i}/status"), p.status.name()),
-            match p.status {
-                ParamStatus::Identified => "identified",
-                ParamStatus::SetupRelative => "identified, relative to the setup",
-                ParamStatus::NotIdentified => "held at nominal",
-            }
-        ),
+        status_cell(i, p.status),
         cell(&p.kind),
     )
 }
