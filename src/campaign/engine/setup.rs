@@ -77,8 +77,9 @@ impl SetupResult {
         }
     }
 
-    /// The nominal model and stage axis for identification: the measured tool, and the
-    /// registered base when the base is not identified.
+    /// The measured tool and stage axis into `model` and `stage_axis`, and the registered base
+    /// when `identify_base` is false (the live deviation's model: `frame::Aim`, with false).
+    /// The campaign's identification recipe is [`Self::apply_to_identification`].
     pub fn apply(
         &self,
         model: &mut RobotModel,
