@@ -61,6 +61,7 @@ fn bench_identify(c: &mut Criterion) {
                 obs,
                 identify_base: false,
                 identify_tool: false,
+                registered_base: false,
                 robust: None,
                 point_weights: None,
                 solver: Options::default(),

@@ -56,6 +56,7 @@ fn bench_pipeline(c: &mut Criterion) {
         obs: ObsConfig::new(ObsModel::Op, 10.0),
         identify_base: false,
         identify_tool: false,
+        registered_base: false,
         robust: None,
         point_weights: None,
         solver: Options::default(),

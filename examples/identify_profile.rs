@@ -48,6 +48,7 @@ fn main() {
         obs,
         identify_base: false,
         identify_tool: false,
+        registered_base: false,
         robust: None,
         point_weights: None,
         solver: Options::default(),

@@ -645,6 +645,13 @@ async function showResult(id) {
     li.textContent = typeof w === 'string' ? w : ((w.code ? w.code + ': ' : '') + (w.message || JSON.stringify(w)));
     warnings.appendChild(li);
   }
+  const bases = {
+    setup_registration: "the setup's base registration (as the live deviation above)",
+    fitted_to_poses: 'a base fitted to the identification poses',
+    robot_model: "the robot model's own base",
+  };
+  $('result-before-base').textContent = 'before = the nominal model with the setup\'s tool and '
+    + (Object.hasOwn(bases, r.before_base) ? bases[r.before_base] : 'a base the result does not name');
   const mbody = $('result-metrics').tBodies[0];
   mbody.replaceChildren();
   const metrics = r.metrics || {};
@@ -671,7 +678,7 @@ async function showResult(id) {
     cell(tr, fmt(p.nominal, digits));
     cell(tr, fmt(p.error, digits));
     cell(tr, p.std == null ? '—' : fmt(p.std, digits));
-    cell(tr, p.identified ? 'yes' : 'no');
+    cell(tr, p.status === 'setup_relative' ? 'yes, relative to the setup' : p.identified ? 'yes' : 'no');
     pbody.appendChild(tr);
   }
   const ni = $('not-identifiable');

@@ -1113,6 +1113,7 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
         obs,
         identify_base: cfg.campaign.identify_base,
         identify_tool: cfg.campaign.identify_tool,
+        registered_base: false,
         robust: None,
         point_weights: None,
         solver: Options::default(),
@@ -1132,7 +1133,7 @@ pub fn campaign_identification(
     let mut opts = identify_options(cfg);
     let mut nominal = nominal.clone();
     if let Some(setup) = setup {
-        setup.apply(&mut nominal, &mut opts.obs.stage_axis, opts.identify_base);
+        setup.apply_to_identification(&mut nominal, &mut opts);
     }
     (nominal, opts, cfg.stage.travel_mm)
 }

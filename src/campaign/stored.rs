@@ -118,8 +118,9 @@ pub fn load_stored(
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
     let setup = SetupResult::load(store, id)?;
     let (nominal, opts, travel_mm) = campaign_identification(&cfg, &nominal, setup.as_ref());
-    // the registered base, exactly as stored, when the identification takes it as given
-    let base = setup.and_then(|s| s.base).filter(|_| !opts.identify_base);
+    // the registered base, exactly as stored: held when the base is not identified, else the
+    // base of the "before"
+    let base = setup.and_then(|s| s.base);
     let csv_setup = CsvSetup {
         stage_axis: Some(opts.obs.stage_axis),
         tool_mm: Some(nominal.tool),

@@ -466,6 +466,8 @@ fn resolve(
     if let Some(t) = tool {
         robot.tool = t;
     }
+    let registered_base =
+        setup.base_translation_mm.is_some() || setup.base_rotation_vector_rad.is_some();
     if let Some(t) = setup.base_translation_mm {
         robot.base_translation = t;
     }
@@ -492,6 +494,7 @@ fn resolve(
         obs,
         identify_base: a.identify_base || campaign.is_some_and(|c| c.identify_base),
         identify_tool: a.identify_tool || campaign.is_some_and(|c| c.identify_tool),
+        registered_base,
         robust: a.robust.map(|r| match r {
             RobustArg::Huber => RobustLoss::Huber,
             RobustArg::Cauchy => RobustLoss::Cauchy,

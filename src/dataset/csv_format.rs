@@ -9,8 +9,9 @@
 //! The measurement setup travels with the data in comment lines before the header row, one
 //! `# key = value` each, exact spelling ([`CsvSetup`], [`parse_setup_header`]):
 //! `# stage_axis = X,Y,Z` (unit vector in the flange frame), `# tool_mm = X,Y,Z` (ball in the
-//! flange frame), `# stage_travel_mm = V`, and, for data whose base is given rather than
-//! identified, `# base_translation_mm = X,Y,Z` and `# base_rotation_vector_rad = X,Y,Z`. Any other
+//! flange frame), `# stage_travel_mm = V`, and the cell's registered base,
+//! `# base_translation_mm = X,Y,Z` and `# base_rotation_vector_rad = X,Y,Z` (held when the base
+//! is not identified; with `--identify-base` the base of the "before" accuracy). Any other
 //! `#` line is a plain comment. Values are written with Rust's shortest round-trip formatting,
 //! so a value read back is the value written, bit for bit.
 

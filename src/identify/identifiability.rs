@@ -7,9 +7,13 @@
 //! no big matrix), and the columns are taken greedily in a fixed priority order by an
 //! incremental Cholesky factorisation: a column is kept when the squared sine of its angle to
 //! the span of the columns already kept exceeds `1e-10` (kept columns of the TX60 are above
-//! 1e-4, dependent ones at round-off, ~1e-15). The priority order is the four classic DH
-//! parameters per joint, with β replacing d at a joint whose next axis is nominally parallel
-//! (Hayati), then the remaining β/d, then base and tool. The gap in the spectrum is clean (kept
+//! 1e-4, dependent ones at round-off, ~1e-15). The priority order is **frame first**: the base
+//! and tool parameters being identified, then the four classic DH parameters per joint, with β
+//! replacing d at a joint whose next axis is nominally parallel (Hayati), then the remaining
+//! β/d. Where a frame parameter and a robot parameter are indistinguishable (base_tz and d1,
+//! base_rz and θ1, tool_x and a6, tool_z and d6), the frame takes the offset and the robot
+//! parameter stays at nominal: the robot's geometry is known to tenths of a millimetre, the
+//! tracker and tool frames are not known at all. The gap in the spectrum is clean (kept
 //! ≥ 0.3, dropped ≤ 1e-14 for the TX60), so this result is structural: no effect on the
 //! measurement, or an exact combination of kept parameters.
 //!
@@ -26,7 +30,8 @@
 //! kept one over its bound (a well-excited parameter that shares a weak one's direction): the
 //! kept parameter furthest over is then held back as dependent and the pass runs again without
 //! it, until every kept σ is within its bound — holding back the weak one, not the strong one,
-//! keeps the bias small. A later parameter may take a held-back one's place when the data
+//! keeps the bias small. Frame first holds here too: a robot parameter that would push a kept
+//! frame parameter over its bound is held back when it comes, so the frames keep their offsets. A later parameter may take a held-back one's place when the data
 //! determines it (α6 for θ6 on the UR5 grid). The structural verdict comes from a pass without
 //! the practical test, so a hold-back never hides a structural loss, nor looks like one. The
 //! diagonal of `(JᵀJ)⁻¹` is carried along the incremental Cholesky factor (rank-one Schur
@@ -198,7 +203,15 @@ impl Identifiability {
     }
 }
 
-/// The priority order in which candidates are tried (see the module doc).
+/// Whether `p` places a frame around the robot (base, tool, stage axis) rather than the
+/// robot's own geometry: frames go first in the priority order, so a frame parameter takes an
+/// offset it cannot be told apart from and the robot parameter stays at nominal.
+pub fn is_frame(p: &ParamId) -> bool {
+    !matches!(p, ParamId::Mdh { .. })
+}
+
+/// The priority order in which candidates are tried (see the module doc): the frame
+/// parameters (base, tool) first, in candidate order, then the robot's MDH parameters.
 pub fn priority_order(model: &RobotModel, candidates: &[ParamId]) -> Vec<ParamId> {
     let n = model.dof();
     let parallel_next = |i: usize| {
@@ -236,16 +249,8 @@ pub fn priority_order(model: &RobotModel, candidates: &[ParamId]) -> Vec<ParamId
             },
         ));
     }
-    let mut out: Vec<ParamId> = order
-        .into_iter()
-        .filter(|p| candidates.contains(p))
-        .collect();
-    out.extend(
-        candidates
-            .iter()
-            .filter(|p| !matches!(p, ParamId::Mdh { .. }))
-            .copied(),
-    );
+    let mut out: Vec<ParamId> = candidates.iter().filter(|p| is_frame(p)).copied().collect();
+    out.extend(order.into_iter().filter(|p| candidates.contains(p)));
     out
 }
 
@@ -479,8 +484,49 @@ impl<'a> Practical<'a> {
                 ),
             });
         }
-        (sigma > bound || !sigma.is_finite())
-            .then(|| held_dependent(self.bounds, param, sigma, (&p.coef, &self.kept.cols), order))
+        if sigma > bound || !sigma.is_finite() {
+            return Some(held_dependent(
+                self.bounds,
+                param,
+                sigma,
+                (&p.coef, &self.kept.cols),
+                order,
+            ));
+        }
+        if is_frame(param) {
+            return None;
+        }
+        // frame first: a robot parameter that would blur a kept frame parameter beyond its
+        // bound is the one held back, the frame keeps the offset they share
+        let with = self.kept.inv_diag_with(&p);
+        let (frame, frame_sigma) = self
+            .kept
+            .cols
+            .iter()
+            .zip(&with)
+            .filter(|(&k, _)| is_frame(&order[k]))
+            .map(|(&k, &d)| (k, self.sigma(k, d)))
+            .map(|(k, s)| (k, s, s / self.bounds.bound(&order[k])))
+            .filter(|(_, _, ratio)| *ratio > 1.0)
+            .max_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|(k, s, _)| (k, s))?;
+        let names = partners(&p.coef, &self.kept.cols, order);
+        let names = if names.is_empty() {
+            order[frame].name()
+        } else {
+            names.join(", ")
+        };
+        Some(HeldBack {
+            kind: DropKind::Dependent,
+            sigma,
+            reason: format!(
+                "indistinguishable from {names} given these poses: identifying it would raise \
+                 {}'s predicted σ to {} (bound {}); the frame takes the offset",
+                order[frame].name(),
+                figure(&order[frame], frame_sigma),
+                figure(&order[frame], self.bounds.bound(&order[frame]))
+            ),
+        })
     }
 
     fn keep(&mut self, c: usize) {
@@ -715,6 +761,34 @@ pub fn analyze_linearized(
     (result, sums)
 }
 
+/// The identified robot parameters that are relative to the setup: those the setup's held
+/// quantities `fixed` (the measured tool, the stage axis, a registered base) would take over if
+/// they were free. The analysis runs again on `[fixed, identified]` with the fixed quantities
+/// first (frame first); an identified MDH parameter it drops — an exact combination
+/// (`structural`) or, with `practical`, indistinguishable within its σ bound (`dependent`,
+/// `poorly_determined`) — is returned with that kind, figure (its predicted σ were the setup
+/// free; `None` when unbounded) and reason. Its identified value and σ hold given the setup:
+/// an error in the setup moves it.
+pub fn setup_relative(
+    model: &RobotModel,
+    poses: &[Measured],
+    trig: &JointTrig,
+    cfg: &ObsConfig,
+    identified: &[ParamId],
+    fixed: &[ParamId],
+    practical: Option<&PracticalBounds>,
+) -> Vec<Dropped> {
+    if fixed.is_empty() {
+        return Vec::new();
+    }
+    let candidates: Vec<ParamId> = fixed.iter().chain(identified).copied().collect();
+    let (free, _) = analyze_linearized(model, poses, trig, cfg, &candidates, practical);
+    free.dropped
+        .into_iter()
+        .filter(|d| !is_frame(&d.param) && identified.contains(&d.param))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -928,6 +1002,43 @@ mod tests {
             "{}",
             r.dropped[0].reason
         );
+    }
+
+    #[test]
+    fn a_robot_parameter_that_would_blur_a_kept_frame_is_held_back_not_the_frame() {
+        let (u, w, _) = basis();
+        // tool_x alone: σ 0.015 mm; d1 well excited (σ 0.00075 mm with it) but at sin 0.2 to
+        // tool_x: with both, σ(tool_x) = 0.015/0.2 = 0.075 mm, over its bound. Frame first:
+        // the tool keeps the shared direction, d1 stays at nominal
+        let tool = ParamId::Tool(0);
+        let d1 = lengths(1)[0];
+        let p = [tool, d1];
+        let cols = [col(1.0, 0.0, &u, &w), col(100.0, 0.2_f64.asin(), &u, &w)];
+        let r = decide(&p, &cols, true);
+        assert_eq!(r.identified, [tool]);
+        let d = &r.dropped[0];
+        assert_eq!((d.param, d.kind), (d1, DropKind::Dependent));
+        assert!(
+            d.reason.starts_with(
+                "indistinguishable from tool_x given these poses: identifying it would raise \
+                 tool_x's predicted σ to 0.0750 mm (bound 0.0500 mm)"
+            ),
+            "{}",
+            d.reason
+        );
+    }
+
+    #[test]
+    fn frames_come_first_in_the_priority_order() {
+        let m = crate::model::file::parse_robot(
+            include_str!("../../config/robots/staubli_tx60.toml"),
+            std::path::Path::new("tx60"),
+        )
+        .expect("tx60");
+        let order = priority_order(&m, &super::super::params::all_params(6, true, true));
+        assert_eq!(order.len(), 39);
+        assert!(order[..9].iter().all(is_frame), "{order:?}");
+        assert!(!order[9..].iter().any(is_frame), "{order:?}");
     }
 
     #[test]

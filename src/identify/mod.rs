@@ -44,6 +44,11 @@ pub struct IdentifyOptions {
     pub identify_base: bool,
     /// Identify the ball position in the flange frame.
     pub identify_tool: bool,
+    /// The given model's base is the cell's base registration (a campaign's setup, a data
+    /// file's setup header), not the robot file's own frame: the "before" is measured with it
+    /// even when the base is identified ([`BeforeBase::SetupRegistration`]), and robot
+    /// parameters a held registered base absorbs are setup-relative.
+    pub registered_base: bool,
     /// Robust loss for an iteratively reweighted refit, if any.
     pub robust: Option<RobustLoss>,
     /// Per-point weights from the tracker's uncertainty model: each pose is weighted by
@@ -93,6 +98,49 @@ pub enum IdentifyError {
     },
 }
 
+/// Which base the "before" accuracy (the nominal model) is measured with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BeforeBase {
+    /// The cell's base registration (the setup's, or the data's setup header): the base the
+    /// cell uses with the nominal model, and the one the campaign's live deviation uses.
+    SetupRegistration,
+    /// A rigid fit of the nominal model to the identification poses (the base is identified
+    /// and no registration was given).
+    FittedToPoses,
+    /// The robot model's own base (data in the robot's frame).
+    RobotModel,
+}
+
+impl BeforeBase {
+    /// The base of the "before" of an identification with these options.
+    pub fn of(opts: &IdentifyOptions) -> BeforeBase {
+        match (opts.registered_base, opts.identify_base) {
+            (true, _) => BeforeBase::SetupRegistration,
+            (false, true) => BeforeBase::FittedToPoses,
+            (false, false) => BeforeBase::RobotModel,
+        }
+    }
+
+    /// Contract name: `setup_registration`, `fitted_to_poses`, `robot_model`.
+    pub fn name(self) -> &'static str {
+        match self {
+            BeforeBase::SetupRegistration => "setup_registration",
+            BeforeBase::FittedToPoses => "fitted_to_poses",
+            BeforeBase::RobotModel => "robot_model",
+        }
+    }
+
+    /// For people: "the setup's base registration", ….
+    pub fn describe(self) -> &'static str {
+        match self {
+            BeforeBase::SetupRegistration => "the setup's base registration",
+            BeforeBase::FittedToPoses => "a base fitted to the identification poses",
+            BeforeBase::RobotModel => "the robot model's own base",
+        }
+    }
+}
+
 /// One parameter's estimate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
@@ -115,10 +163,19 @@ pub struct Identification {
     pub options: IdentifyOptions,
     /// Starting model (nominal, with the registered base when the base is identified).
     pub initial: RobotModel,
+    /// The model of the "before" accuracy: the nominal model with the given tool and the base
+    /// [`before_base`](Self::before_base) names.
+    pub before: RobotModel,
+    /// Which base `before` has.
+    pub before_base: BeforeBase,
     /// Identified model.
     pub corrected: RobotModel,
     /// Identifiability analysis.
     pub identifiability: Identifiability,
+    /// Identified robot parameters relative to the setup: the held setup quantities
+    /// ([`setup_quantities`]) would take them over if they were free, so their values and σ
+    /// hold given the setup ([`identifiability::setup_relative`]); candidate order.
+    pub setup_relative: Vec<Dropped>,
     /// Every candidate parameter, identified or not.
     pub estimates: Vec<Estimate>,
     /// Correlation matrix of the identified parameters (order of `identifiability.identified`).
@@ -241,6 +298,55 @@ fn unit_weight_sigma_mm(t: &crate::simulate::TrackerNoise) -> f64 {
     (t.a_um + t.b_um_per_m) / 1000.0 / t.k
 }
 
+/// The setup quantities an identification with `opts` holds, as the columns the setup-relative
+/// analysis frees: the tool unless identified, the stage axis' two turns when the model reads
+/// the stage direction (NP, OP), the base when it is a held registration.
+pub fn setup_quantities(opts: &IdentifyOptions) -> Vec<ParamId> {
+    let mut v = Vec::new();
+    if opts.registered_base && !opts.identify_base {
+        v.extend((0..3).map(ParamId::BaseTranslation));
+        v.extend((0..3).map(ParamId::BaseRotation));
+    }
+    if !opts.identify_tool {
+        v.extend((0..3).map(ParamId::Tool));
+    }
+    if matches!(opts.obs.model, ObsModel::Np | ObsModel::Op) {
+        // the two flange axes least along the stage axis: rotations about them span every
+        // turn of it (a rotation about the third would barely move it)
+        let u = opts.obs.stage_axis;
+        let along = (0..3).max_by(|a, b| u[*a].abs().total_cmp(&u[*b].abs()));
+        v.extend((0..3).filter(|i| Some(*i) != along).map(ParamId::StageAxis));
+    }
+    v
+}
+
+/// Why a parameter is setup-relative, from the setup analysis' `reason` for dropping it with
+/// the `held` quantities free.
+fn setup_relative_reason(held: &[ParamId], reason: &str) -> String {
+    let mut what: Vec<&str> = Vec::new();
+    for (p, name) in [
+        (ParamId::BaseTranslation(0), "registered base"),
+        (ParamId::Tool(0), "tool"),
+        (ParamId::StageAxis(0), "stage axis"),
+    ] {
+        if held.contains(&p) {
+            what.push(name);
+        }
+    }
+    let reason = match reason.strip_prefix("combination of") {
+        Some(rest) => format!("a combination of{rest}"),
+        None => reason.to_owned(),
+    };
+    let what = match what.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+        _ => what.join(""),
+    };
+    format!(
+        "relative to the setup's {what}: were they free, it would be {reason}; its value and σ \
+         hold given the setup"
+    )
+}
+
 /// Identify the parameter errors of `nominal` from identification poses.
 pub fn identify(
     nominal: &RobotModel,
@@ -334,6 +440,26 @@ pub fn identify_with(
     let corrected = fit.state;
     let base_dr =
         to_rotation_vector(&(corrected.base_rotation * initial.base_rotation.transpose()));
+    let held = setup_quantities(opts);
+    let setup_relative = identifiability::setup_relative(
+        &corrected,
+        poses,
+        trig,
+        &opts.obs,
+        &params,
+        &held,
+        Some(&practical_bounds(opts)),
+    )
+    .into_iter()
+    .map(|d| Dropped {
+        reason: setup_relative_reason(&held, &d.reason),
+        ..d
+    })
+    .collect();
+    let (before, before_base) = match BeforeBase::of(opts) {
+        BeforeBase::SetupRegistration => (nominal.clone(), BeforeBase::SetupRegistration),
+        b => (initial.clone(), b),
+    };
     let estimates = candidates
         .iter()
         .map(|p| {
@@ -354,8 +480,11 @@ pub fn identify_with(
     Ok(Identification {
         options: *opts,
         initial,
+        before,
+        before_base,
         corrected,
         identifiability: ident,
+        setup_relative,
         estimates,
         correlation,
         sigma0_mm: sigma0_sq.sqrt(),

@@ -346,6 +346,13 @@ impl Columns<'_> {
                     self.frames.flange().r.column(*i).into_owned(),
                     [Vector3::zeros(); N],
                 ),
+                // only NP/OP model the stage axis (one direction); the full model reads the
+                // flange rotation, which the stage axis does not enter
+                ParamId::StageAxis(i) if N == 1 => (
+                    Vector3::zeros(),
+                    turn(&self.frames.flange().r.column(*i).into_owned()),
+                ),
+                ParamId::StageAxis(_) => (Vector3::zeros(), [Vector3::zeros(); N]),
             };
             sink.column(c, &(self.w * dp), &dd);
         }
@@ -424,6 +431,54 @@ mod tests {
                     "{model:?} param {} row {r}: fd {fd} analytic {an}",
                     params[c].name()
                 );
+            }
+        }
+    }
+
+    /// The stage-axis rotation columns (a setup quantity, not in the model) against central
+    /// differences of the stage axis rotated about each flange axis.
+    #[test]
+    fn stage_axis_columns_match_central_differences() {
+        let m = tx60_with_frames();
+        let q = [0.3, -0.4, 1.2, 0.5, 0.9, -0.7];
+        let params = [0, 1, 2].map(ParamId::StageAxis);
+        for model in [ObsModel::Np, ObsModel::Op, ObsModel::Full] {
+            let cfg = ObsConfig {
+                stage_axis: Vector3::new(0.6, 0.8, 0.0),
+                direction_weight_mm: 7.0,
+                model,
+            };
+            let meas = Measured {
+                q: q.to_vec(),
+                p1: Vector3::new(1.0, 2.0, 3.0),
+                direction: Some(Vector3::x()),
+                rotation: Some(Box::new(Matrix3::identity())),
+                weight: 1.3,
+            };
+            let rows = model.rows();
+            let mut r0 = vec![0.0; rows];
+            let mut jac = vec![0.0; rows * 3];
+            residual_jacobian(&m, &meas, &cfg, &params, &mut r0, &mut jac);
+            for i in 0..3 {
+                let h = 1e-6;
+                let at = |t: f64| {
+                    let turned = ObsConfig {
+                        stage_axis: from_rotation_vector(&(Vector3::ith(i, t))) * cfg.stage_axis,
+                        ..cfg
+                    };
+                    let mut r = vec![0.0; rows];
+                    residual_jacobian(&m, &meas, &turned, &params, &mut r, &mut []);
+                    r
+                };
+                let (rp, rm) = (at(h), at(-h));
+                for r in 0..rows {
+                    let fd = (rp[r] - rm[r]) / (2.0 * h);
+                    let an = jac[r * 3 + i];
+                    assert!(
+                        (fd - an).abs() <= 1e-5 * (1.0 + an.abs()),
+                        "{model:?} stage axis {i} row {r}: fd {fd} analytic {an}"
+                    );
+                }
             }
         }
     }

@@ -25,18 +25,25 @@ pub enum ParamId {
     BaseRotation(usize),
     /// Tool (ball) translation component 0..3 in the flange frame (mm).
     Tool(usize),
+    /// Rotation of the stage axis about flange axis 0..3 (x, y, z; rad), the ball staying put:
+    /// a setup quantity the identification holds (the measured stage axis), never a
+    /// candidate ([`all_params`] does not list it); only the setup-relative analysis
+    /// ([`crate::identify::identifiability::setup_relative`]) takes its column. The robot model
+    /// holds no stage axis, so [`retract`] leaves the model as it is for it.
+    StageAxis(usize),
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
 impl ParamId {
-    /// Public name: `theta1`, `d2`, …, `base_tx`, `base_rz`, `tool_x`.
+    /// Public name: `theta1`, `d2`, …, `base_tx`, `base_rz`, `tool_x`, `stage_axis_rx`.
     pub fn name(&self) -> String {
         match self {
             ParamId::Mdh { joint, kind } => format!("{}{}", kind.stem(), joint + 1),
             ParamId::BaseTranslation(i) => format!("base_t{}", AXES[*i]),
             ParamId::BaseRotation(i) => format!("base_r{}", AXES[*i]),
             ParamId::Tool(i) => format!("tool_{}", AXES[*i]),
+            ParamId::StageAxis(i) => format!("stage_axis_r{}", AXES[*i]),
         }
     }
 
@@ -61,7 +68,7 @@ impl ParamId {
     pub fn is_angle(&self) -> bool {
         match self {
             ParamId::Mdh { kind, .. } => kind.is_angle(),
-            ParamId::BaseRotation(_) => true,
+            ParamId::BaseRotation(_) | ParamId::StageAxis(_) => true,
             _ => false,
         }
     }
@@ -90,15 +97,16 @@ impl ParamId {
             ParamId::BaseTranslation(_) => "base_translation",
             ParamId::BaseRotation(_) => "base_rotation",
             ParamId::Tool(_) => "tool_translation",
+            ParamId::StageAxis(_) => "stage_axis_rotation",
         }
     }
 
-    /// Current value in a model (base rotation: 0, it is a local perturbation).
+    /// Current value in a model (base rotation and stage axis: 0, local perturbations).
     pub fn value(&self, m: &RobotModel) -> f64 {
         match self {
             ParamId::Mdh { joint, kind } => m.joints[*joint].get(*kind),
             ParamId::BaseTranslation(i) => m.base_translation[*i],
-            ParamId::BaseRotation(_) => 0.0,
+            ParamId::BaseRotation(_) | ParamId::StageAxis(_) => 0.0,
             ParamId::Tool(i) => m.tool[*i],
         }
     }
@@ -129,6 +137,7 @@ pub fn retract(model: &RobotModel, params: &[ParamId], delta: &[f64]) -> RobotMo
             ParamId::BaseTranslation(i) => m.base_translation[*i] += d,
             ParamId::BaseRotation(i) => rot[*i] += d,
             ParamId::Tool(i) => m.tool[*i] += d,
+            ParamId::StageAxis(_) => {}
         }
     }
     if rot != Vector3::zeros() {

@@ -8,9 +8,15 @@
 //! (`{ident: {before, after}, verify: {before, after}}`). Extensions: `stage_axis`,
 //! `direction_weight_mm`, `condition_number`, `sigma0_mm`, `rejected_poses`, `correlation`,
 //! `solver.termination`, metric fields `position_p95_mm`, `attitude_rms_rad`,
-//! `stage_axis_measured` and `stage_axis_angle_rad` (null without direction data), and the
+//! `stage_axis_measured` and `stage_axis_angle_rad` (null without direction data), the
 //! verdict: `quality` (`ok`|`warning`|`poor`) and `warnings` (`{code, severity, message}`), see
-//! [`super::quality`].
+//! [`super::quality`], `before_base` (`setup_registration` | `fitted_to_poses` |
+//! `robot_model`: the base of the "before" metrics, [`BeforeBase`]; null in results stored
+//! before it), `setup_relative` (`{name, reason, kind, predicted_sigma}` like
+//! `not_identifiable`: identified parameters the held setup — measured tool, stage axis,
+//! registered base — would take over were it free; `predicted_sigma` their σ then, null when
+//! unbounded) and the parameters' `status` (`identified` | `setup_relative` | `not_identified`;
+//! `setup_relative` ones are identified too, their value and σ conditional on the setup).
 
 use serde::{Deserialize, Serialize};
 
@@ -18,7 +24,8 @@ use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWa
 use crate::analysis::metrics::{evaluate_pair, Metrics};
 use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
 use crate::identify::{
-    identify_with, DropKind, Identification, IdentifyError, IdentifyOptions, JointTrig,
+    identify_with, BeforeBase, DropKind, Dropped, Identification, IdentifyError, IdentifyOptions,
+    JointTrig,
 };
 use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
@@ -76,6 +83,42 @@ fn structural() -> String {
     DropKind::Structural.name().to_owned()
 }
 
+impl NotIdentifiable {
+    fn of(d: &Dropped) -> NotIdentifiable {
+        NotIdentifiable {
+            name: d.param.name(),
+            reason: d.reason.clone(),
+            kind: d.kind.name().to_owned(),
+            predicted_sigma: d.predicted_sigma,
+        }
+    }
+}
+
+/// What an identification made of a parameter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ParamStatus {
+    /// Identified; its value is the robot's.
+    Identified,
+    /// Identified relative to the setup: the held setup would take it over were it free, so
+    /// its value and σ hold given the measured tool, stage axis (and registered base).
+    SetupRelative,
+    /// Held at nominal (`not_identifiable` says why).
+    #[default]
+    NotIdentified,
+}
+
+impl ParamStatus {
+    /// Contract name: `identified`, `setup_relative`, `not_identified`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ParamStatus::Identified => "identified",
+            ParamStatus::SetupRelative => "setup_relative",
+            ParamStatus::NotIdentified => "not_identified",
+        }
+    }
+}
+
 /// One parameter row.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ParameterJson {
@@ -95,6 +138,11 @@ pub struct ParameterJson {
     pub std: Option<f64>,
     /// Whether identified.
     pub identified: bool,
+    /// `identified`, `setup_relative` (identified, conditional on the setup) or
+    /// `not_identified`; results stored before it get it from `identified` and
+    /// `setup_relative` when read ([`IdentifyReport::from_json`]).
+    #[serde(default)]
+    pub status: ParamStatus,
 }
 
 /// Base transform (robot base → measurement frame).
@@ -197,6 +245,12 @@ pub struct IdentifyReport {
     /// What the verdict found.
     #[serde(default)]
     pub warnings: Vec<QualityWarning>,
+    /// The base of the "before" metrics (null in results stored before it was named).
+    #[serde(default)]
+    pub before_base: Option<BeforeBase>,
+    /// Identified parameters relative to the setup, and why.
+    #[serde(default)]
+    pub setup_relative: Vec<NotIdentifiable>,
 }
 
 impl IdentifyReport {
@@ -204,7 +258,21 @@ impl IdentifyReport {
     pub fn from_json(text: &str) -> Result<IdentifyReport, serde_json::Error> {
         let value: serde_json::Value = serde_json::from_str(text)?;
         let assessed = value.get("quality").is_some();
+        let has_status = value
+            .pointer("/parameters/0")
+            .is_none_or(|p| p.get("status").is_some());
         let mut report: IdentifyReport = serde_json::from_value(value)?;
+        if !has_status {
+            for p in &mut report.parameters {
+                p.status = if !p.identified {
+                    ParamStatus::NotIdentified
+                } else if report.setup_relative.iter().any(|d| d.name == p.name) {
+                    ParamStatus::SetupRelative
+                } else {
+                    ParamStatus::Identified
+                };
+            }
+        }
         if !assessed {
             report.judge(&QualityBounds::default());
         }
@@ -262,7 +330,7 @@ pub fn calibrate(
         });
     }
     let m = |set: &[_], trig| {
-        let (before, after) = evaluate_pair(&id.initial, &id.corrected, set, trig, &opts.obs);
+        let (before, after) = evaluate_pair(&id.before, &id.corrected, set, trig, &opts.obs);
         BeforeAfter { before, after }
     };
     let metrics = MetricsJson {
@@ -283,12 +351,7 @@ pub fn calibrate(
             .identifiability
             .dropped
             .iter()
-            .map(|d| NotIdentifiable {
-                name: d.param.name(),
-                reason: d.reason.clone(),
-                kind: d.kind.name().to_owned(),
-                predicted_sigma: d.predicted_sigma,
-            })
+            .map(NotIdentifiable::of)
             .collect(),
         parameters: id
             .estimates
@@ -302,6 +365,13 @@ pub fn calibrate(
                 error: e.error,
                 std: e.std,
                 identified: e.identified,
+                status: if !e.identified {
+                    ParamStatus::NotIdentified
+                } else if id.setup_relative.iter().any(|d| d.param == e.param) {
+                    ParamStatus::SetupRelative
+                } else {
+                    ParamStatus::Identified
+                },
             })
             .collect(),
         base: BaseJson {
@@ -333,6 +403,8 @@ pub fn calibrate(
         stage_axis_angle_rad: axis.map(|c| c.angle_rad),
         quality: Quality::Ok,
         warnings: Vec::new(),
+        before_base: Some(id.before_base),
+        setup_relative: id.setup_relative.iter().map(NotIdentifiable::of).collect(),
     };
     report.judge(&bounds);
     Ok((report, id))

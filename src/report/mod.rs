@@ -7,7 +7,7 @@ pub mod model_file;
 pub mod quality;
 pub mod summary;
 
-pub use identify_json::{calibrate, CalibrateError, IdentifyReport};
+pub use identify_json::{calibrate, CalibrateError, IdentifyReport, ParamStatus};
 pub use model_file::{corrected_model, corrected_model_toml, BaseSource, ModelFileError};
 pub use quality::{Quality, QualityWarning};
 pub use summary::summary_text;

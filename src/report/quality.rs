@@ -417,6 +417,7 @@ mod tests {
             error: 0.0,
             std: Some(std),
             identified: true,
+            status: crate::report::identify_json::ParamStatus::Identified,
         }
     }
 
@@ -463,6 +464,8 @@ mod tests {
             stage_axis_angle_rad: Some(0.002),
             quality: Quality::Ok,
             warnings: vec![],
+            before_base: None,
+            setup_relative: vec![],
         }
     }
 

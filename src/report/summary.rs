@@ -3,13 +3,14 @@
 
 use std::fmt::Write;
 
-use super::identify_json::IdentifyReport;
+use super::identify_json::{IdentifyReport, ParamStatus};
 use super::quality::Quality;
 use crate::analysis::metrics::Metrics;
 use crate::identify::DropKind;
 
 fn cell(r: &IdentifyReport, name: &str) -> String {
     match r.parameters.iter().find(|p| p.name == name) {
+        Some(p) if p.status == ParamStatus::SetupRelative => format!("{:+.6e}*", p.error),
         Some(p) if p.identified => format!("{:+.6e}", p.error),
         Some(_) => "—".to_owned(),
         None => String::new(),
@@ -74,6 +75,43 @@ fn not_identified_lines(out: &mut String, r: &IdentifyReport) {
     }
 }
 
+/// The identified parameters relative to the setup (the `*` of the table), with why.
+fn setup_relative_lines(out: &mut String, r: &IdentifyReport) {
+    if r.setup_relative.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "\n* Relative to the setup: identified given the quantities the setup fixed (named in \
+         each line); were those free they would take these parameters over, so their values \
+         and σ hold only given the setup, not as the robot's own geometry:"
+    );
+    for d in &r.setup_relative {
+        let std = r
+            .parameters
+            .iter()
+            .find(|p| p.name == d.name)
+            .and_then(|p| {
+                p.std
+                    .map(|s| format!(" (σ {s:.2e} {} given the setup)", p.unit))
+            })
+            .unwrap_or_default();
+        let _ = writeln!(out, "  {:<10} {}{std}", d.name, d.reason);
+    }
+}
+
+/// The base of the "before" rows, when the result names it.
+fn before_line(out: &mut String, r: &IdentifyReport) {
+    if let Some(b) = r.before_base {
+        let _ = writeln!(
+            out,
+            "before = the nominal model with the tool in use and {} (before_base: {})",
+            b.describe(),
+            b.name()
+        );
+    }
+}
+
 /// Human summary of an identify report.
 pub fn summary_text(r: &IdentifyReport) -> String {
     let mut out = String::new();
@@ -100,7 +138,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     );
     let _ = writeln!(
         out,
-        "\nParameter errors (identified − nominal; — = not identifiable)"
+        "\nParameter errors (identified − nominal; — = not identifiable; * = relative to the setup)"
     );
     let _ = writeln!(
         out,
@@ -139,6 +177,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
             p.std.unwrap_or(f64::NAN)
         );
     }
+    setup_relative_lines(&mut out, r);
     not_identified_lines(&mut out, r);
     if let (Some(m), Some(a)) = (r.stage_axis_measured, r.stage_axis_angle_rad) {
         let _ = writeln!(
@@ -155,6 +194,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
         );
     }
     let _ = writeln!(out, "\nAccuracy (position mm, attitude rad)");
+    before_line(&mut out, r);
     let _ = writeln!(
         out,
         "{:<7} {:<7} {:>5} {:>10} {:>10} {:>10} {:>10}  {:>23} {:>12} {:>12}",

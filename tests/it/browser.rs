@@ -635,6 +635,13 @@ async fn verdict_is_shown(c: &Client, s: &Server, id: i64, poses: usize) {
         .as_f64()
         .expect("verify after");
     assert!((after - want).abs() < 1e-4, "page {after}, API {want}");
+    // one before: the page names the result's before base, the live deviation's
+    assert_eq!(result["before_base"], "setup_registration", "{result}");
+    let base = text(c, "result-before-base").await;
+    assert!(
+        base.contains("the setup's base registration (as the live deviation above)"),
+        "{base}"
+    );
     match result["quality"].as_str() {
         Some(q) => assert_eq!(quality, q),
         None => assert_eq!(quality, "not given"),

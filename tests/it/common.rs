@@ -34,6 +34,7 @@ pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
         obs,
         identify_base: false,
         identify_tool: false,
+        registered_base: false,
         robust: None,
         point_weights: None,
         solver: Options::default(),

@@ -77,7 +77,8 @@ fn the_model_file_has_the_identified_kinematics_and_reidentifies_to_the_same_res
         "# Base: identified from the measurements, so this model's frame is the measurement (laser tracker) frame",
         "# Held at nominal (not identified): ",
         "beta1 (structural)",
-        "base_rz (structural)",
+        "theta1 (structural)",
+        "d1 (structural)",
     ] {
         assert!(text.contains(line), "{line}\n{text}");
     }

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
+use crate::identify::IdentifyOptions;
 use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
@@ -76,8 +77,9 @@ impl SetupResult {
         }
     }
 
-    /// The nominal model and stage axis for identification: the measured tool, and the
-    /// registered base when the base is not identified.
+    /// The measured tool and stage axis into `model` and `stage_axis`, and the registered base
+    /// when `identify_base` is false (the live deviation's model: `frame::Aim`, with false).
+    /// The campaign's identification recipe is [`Self::apply_to_identification`].
     pub fn apply(
         &self,
         model: &mut RobotModel,
@@ -93,6 +95,16 @@ impl SetupResult {
             model.base_rotation =
                 crate::model::rotation::from_rotation_vector(&Vector3::from(b.rotation_vector_rad));
         }
+    }
+}
+
+impl SetupResult {
+    /// The campaign's recipe: the measured tool and stage axis into `model` and `opts`, and the
+    /// registered base into `model` whenever there is one (`opts.registered_base`): held when
+    /// the base is not identified, else the base of the "before" (as the live deviation's).
+    pub fn apply_to_identification(&self, model: &mut RobotModel, opts: &mut IdentifyOptions) {
+        self.apply(model, &mut opts.obs.stage_axis, false);
+        opts.registered_base = self.base.is_some();
     }
 }
 

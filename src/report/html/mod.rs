@@ -102,7 +102,7 @@ impl PoseError {
 pub struct SetErrors {
     /// Pose ids, in data order.
     pub ids: Vec<String>,
-    /// Errors of the nominal (initial) model.
+    /// Errors of the nominal model with the "before" base (`Identification::before`).
     pub before: Vec<PoseError>,
     /// Errors of the identified model.
     pub after: Vec<PoseError>,
@@ -131,7 +131,7 @@ impl PoseErrors {
             let m = to_measured(rows, model, travel_mm)?;
             Ok(SetErrors {
                 ids: rows.iter().map(|r| r.id.clone()).collect(),
-                before: errors_of(&id.initial, &m, id),
+                before: errors_of(&id.before, &m, id),
                 after: errors_of(&id.corrected, &m, id),
             })
         };

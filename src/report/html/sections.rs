@@ -4,15 +4,17 @@
 use std::fmt::Write;
 
 use super::page::{
-    cell, esc, figure, fixed, header_row, json_cell, json_num, json_shown, json_text, missing,
-    num_cell, sci, section,
+    cell, esc, figure, fixed, header_row, json_attrs, json_cell, json_num, json_shown, json_text,
+    missing, num_cell, sci, section,
 };
 use super::plots::{self, BeforeAfter};
 use super::{CampaignFacts, ReportInput, SetErrors, SIGNIFICANCE_SAMPLES};
 use crate::analysis::metrics::Metrics;
 use crate::analysis::significance::Significance;
 use crate::campaign::engine::{BaseResult, ToolFrameResult};
-use crate::report::identify_json::{BeforeAfter as MetricsPair, IdentifyReport, ParameterJson};
+use crate::report::identify_json::{
+    BeforeAfter as MetricsPair, IdentifyReport, NotIdentifiable, ParamStatus, ParameterJson,
+};
 use crate::wall_clock::utc_text;
 
 /// `(id, heading)` of every section, in order (the table of contents).
@@ -141,11 +143,19 @@ fn accuracy(r: &IdentifyReport) -> String {
     if let Some(v) = &r.metrics.verify {
         sets.push(("verify", v));
     }
-    let mut s = String::from(
+    let base = match r.before_base {
+        Some(b) => format!(
+            "{} (<code>before_base</code> = {})",
+            esc(b.describe()),
+            json_text("/before_base", b.name())
+        ),
+        None => "a base the result does not name (stored before it was named)".to_owned(),
+    };
+    let mut s = format!(
         "<p>Position error <i>e</i> = measured P1 − model (mm, measurement frame), METHOD §6; \
-         before = nominal model (with the setup's tool and base), after = identified model. \
-         Attitude: the angle between the measured and the modelled stage axis (NP/OP), or of \
-         the rotation error (full).</p>\n<table>\n<tr><th></th>",
+         before = nominal model with the setup's tool and <span id=\"before-base\">{base}</span>, \
+         after = identified model. Attitude: the angle between the measured and the modelled \
+         stage axis (NP/OP), or of the rotation error (full).</p>\n<table>\n<tr><th></th>",
     );
     for (name, _) in &sets {
         let _ = write!(s, "<th>{name} before</th><th>{name} after</th>");
@@ -329,10 +339,23 @@ fn nominal_text(p: &ParameterJson) -> String {
     }
 }
 
+/// The status cell of parameter `i`, tagged with its JSON value.
+fn status_cell(i: usize, status: ParamStatus) -> String {
+    let shown = match status {
+        ParamStatus::Identified => "identified",
+        ParamStatus::SetupRelative => "identified, relative to the setup",
+        ParamStatus::NotIdentified => "held at nominal",
+    };
+    let attrs = json_attrs(&format!("/parameters/{i}/status"), status.name());
+    format!("<td {attrs}>{shown}</td>")
+}
+
 fn parameter_row(i: usize, p: &ParameterJson) -> String {
     let (err, unit) = display(p, p.error);
     let sigma = p.std.map(|s| display(p, s).0);
     let ratio = p.std.filter(|s| *s > 0.0).map(|s| p.error.abs() / s);
+    let relative = p.status == ParamStatus::SetupRelative;
+    let given = if relative { " given the setup" } else { "" };
     let joint = p.joint.map(|j| j.to_string()).unwrap_or_else(|| "—".into());
     format!(
         "<tr{}><td>{}</td>{}{}{}{}{}{}{}</tr>\n",
@@ -353,15 +376,15 @@ fn parameter_row(i: usize, p: &ParameterJson) -> String {
             &format!("/parameters/{i}/std"),
             p.std,
             &sigma
-                .map(|s| format!("{} {unit}", fixed(s, 4)))
+                .map(|s| format!("{} {unit}{given}", fixed(s, 4)))
                 .unwrap_or_default()
         ),
-        num_cell(&ratio.map(|r| fixed(r, 1)).unwrap_or_else(|| "—".into())),
-        cell(if p.identified {
-            "identified"
-        } else {
-            "held at nominal"
-        }),
+        num_cell(
+            &ratio
+                .map(|r| format!("{}{given}", fixed(r, 1)))
+                .unwrap_or_else(|| "—".into())
+        ),
+        status_cell(i, p.status),
         cell(&p.kind),
     )
 }
@@ -389,8 +412,63 @@ fn parameters(r: &IdentifyReport) -> String {
         s.push_str(&parameter_row(i, p));
     }
     s.push_str("</table>\n");
+    s.push_str(&setup_relative(r));
     s.push_str(&tool_and_base(r));
     s.push_str(&not_identifiable(r));
+    s
+}
+
+/// The identified parameters relative to the setup, and what that means for their σ.
+fn setup_relative(r: &IdentifyReport) -> String {
+    if r.setup_relative.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "<h3>Relative to the setup</h3>\n<p id=\"setup-relative-note\">These parameters are \
+         identified relative to the setup: the measured tool and stage axis (and a registered \
+         base) were held, and were they free they would take these parameters over. Their \
+         values and σ hold <b>given the setup</b>; they are not the robot's own geometry to \
+         that precision, and an error of the setup moves them. The corrected model predicts \
+         well with this setup; its |error|/σ says nothing about the robot alone.</p>\n<table>\n",
+    );
+    s.push_str(&listed(
+        r,
+        &r.setup_relative,
+        "setup_relative",
+        "σ were the setup free",
+    ));
+    s.push_str("</table>\n");
+    s
+}
+
+/// The table of `list` (`/{key}/i/…` in the JSON): name, kind, a predicted σ headed `sigma`
+/// (— when unbounded) and the reason.
+fn listed(r: &IdentifyReport, list: &[NotIdentifiable], key: &str, sigma: &str) -> String {
+    let mut s = header_row(&["parameter", "kind", sigma, "reason"]);
+    for (i, d) in list.iter().enumerate() {
+        let unit = if r
+            .parameters
+            .iter()
+            .any(|p| p.name == d.name && p.unit == "rad")
+        {
+            "rad"
+        } else {
+            "mm"
+        };
+        let sigma = d.predicted_sigma.map(|v| format!("{} {unit}", sci(v, 3)));
+        let _ = writeln!(
+            s,
+            "<tr><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
+            json_text(&format!("/{key}/{i}/name"), &d.name),
+            json_text(&format!("/{key}/{i}/kind"), &d.kind),
+            json_cell(
+                &format!("/{key}/{i}/predicted_sigma"),
+                d.predicted_sigma,
+                &sigma.unwrap_or_default()
+            ),
+            json_text(&format!("/{key}/{i}/reason"), &d.reason),
+        );
+    }
     s
 }
 
@@ -424,31 +502,12 @@ fn not_identifiable(r: &IdentifyReport) -> String {
          <i>dependent</i> / <i>poorly_determined</i>: these poses do not determine it within the \
          σ bound (predicted σ given).</p>\n<table>\n",
     );
-    s.push_str(&header_row(&["parameter", "kind", "predicted σ", "reason"]));
-    for (i, d) in r.not_identifiable.iter().enumerate() {
-        let unit = if r
-            .parameters
-            .iter()
-            .any(|p| p.name == d.name && p.unit == "rad")
-        {
-            "rad"
-        } else {
-            "mm"
-        };
-        let sigma = d.predicted_sigma.map(|v| format!("{} {unit}", sci(v, 3)));
-        let _ = writeln!(
-            s,
-            "<tr><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
-            json_text(&format!("/not_identifiable/{i}/name"), &d.name),
-            json_text(&format!("/not_identifiable/{i}/kind"), &d.kind),
-            json_cell(
-                &format!("/not_identifiable/{i}/predicted_sigma"),
-                d.predicted_sigma,
-                &sigma.unwrap_or_default()
-            ),
-            json_text(&format!("/not_identifiable/{i}/reason"), &d.reason),
-        );
-    }
+    s.push_str(&listed(
+        r,
+        &r.not_identifiable,
+        "not_identifiable",
+        "predicted σ",
+    ));
     s.push_str("</table>\n");
     s
 }

@@ -31,6 +31,7 @@ fn small_op() -> (Vec<Observation>, IdentifyReport, Identification) {
         obs: ObsConfig::new(ObsModel::Op, 10.0),
         identify_base: false,
         identify_tool: false,
+        registered_base: false,
         robust: None,
         point_weights: None,
         solver: Default::default(),
