@@ -885,6 +885,61 @@ mod tests {
     }
 
     #[test]
+    fn v3_handshake_golden_bytes() {
+        // PROTOCOL.md §3a example: K = 0x00..0x1f.
+        let key = crate::auth::SharedSecret::from_hex(
+            "000102030405060708090a0b0c0d0e0f101112131415161718191a1b1c1d1e1f",
+            "test",
+        )
+        .unwrap();
+        let ns = Nonce::from_hex("00112233445566778899aabbccddeeff").unwrap();
+        let nc = Nonce::from_hex("0f0e0d0c0b0a09080706050403020100").unwrap();
+        let auth = Request::Auth {
+            client_nonce: nc,
+            proof: key.client_proof(&ns, &nc),
+        };
+        assert_eq!(
+            format_request(2, &auth),
+            "2 AUTH 0f0e0d0c0b0a09080706050403020100 \
+             4ec766f0727bc30b25adf756b618a2c0e144ae5264ce98c49f27cf6557f13cb2\n"
+        );
+        assert_eq!(
+            format_request(1, &Request::Hello { proto_ver: 3 }),
+            "1 HELLO 3\n"
+        );
+        let ServerLine::Reply(r) =
+            parse_server_line("1 OK 00112233445566778899aabbccddeeff").unwrap()
+        else {
+            panic!("reply")
+        };
+        let ReplyBody::Ok(d) = r.body else {
+            panic!("ok")
+        };
+        assert_eq!(parse_challenge(&d).unwrap(), ns);
+        let line = "2 OK CS9 TX2-90 cellcal-val3-3 \
+                    37719446d95386f3d2945a059f0b2c06a0a29f965a826f65eda2f6dab93cbfcf";
+        let ServerLine::Reply(r) = parse_server_line(line).unwrap() else {
+            panic!("reply")
+        };
+        let ReplyBody::Ok(d) = r.body else {
+            panic!("ok")
+        };
+        let (id, proof) = parse_auth_reply(&d).unwrap();
+        assert_eq!((id.ctrl.as_str(), id.arm.as_str()), ("CS9", "TX2-90"));
+        assert!(key.verify_server(&ns, &nc, &proof));
+        assert_eq!(
+            format_reply(&Reply {
+                seq: 2,
+                body: ReplyBody::Err {
+                    code: ErrorCode::Auth,
+                    text: "authentication failed".into()
+                }
+            }),
+            "2 ERR E_AUTH authentication failed\n"
+        );
+    }
+
+    #[test]
     fn num_format() {
         assert_eq!(fmt_num(-0.0), "0.000000");
         assert_eq!(fmt_num(1.5), "1.500000");
