@@ -803,6 +803,7 @@ impl Daemon {
             ClientCommand::Pause => "pause",
             ClientCommand::Reregister => "reregister",
             ClientCommand::Answer { .. } => "answer",
+            ClientCommand::ConfirmClear { .. } => "confirm_clear",
             ClientCommand::Arm | ClientCommand::Start | ClientCommand::Resume => "load",
         };
         let state = &view.state;

@@ -15,7 +15,7 @@ fn repo_file(path: &str) -> String {
 /// The `[Service]` lines of the shipped unit a plant relies on (dedicated user, read-only
 /// system, state directory, serial access by group, restart policy, SIGTERM handling, the
 /// writable default lock directory of the cell locks, loopback listen, descriptor limit).
-const REQUIRED_UNIT_LINES: [&str; 14] = [
+const REQUIRED_UNIT_LINES: [&str; 13] = [
     "User=cellcal",
     "RuntimeDirectory=lock/cellcal",
     "SupplementaryGroups=dialout",
