@@ -812,6 +812,10 @@ impl Daemon {
                 "campaign {id} is not loaded ({state}): nothing of it moves; campaign {other} is \
                  the loaded one — send {what} to campaign {other}"
             ),
+            (None, Some(h)) if h.pid == std::process::id() => format!(
+                "campaign {id} is being loaded by this daemon (nothing of it moves before an \
+                 arm and a start); send {what} again once it is loaded"
+            ),
             (None, Some(h)) => format!(
                 "campaign {id} is run by another process, {h}, not by this daemon: stop it there"
             ),
