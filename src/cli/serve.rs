@@ -42,6 +42,8 @@ pub fn run(a: ServeArgs) -> Result<(), Failure> {
     } = a;
     let (config, listen) = (config.as_path(), listen.as_str());
     let cfg = load_cell_config(config).map_err(input)?;
+    // the controller's secret is checked now, not at the first campaign (a 5xx then)
+    drop(cellcal::cell::controller_secret(&cfg.robot_controller).map_err(input)?);
     let addr: std::net::SocketAddr = listen
         .parse()
         .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;

@@ -166,7 +166,7 @@ fn two_stores_whose_configs_name_one_robot_address_share_one_cell() {
     let real_robot = |text: String| {
         text.replacen(
             "[robot_controller]\nmode = \"sim\"",
-            &format!("[robot_controller]\nmode = \"real\"\naddress = \"127.0.0.1:{port}\""),
+            &super::common::real_controller(dir.path(), format!("127.0.0.1:{port}")),
             1,
         )
     };

@@ -117,3 +117,20 @@ pub fn assert_structural_set_but(
         id.identifiability.identified
     );
 }
+
+/// The `[robot_controller]` table head of a real controller at `address` (robotlink v3) with
+/// a fresh shared secret written to a private `robot.key` in `dir`; the simulated robot of the
+/// same configuration (if any) authenticates with it too.
+pub fn real_controller(dir: &Path, address: impl std::fmt::Display) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    let key = dir.join("robot.key");
+    let hex: String = (0..32)
+        .map(|i| format!("{:02x}", (i * 37 + 11) % 256))
+        .collect();
+    std::fs::write(&key, hex).expect("write robot.key");
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    format!(
+        "[robot_controller]\nmode = \"real\"\naddress = \"{address}\"\nsecret_file = {:?}",
+        key.to_string_lossy()
+    )
+}

@@ -163,10 +163,7 @@ fn an_abort_stops_the_robot_within_200_ms_while_idle_connections_fill_the_descri
     let text = replaced(
         &text,
         "[robot_controller]\nmode = \"sim\"",
-        &format!(
-            "[robot_controller]\nmode = \"real\"\naddress = \"{}\"",
-            proxy.addr
-        ),
+        &super::common::real_controller(dir.path(), proxy.addr),
     );
     let text = replaced(
         &text,

@@ -204,6 +204,21 @@ fn a_real_controller_needs_a_private_secret_file_and_its_text_never_shows() {
         err.contains("robot_controller.secret_file: not set") && err.contains("openssl rand"),
         "{err}"
     );
+    // the daemon refuses to start on it too, before it listens (not a 5xx on the first create)
+    let out = Command::new(env!("CARGO_BIN_EXE_cellcal"))
+        .args(["serve", "--listen", "127.0.0.1:0", "--config"])
+        .arg(real_robot_config(dir.path(), None))
+        .arg("--store")
+        .arg(dir.path().join("c.db"))
+        .stdin(Stdio::null())
+        .output()
+        .expect("serve");
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("robot_controller.secret_file: not set"),
+        "{err}"
+    );
     // a secret every user may read: refused, the file named, its text not shown
     let key = dir.path().join("robot.key");
     std::fs::write(&key, format!("{KEY}\n")).unwrap();

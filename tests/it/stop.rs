@@ -134,13 +134,18 @@ fn free_port() -> u16 {
 /// The simulated cell of config/cell.sim.toml with slow joints (10 deg/s: a move takes
 /// seconds), no setup steps, 20 poses, the robot controller reached through `proxy` (a "real"
 /// robot at the proxy's address, the simulated one at `robot_port`), a `stage` of that kind,
-/// and the role tokens.
-fn proxied_config(robot_port: u16, proxy: SocketAddr, stage: &str) -> String {
+/// the shared secret in `dir`, and the role tokens.
+fn proxied_config(
+    dir: &std::path::Path,
+    robot_port: u16,
+    proxy: SocketAddr,
+    stage: &str,
+) -> String {
     twenty_poses_no_setup(config_text("", "", ""))
         .replace("move_speed_deg_s = 200000.0\n", "move_speed_deg_s = 10.0\n")
         .replace(
             "[robot_controller]\nmode = \"sim\"\n",
-            &format!("[robot_controller]\nmode = \"real\"\naddress = \"{proxy}\"\n"),
+            &(super::common::real_controller(dir, proxy) + "\n"),
         )
         .replace("robot_port = 0", &format!("robot_port = {robot_port}"))
         .replace("kind = \"serial\"", &format!("kind = \"{stage}\""))
@@ -165,7 +170,7 @@ fn proxied_daemon(
     let dir = tempfile::tempdir().expect("tempdir");
     let robot_port = free_port();
     let proxy = Proxy::start(SocketAddr::from(([127, 0, 0, 1], robot_port)));
-    let text = edit(proxied_config(robot_port, proxy.addr, stage));
+    let text = edit(proxied_config(dir.path(), robot_port, proxy.addr, stage));
     let cfg = write_config(dir.path(), &text);
     let s = start_as_operator(&cfg, &dir.path().join("c.db"));
     let (code, v) = post_as(&s, "operator-token", "/api/campaigns", "{}");
