@@ -23,7 +23,7 @@ use crate::codec::{
     self, format_request, parse_server_line, CodecError, ErrorCode, Event, EventName, Identity,
     Pose, Reply, ReplyBody, Request, RobotState, ServerLine, MAX_LINE, MAX_SEQ, PROTO_VERSION,
 };
-use crate::lineio::{LineRead, LineReader};
+use lineio::{LineRead, LineReader};
 
 /// Typed error of the robot client.
 #[derive(Debug, thiserror::Error)]

@@ -11,7 +11,6 @@
 pub mod auth;
 pub mod client;
 pub mod codec;
-mod lineio;
 pub mod server;
 pub mod sim;
 

@@ -33,7 +33,7 @@ use crate::codec::{
     self, format_event, format_reply, parse_request, request_seq, ErrorCode, Event, EventName,
     Identity, Pose, Reply, ReplyBody, Request, RobotState, MAX_LINE, PROTO_VERSION,
 };
-use crate::lineio::{LineRead, LineReader};
+use lineio::{LineRead, LineReader};
 
 /// Rejection from a backend, turned into `ERR <code> <text>`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -12,7 +12,7 @@ use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncRead, AsyncWrite, AsyncWriteExt, BufReader};
 use tracing::trace;
 
-use crate::lineio::{read_line_until, LineRead};
+use crate::lineio::{gauge_lines, read_line, LineRead, LineReader};
 use crate::serial::SerialSettings;
 
 /// Longest accepted gauge line.
@@ -141,7 +141,7 @@ pub fn parse_reading(line: &str) -> Result<Reading, GaugeError> {
 /// Request/response gauge client over any byte stream.
 #[derive(Debug)]
 pub struct GaugeClient<S> {
-    io: Option<BufReader<S>>,
+    io: Option<LineReader<BufReader<S>>>,
     cfg: GaugeConfig,
     dirty: bool,
 }
@@ -158,7 +158,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
     /// Wrap an open stream.
     pub fn from_stream(stream: S, cfg: GaugeConfig) -> Self {
         Self {
-            io: Some(BufReader::new(stream)),
+            io: Some(gauge_lines(BufReader::new(stream), MAX_GAUGE_LINE)),
             cfg,
             dirty: false,
         }
@@ -171,15 +171,18 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
     pub async fn read_mm(&mut self) -> Result<f64, GaugeError> {
         let io = self.io.as_mut().ok_or(GaugeError::Disconnected)?;
         if self.dirty {
-            // A late reply to an earlier request must not be taken for this one.
+            // A late reply to an earlier request must not be taken for this one, nor its start
+            // kept by the reader from a cancelled read.
+            io.discard_partial();
+            let raw = io.get_mut();
             while let Ok(Ok(buf)) =
-                tokio::time::timeout(Duration::from_millis(5), io.fill_buf()).await
+                tokio::time::timeout(Duration::from_millis(5), raw.fill_buf()).await
             {
                 if buf.is_empty() {
                     break;
                 }
                 let n = buf.len();
-                io.consume(n);
+                raw.consume(n);
             }
             self.dirty = false;
         }
@@ -188,10 +191,10 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> GaugeClient<S> {
         // Until this request's line is read, a drop leaves its reply to come: drain it next time.
         self.dirty = true;
         let res = tokio::time::timeout(t, async {
-            io.get_mut().write_all(req).await?;
-            io.get_mut().flush().await?;
+            io.get_mut().get_mut().write_all(req).await?;
+            io.get_mut().get_mut().flush().await?;
             loop {
-                match read_line_until(io, MAX_GAUGE_LINE, b"\r\n").await? {
+                match read_line(io).await? {
                     LineRead::Line(l) if l.trim().is_empty() => continue,
                     other => return Ok::<_, std::io::Error>(other),
                 }

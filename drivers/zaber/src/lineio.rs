@@ -1,70 +1,101 @@
-//! Bounded line reading.
+//! Bounded, cancel-safe line reading: the shared [`lineio::LineReader`] set up for Zaber ASCII
+//! (`\n`-terminated) and gauge (`\r` or `\n`-terminated) lines.
 
-use tokio::io::{AsyncBufRead, AsyncBufReadExt};
+use tokio::io::AsyncBufRead;
 
-/// Outcome of reading one line.
-#[derive(Debug)]
-pub(crate) enum LineRead {
-    /// A complete line without its terminator.
-    Line(String),
-    /// End of stream before any byte of a new line.
-    Eof,
-    /// Overlong or non-UTF-8 line (the bytes up to the terminator were consumed).
-    Bad(String),
+use lineio::Overlong;
+pub(crate) use lineio::{LineRead, LineReader};
+
+/// Reader of `\n`-terminated lines (Zaber ASCII); a line longer than `max` is discarded up to its
+/// terminator and reported as `Bad`, and the next read starts on the next line.
+pub(crate) fn ascii_lines<R: AsyncBufRead + Unpin>(inner: R, max: usize) -> LineReader<R> {
+    LineReader::new(inner, max).overlong(Overlong::Skip)
 }
 
-/// Read up to a terminator byte from `terms` (`\n`, or `\r`/`\n` for gauges); a `\r`
-/// left at the end is stripped. Lines longer than `max` are reported as `Bad`.
-/// Not cancel-safe: bytes of a line already consumed are lost on a drop; callers mark their stream
-/// dirty and resynchronise on the next line.
-pub(crate) async fn read_line_until<R: AsyncBufRead + Unpin>(
-    reader: &mut R,
-    max: usize,
-    terms: &[u8],
+/// Reader of lines ended by `\r` or `\n` (gauges), overlong lines handled like [`ascii_lines`].
+pub(crate) fn gauge_lines<R: AsyncBufRead + Unpin>(inner: R, max: usize) -> LineReader<R> {
+    ascii_lines(inner, max).terminators(b"\r\n")
+}
+
+/// Next line with every `\r` at its end stripped.
+/// Cancel-safe like [`LineReader::next_line`]: a dropped call never loses or splits a line.
+pub(crate) async fn read_line<R: AsyncBufRead + Unpin>(
+    reader: &mut LineReader<R>,
 ) -> std::io::Result<LineRead> {
-    let mut buf: Vec<u8> = Vec::new();
-    let mut too_long = false;
-    loop {
-        let chunk = reader.fill_buf().await?;
-        if chunk.is_empty() {
-            return Ok(if buf.is_empty() && !too_long {
-                LineRead::Eof
-            } else {
-                LineRead::Bad("stream ended in the middle of a line".into())
-            });
-        }
-        let (used, done) = match chunk.iter().position(|b| terms.contains(b)) {
-            Some(i) => (i + 1, true),
-            None => (chunk.len(), false),
-        };
-        if !too_long {
-            buf.extend_from_slice(&chunk[..used]);
-        }
-        reader.consume(used);
-        if buf.len() > max + 2 {
-            too_long = true;
-            buf.clear();
-        }
-        if done {
-            if too_long {
-                return Ok(LineRead::Bad(format!("line longer than {max} bytes")));
-            }
-            while matches!(buf.last(), Some(b'\r' | b'\n')) {
-                buf.pop();
-            }
-            return Ok(match String::from_utf8(buf) {
-                Ok(s) => LineRead::Line(s),
-                Err(_) => LineRead::Bad("line is not UTF-8".into()),
-            });
+    Ok(match reader.next_line().await? {
+        LineRead::Line(l) => LineRead::Line(l.trim_end_matches('\r').to_string()),
+        other => other,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use tokio::io::{AsyncWriteExt, BufReader};
+
+    use super::*;
+
+    /// A read dropped while only half a line has arrived (a reply timeout) must not lose that half:
+    /// the next read returns the whole line.
+    #[tokio::test]
+    async fn a_read_dropped_mid_line_keeps_the_line_whole() {
+        let (mut dev, host) = tokio::io::duplex(64);
+        let mut rd = ascii_lines(BufReader::new(host), crate::ascii::MAX_LINE);
+        dev.write_all(b"@01 0 12 OK ID").await.unwrap();
+        let cut = tokio::time::timeout(Duration::from_millis(50), read_line(&mut rd)).await;
+        assert!(
+            cut.is_err(),
+            "half a line must not complete a read: {cut:?}"
+        );
+        dev.write_all(b"LE -- 0\r\n").await.unwrap();
+        match read_line(&mut rd).await.unwrap() {
+            LineRead::Line(l) => assert_eq!(l, "@01 0 12 OK IDLE -- 0"),
+            other => panic!("expected the whole line, got {other:?}"),
         }
     }
-}
 
-/// Read one `\n`-terminated line.
-/// Not cancel-safe, like [`read_line_until`].
-pub(crate) async fn read_line<R: AsyncBufRead + Unpin>(
-    reader: &mut R,
-    max: usize,
-) -> std::io::Result<LineRead> {
-    read_line_until(reader, max, b"\n").await
+    /// The same for a gauge reading cut after its first bytes.
+    #[tokio::test]
+    async fn a_gauge_read_dropped_mid_line_keeps_the_line_whole() {
+        let (mut dev, host) = tokio::io::duplex(64);
+        let mut rd = gauge_lines(BufReader::new(host), 64);
+        dev.write_all(b"01A+00").await.unwrap();
+        let cut = tokio::time::timeout(Duration::from_millis(50), read_line(&mut rd)).await;
+        assert!(
+            cut.is_err(),
+            "half a line must not complete a read: {cut:?}"
+        );
+        dev.write_all(b"12.345\r").await.unwrap();
+        assert_eq!(
+            read_line(&mut rd).await.unwrap(),
+            LineRead::Line("01A+0012.345".into())
+        );
+    }
+
+    /// Protocol unchanged: `\r\r\n` endings are stripped whole, an overlong line is skipped to its
+    /// end and reported, and the next line is read normally.
+    #[tokio::test]
+    async fn endings_and_overlong_lines_as_before() {
+        let (mut dev, host) = tokio::io::duplex(1024);
+        let mut rd = ascii_lines(BufReader::new(host), 8);
+        let long = "x".repeat(40);
+        dev.write_all(format!("ab\r\r\n{long}\ncd\n").as_bytes())
+            .await
+            .unwrap();
+        drop(dev);
+        assert_eq!(
+            read_line(&mut rd).await.unwrap(),
+            LineRead::Line("ab".into())
+        );
+        assert_eq!(
+            read_line(&mut rd).await.unwrap(),
+            LineRead::Bad("line longer than 8 bytes".into())
+        );
+        assert_eq!(
+            read_line(&mut rd).await.unwrap(),
+            LineRead::Line("cd".into())
+        );
+        assert_eq!(read_line(&mut rd).await.unwrap(), LineRead::Eof);
+    }
 }

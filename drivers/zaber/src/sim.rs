@@ -11,7 +11,7 @@ use crate::ascii::{
     format_reply, parse_command, parse_steps, CodecError, Reply, ReplyFlag, Status, Warning,
     WarningClass,
 };
-use crate::lineio::{read_line_until, LineRead};
+use crate::lineio::{ascii_lines, gauge_lines, read_line, LineRead};
 use crate::product::SIM_PRODUCT;
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -491,9 +491,9 @@ pub async fn serve_stage<S>(stream: S, sim: StageSim) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin + Send,
 {
-    let mut io = BufReader::new(stream);
+    let mut io = ascii_lines(BufReader::new(stream), 256);
     loop {
-        let line = match read_line_until(&mut io, 256, b"\n").await? {
+        let line = match read_line(&mut io).await? {
             LineRead::Eof => return Ok(()),
             LineRead::Bad(why) => {
                 debug!(why, "stage sim: bad line ignored");
@@ -507,9 +507,10 @@ where
                 // Real devices reply RJ with BADDATA? They drop the command; reply a rejection.
                 let r = sim.reply(0, None, ReplyFlag::Rejected, "BADDATA".into());
                 io.get_mut()
+                    .get_mut()
                     .write_all(format_reply(&r, sim.cfg.checksum_replies).as_bytes())
                     .await?;
-                io.get_mut().flush().await?;
+                io.get_mut().get_mut().flush().await?;
                 continue;
             }
             Err(e) => {
@@ -546,8 +547,8 @@ where
         if partial {
             out.truncate(out.len() / 2);
         }
-        io.get_mut().write_all(out.as_bytes()).await?;
-        io.get_mut().flush().await?;
+        io.get_mut().get_mut().write_all(out.as_bytes()).await?;
+        io.get_mut().get_mut().flush().await?;
     }
 }
 
@@ -612,9 +613,9 @@ pub async fn serve_gauge<S>(stream: S, sim: GaugeSim) -> std::io::Result<()>
 where
     S: AsyncRead + AsyncWrite + Unpin + Send,
 {
-    let mut io = BufReader::new(stream);
+    let mut io = gauge_lines(BufReader::new(stream), 64);
     loop {
-        let line = match read_line_until(&mut io, 64, b"\r\n").await? {
+        let line = match read_line(&mut io).await? {
             LineRead::Eof => return Ok(()),
             LineRead::Bad(_) => continue,
             LineRead::Line(l) => l,
@@ -644,7 +645,7 @@ where
         } else {
             format!("{v:+.4} mm\r\n")
         };
-        io.get_mut().write_all(out.as_bytes()).await?;
-        io.get_mut().flush().await?;
+        io.get_mut().get_mut().write_all(out.as_bytes()).await?;
+        io.get_mut().get_mut().flush().await?;
     }
 }

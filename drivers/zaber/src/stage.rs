@@ -10,7 +10,7 @@ use crate::ascii::{
     format_command, parse_message, parse_steps, CodecError, Command, Message, Reply, ReplyFlag,
     Status, Warning, WarningClass,
 };
-use crate::lineio::{read_line, LineRead};
+use crate::lineio::{ascii_lines, read_line, LineRead, LineReader};
 use crate::product;
 
 /// DEL: a Zaber device discards the incomplete command it is receiving (ASCII protocol,
@@ -240,7 +240,7 @@ impl Default for StageConfig {
 /// Zaber ASCII stage client over any byte stream (serial port, pty, in-memory pipe).
 #[derive(Debug)]
 pub struct ZaberStage<S> {
-    io: Option<BufReader<S>>,
+    io: Option<LineReader<BufReader<S>>>,
     cfg: StageConfig,
     next_id: u8,
     /// Set while a command is in flight and after a timeout or bad line: discard stale input
@@ -266,7 +266,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
     /// Wrap an open stream.
     pub fn from_stream(stream: S, cfg: StageConfig) -> Self {
         Self {
-            io: Some(BufReader::new(stream)),
+            io: Some(ascii_lines(BufReader::new(stream), crate::ascii::MAX_LINE)),
             cfg,
             next_id: 0,
             dirty: false,
@@ -347,11 +347,16 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
             .map_err(|_| StageError::Protocol(format!("get {name}: not a count: {data:?}")))
     }
 
-    /// Discard bytes already received (partial or stale lines) after an error.
+    /// Discard bytes already received (partial or stale lines, including the partial line the reader
+    /// kept from a cancelled read) after an error.
     /// Cancel-safe: it only consumes bytes already received, and the stage stays dirty until a
     /// command completes.
     async fn discard_input(&mut self) {
-        let Some(io) = self.io.as_mut() else { return };
+        let Some(lines) = self.io.as_mut() else {
+            return;
+        };
+        lines.discard_partial();
+        let io = lines.get_mut();
         loop {
             match tokio::time::timeout(Duration::from_millis(5), io.fill_buf()).await {
                 Ok(Ok(buf)) if !buf.is_empty() => {
@@ -419,8 +424,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         bytes.extend_from_slice(line.as_bytes());
         self.cut = true;
         let write = async {
-            io.get_mut().write_all(&bytes).await?;
-            io.get_mut().flush().await
+            io.get_mut().get_mut().write_all(&bytes).await?;
+            io.get_mut().get_mut().flush().await
         };
         match tokio::time::timeout(self.cfg.reply_timeout, write).await {
             Ok(Ok(())) => self.cut = false,
@@ -433,8 +438,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ZaberStage<S> {
         let deadline = Instant::now() + self.cfg.reply_timeout;
         loop {
             let io = self.io.as_mut().ok_or(StageError::Disconnected)?;
-            let read =
-                tokio::time::timeout_at(deadline, read_line(io, crate::ascii::MAX_LINE)).await;
+            let read = tokio::time::timeout_at(deadline, read_line(io)).await;
             let raw = match read {
                 Err(_) => return Err(StageError::Timeout("reply")),
                 Ok(Err(e)) => {
