@@ -2,7 +2,6 @@
 //! forward kinematics + Jacobian per pose. Run with `cargo bench`.
 
 use std::hint::black_box;
-use std::path::Path;
 
 use cellcal::dataset::to_measured;
 use cellcal::identify::observation::residual_jacobian;
@@ -10,7 +9,6 @@ use cellcal::identify::solver::Options;
 use cellcal::identify::{
     all_params, identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds,
 };
-use cellcal::model::parse_robot;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::Vector3;
@@ -22,11 +20,7 @@ fn setup(
     cellcal::model::RobotModel,
     Vec<cellcal::dataset::Observation>,
 ) {
-    let nominal = parse_robot(
-        include_str!("../config/robots/staubli_tx60.toml"),
-        Path::new("tx60"),
-    )
-    .expect("robot");
+    let nominal = cellcal::model::tx60();
     let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
     let cfg = SimConfig {
         poses: n,

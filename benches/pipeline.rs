@@ -13,7 +13,7 @@ use cellcal::analysis::metrics::evaluate_pair;
 use cellcal::dataset::{read_csv, split_measured, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, JointTrig, ObsConfig, ObsModel};
-use cellcal::model::{parse_robot, RobotModel};
+use cellcal::model::tx60;
 use cellcal::report::calibrate;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -24,14 +24,6 @@ const OP: Required = Required {
     rotation: false,
     rotation_unused: true,
 };
-
-fn tx60() -> RobotModel {
-    parse_robot(
-        include_str!("../config/robots/staubli_tx60.toml"),
-        Path::new("tx60"),
-    )
-    .expect("robot")
-}
 
 /// The simulated OP campaign as a CSV file in `dir`.
 fn write_data(dir: &Path) -> std::path::PathBuf {

@@ -6,12 +6,9 @@
 //! every call miss the memo of the structural identifiability check, as a first call does).
 //! Prints the best time per call over batches of ten calls and the estimates.
 
-use std::path::Path;
-
 use cellcal::dataset::to_measured;
 use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
-use cellcal::model::parse_robot;
 use cellcal::simulate::{self, truth, SimConfig};
 use nalgebra::Vector3;
 
@@ -27,11 +24,7 @@ fn main() {
     } else {
         Vector3::y()
     };
-    let mut nominal = parse_robot(
-        include_str!("../config/robots/staubli_tx60.toml"),
-        Path::new("tx60"),
-    )
-    .expect("robot");
+    let mut nominal = cellcal::model::tx60();
     let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
     let cfg = SimConfig {
         poses: n,

@@ -329,15 +329,7 @@ fn check_ident_poses(
 mod tests {
     use super::*;
     use crate::config::parse_cell_config;
-    use crate::model::parse_robot;
-
-    fn tx60() -> RobotModel {
-        parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            Path::new("tx60"),
-        )
-        .unwrap()
-    }
+    use crate::model::tx60;
 
     fn check(text: &str) -> Result<(), Infeasible> {
         let cfg = parse_cell_config(text, Path::new("cell.toml")).unwrap();

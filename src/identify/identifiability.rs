@@ -1030,11 +1030,7 @@ mod tests {
 
     #[test]
     fn frames_come_first_in_the_priority_order() {
-        let m = crate::model::file::parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .expect("tx60");
+        let m = crate::model::tx60();
         let order = priority_order(&m, &super::super::params::all_params(6, true, true));
         assert_eq!(order.len(), 39);
         assert!(order[..9].iter().all(is_frame), "{order:?}");

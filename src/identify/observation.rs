@@ -363,16 +363,11 @@ impl Columns<'_> {
 mod tests {
     use super::*;
     use crate::identify::params::{all_params, retract};
-    use crate::model::file::parse_robot;
     use crate::model::rotation::from_rotation_vector;
     use proptest::prelude::*;
 
     fn tx60_with_frames() -> RobotModel {
-        let mut m = parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .unwrap();
+        let mut m = crate::model::tx60();
         m.base_rotation = from_rotation_vector(&Vector3::new(0.3, -0.2, 2.0));
         m.base_translation = Vector3::new(2000.0, 300.0, -100.0);
         m.tool = Vector3::new(5.0, -12.0, 40.0);

@@ -164,16 +164,11 @@ pub fn select_spread(model: &RobotModel, candidates: &[Vec<f64>], n: usize) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::file::parse_robot;
     use crate::model::kinematics::measured_point;
     use crate::model::rotation::from_rotation_vector;
 
     fn cell() -> RobotModel {
-        let mut m = parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .unwrap();
+        let mut m = crate::model::tx60();
         m.base_rotation = from_rotation_vector(&Vector3::new(0.05, -0.03, 2.9));
         m.base_translation = Vector3::new(2400.0, 300.0, -500.0);
         m.tool = Vector3::new(8.0, -25.0, 45.0);

@@ -527,17 +527,9 @@ fn stage_axis_in_flange(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::file::parse_robot;
     use crate::model::ik::flange_pose;
     use crate::model::rotation::from_rotation_vector;
-
-    fn tx60() -> RobotModel {
-        parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .unwrap()
-    }
+    use crate::model::tx60;
 
     const HOME: [f64; 6] = [0.1, 0.4, 1.7, 0.3, -0.6, 0.2];
 

@@ -338,15 +338,7 @@ pub fn measured_rotation(model: &RobotModel, q: &[f64]) -> Matrix3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::file::parse_robot;
-
-    fn tx60() -> RobotModel {
-        parse_robot(
-            include_str!("../../config/robots/staubli_tx60.toml"),
-            std::path::Path::new("tx60"),
-        )
-        .unwrap()
-    }
+    use crate::model::tx60;
 
     #[test]
     fn candle_pose() {

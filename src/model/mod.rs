@@ -15,12 +15,30 @@ pub use file::{load_robot, parse_robot, FileError, RobotFileError};
 pub use ik::{solve_flange, solve_motion, FlangeMotion, IkError, IkOptions, IkSolution};
 pub use kinematics::{forward, Frames, Pose};
 
-/// The Stäubli TX60 of `config/robots/staubli_tx60.toml` (unit tests).
-#[cfg(test)]
-pub(crate) fn tx60() -> RobotModel {
+/// The nominal Stäubli TX60 of `config/robots/staubli_tx60.toml`, built in at compile time: the
+/// shared fixture of tests, benches and examples. A cell loads its robot from its config instead.
+///
+/// Never panics: the built-in file parses (test `model::tests::built_in_tx60_is_the_shipped_file`).
+pub fn tx60() -> RobotModel {
     parse_robot(
-        include_str!("../../config/robots/staubli_tx60.toml"),
-        std::path::Path::new("tx60"),
+        TX60_TOML,
+        std::path::Path::new("config/robots/staubli_tx60.toml"),
     )
-    .expect("the TX60 model file parses")
+    .expect("the built-in TX60 model file parses")
+}
+
+/// The text of `config/robots/staubli_tx60.toml`, as [`tx60`] parses it.
+const TX60_TOML: &str = include_str!("../../config/robots/staubli_tx60.toml");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_tx60_is_the_shipped_file() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("config/robots/staubli_tx60.toml");
+        assert_eq!(tx60(), load_robot(&path).expect("the shipped TX60 loads"));
+        assert_eq!(tx60().joints.len(), 6);
+    }
 }

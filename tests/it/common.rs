@@ -9,15 +9,12 @@ use cellcal::identify::{
     all_params, structural_set, DropKind, Identification, IdentifyOptions, Measured, ObsConfig,
     ObsModel, PracticalBounds,
 };
-use cellcal::model::{parse_robot, RobotModel};
+use cellcal::model::RobotModel;
 use cellcal::simulate::{self, truth, SimConfig, SimData};
 use nalgebra::Vector3;
 
-pub const TX60: &str = include_str!("../../config/robots/staubli_tx60.toml");
-
-pub fn tx60() -> RobotModel {
-    parse_robot(TX60, Path::new("staubli_tx60.toml")).expect("TX60 model loads")
-}
+/// The nominal TX60: the library's built-in copy of `config/robots/staubli_tx60.toml`.
+pub use cellcal::model::tx60;
 
 pub fn paper_truth() -> RobotModel {
     truth::apply_errors(&tx60(), &truth::paper_errors()).expect("paper errors apply")

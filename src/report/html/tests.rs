@@ -1,19 +1,9 @@
-use std::path::Path;
-
 use super::*;
 use crate::analysis::significance::significance;
 use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
-use crate::model::parse_robot;
+use crate::model::tx60;
 use crate::report::calibrate;
 use crate::simulate::{simulate, truth, SimConfig};
-
-fn tx60() -> RobotModel {
-    parse_robot(
-        include_str!("../../../config/robots/staubli_tx60.toml"),
-        Path::new("staubli_tx60.toml"),
-    )
-    .expect("TX60")
-}
 
 /// A small simulated OP identification: its rows, result and identification.
 fn small_op() -> (Vec<Observation>, IdentifyReport, Identification) {
