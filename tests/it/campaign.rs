@@ -57,11 +57,7 @@ pub(crate) async fn sim_session(dir: &Path, text: &str) -> cellcal::campaign::se
 pub(crate) fn write_config(dir: &Path, text: &str) -> PathBuf {
     let robots = dir.join("robots");
     std::fs::create_dir_all(&robots).expect("mkdir");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/robots/staubli_tx60.toml"),
-        robots.join("staubli_tx60.toml"),
-    )
-    .expect("copy robot");
+    std::fs::copy(crate::cli::robot(), robots.join("staubli_tx60.toml")).expect("copy robot");
     let p = dir.join("cell.toml");
     std::fs::write(&p, text).expect("write config");
     p

@@ -701,7 +701,7 @@ mod binary {
     }
 
     fn write_config(dir: &Path, sim: &str) -> std::path::PathBuf {
-        let robot = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/robots/staubli_tx60.toml");
+        let robot = crate::cli::robot();
         let f = dir.join("cell.toml");
         let text = format!(
             "robot = {:?}\n\n[campaign]\nposes = 10\n\n[sim]\n{sim}\n",

@@ -160,7 +160,7 @@ async fn the_simulated_robot_serves_only_its_allow_list_and_its_joint_limits() {
 /// The README's simulated cell with a real robot controller (nobody listens at its address).
 fn real_robot_config(dir: &Path, secret_line: Option<&str>) -> std::path::PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let robot = root.join("config/robots/staubli_tx60.toml");
+    let robot = crate::cli::robot();
     let sim = std::fs::read_to_string(root.join("config/cell.sim.toml")).unwrap();
     let controller = format!(
         "[robot_controller]\nmode = \"real\"\naddress = \"127.0.0.1:9\"\n{}\n",
@@ -283,7 +283,7 @@ fn cellcal_sim_uses_the_configured_secret_file() {
     let key = dir.path().join("robot.key");
     std::fs::write(&key, format!("{KEY}\n")).unwrap();
     set_mode(&key, 0o600);
-    let robot = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/robots/staubli_tx60.toml");
+    let robot = crate::cli::robot();
     let cfg = dir.path().join("cell.toml");
     std::fs::write(
         &cfg,
@@ -528,7 +528,7 @@ fn adding_or_changing_the_secret_file_does_not_block_a_resume() {
     // before its cell had a secret_file (or with another one) resumes without an override.
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let robot = root.join("config/robots/staubli_tx60.toml");
+    let robot = crate::cli::robot();
     let sim = std::fs::read_to_string(root.join("config/cell.sim.toml"))
         .unwrap()
         .replace(
