@@ -11,6 +11,7 @@ mod cockpit;
 mod commander;
 mod common;
 mod compensate;
+mod contract;
 mod deploy;
 mod frame_first;
 mod frames;
