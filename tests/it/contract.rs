@@ -65,7 +65,8 @@ fn contained_in(expected: &Value, actual: &Value, at: &str, diffs: &mut Vec<Stri
                 e.as_f64().unwrap_or(f64::NAN),
                 a.as_f64().unwrap_or(f64::NAN),
             );
-            if !((e - a).abs() <= 1e-9 * e.abs().max(a.abs()) + 1e-12) {
+            let close = (e - a).abs() <= 1e-9 * e.abs().max(a.abs()) + 1e-12;
+            if !close {
                 diffs.push(format!("{at}: {a} (snapshot {e})"));
             }
         }
