@@ -14,7 +14,7 @@ use crate::identify::IdentifyOptions;
 use crate::model::{parse_robot, RobotFileError, RobotModel};
 use crate::report::model_file::sha256_hex;
 use crate::report::{corrected_model_toml, BaseSource, IdentifyReport, ModelFileError};
-use crate::store::{Store, StoreError};
+use crate::store::{identification_rows, Store, StoreError};
 
 /// Why a stored campaign cannot be identified.
 #[derive(Debug, thiserror::Error)]
@@ -133,7 +133,7 @@ pub fn load_stored(
         nominal,
         opts,
         travel_mm,
-        rows: store.observations(id)?,
+        rows: identification_rows(store.measured(id)?),
         setup: csv_setup,
     })
 }
