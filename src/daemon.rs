@@ -90,7 +90,9 @@ impl CampaignOverrides {
     pub fn apply(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
         let c = &mut cfg.campaign;
         if let Some(m) = &self.model {
-            c.model = m.clone();
+            c.model = m
+                .parse()
+                .map_err(|e| DaemonError::BadRequest(format!("campaign.model: {e}")))?;
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);

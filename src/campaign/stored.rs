@@ -107,7 +107,10 @@ pub fn load_stored(
     let mut cfg = parse_cell_config(&row.config_toml, &label)
         .map_err(|source| StoredError::Config { id, source })?;
     if row.config_toml.trim().is_empty() {
-        cfg.campaign.model = row.model.clone();
+        // an imported campaign: its recorded model (an unknown name keeps the default, `op`)
+        if let Ok(m) = row.model.parse() {
+            cfg.campaign.model = m;
+        }
     }
     let mut nominal = match robot {
         Some(r) => r,

@@ -19,8 +19,10 @@ thread_local! {
     static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
 }
 
-/// Which quantities the identification uses.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// Which quantities the identification uses; spelled `position`, `np`, `op`, `full` in every
+/// file, flag and body (serde, [`FromStr`](std::str::FromStr), [`Display`](std::fmt::Display)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum ObsModel {
     /// Position of the ball only.
     Position,
@@ -43,15 +45,17 @@ impl ObsModel {
         }
     }
 
-    /// Parse a contract name.
-    pub fn parse(s: &str) -> Option<ObsModel> {
-        match s {
-            "position" => Some(ObsModel::Position),
-            "np" => Some(ObsModel::Np),
-            "op" => Some(ObsModel::Op),
-            "full" => Some(ObsModel::Full),
-            _ => None,
-        }
+    /// Parse a contract name (exact spelling).
+    pub fn parse(s: &str) -> Result<ObsModel, UnknownModel> {
+        [
+            ObsModel::Position,
+            ObsModel::Np,
+            ObsModel::Op,
+            ObsModel::Full,
+        ]
+        .into_iter()
+        .find(|m| m.name() == s)
+        .ok_or_else(|| UnknownModel(s.to_owned()))
     }
 
     /// Residual rows per pose.
@@ -87,6 +91,25 @@ impl ObsModel {
         self != ObsModel::Position
     }
 }
+
+impl std::str::FromStr for ObsModel {
+    type Err = UnknownModel;
+    fn from_str(s: &str) -> Result<ObsModel, UnknownModel> {
+        ObsModel::parse(s)
+    }
+}
+
+impl std::fmt::Display for ObsModel {
+    /// The contract name.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A name that is not an observation model.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("`{0}` is not one of position, np, op, full")]
+pub struct UnknownModel(pub String);
 
 /// How observations are turned into residuals.
 #[derive(Debug, Clone, Copy, PartialEq)]

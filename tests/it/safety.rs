@@ -523,7 +523,7 @@ async fn a_failed_identification_ends_in_failed_with_the_reason() {
     let session = sim_session(dir.path(), &text).await;
     let (mut ctx, mut devices) = (session.ctx, session.devices);
     // the stored data can then not serve the model: the 1D stage gives no full orientation
-    ctx.cfg.campaign.model = "full".into();
+    ctx.cfg.campaign.model = cellcal::identify::ObsModel::Full;
     let mut rx = ctx.control.events.subscribe();
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
