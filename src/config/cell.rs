@@ -869,6 +869,10 @@ mod tests {
                 "campaign.path_margin_mm",
             ),
             ("[stage]\naxis = \"+z\"\n", "stage.axis"),
+            ("[stage]\naxis = \"0,0,0\"\n", "stage.axis"),
+            ("[stage]\naxis = \"nan,1,0\"\n", "stage.axis"),
+            ("[stage]\naxis = \"0,1,0\"\n", "stage.axis"),
+            ("[campaign]\nmodel = \"NP\"\n", "campaign.model"),
             (
                 "[robot_controller]\nspeed_pct = 150\n",
                 "robot_controller.speed_pct",

@@ -386,6 +386,29 @@ impl Columns<'_> {
 mod tests {
     use super::*;
     use crate::identify::params::{all_params, retract};
+
+    #[test]
+    fn model_names_parse_once_and_unknown_ones_are_refused_clearly() {
+        for m in [
+            ObsModel::Position,
+            ObsModel::Np,
+            ObsModel::Op,
+            ObsModel::Full,
+        ] {
+            assert_eq!(m.name().parse::<ObsModel>(), Ok(m));
+            assert_eq!(m.to_string(), m.name());
+            let json = serde_json::to_string(&m).unwrap();
+            assert_eq!(json, format!("\"{}\"", m.name()));
+            assert_eq!(serde_json::from_str::<ObsModel>(&json).unwrap(), m);
+        }
+        for bad in ["xyz", "OP", " op", "", "nan"] {
+            assert_eq!(
+                ObsModel::parse(bad).unwrap_err().to_string(),
+                format!("`{bad}` is not one of position, np, op, full")
+            );
+            assert!(serde_json::from_str::<ObsModel>(&format!("\"{bad}\"")).is_err());
+        }
+    }
     use crate::model::rotation::from_rotation_vector;
     use proptest::prelude::*;
 

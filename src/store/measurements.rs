@@ -2,7 +2,7 @@
 
 use std::collections::HashSet;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Vector3;
 use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
 
 use super::campaigns::{check_plan, insert_campaign};
@@ -14,6 +14,7 @@ use super::records::{
 };
 use super::Store;
 use crate::dataset::{Observation, PoseSet};
+use crate::model::Pose;
 
 /// State given to campaigns made by [`Store::import_observations`].
 pub const IMPORTED_STATE: &str = "imported";
@@ -37,7 +38,7 @@ pub struct MeasuredPoint {
 impl MeasuredPoint {
     /// The stored point `p` mapped by `to_first` into the first frame; NaN ("not recorded")
     /// becomes `None`.
-    fn of(to_first: &Isometry3<f64>, p: &PointRecord) -> MeasuredPoint {
+    fn of(to_first: &Pose, p: &PointRecord) -> MeasuredPoint {
         let recorded = |v: f64| Some(v).filter(|v| !v.is_nan());
         MeasuredPoint {
             position_mm: map_point(to_first, Vector3::new(p.x_mm, p.y_mm, p.z_mm)),

@@ -269,9 +269,9 @@ fn frame_references_number_segments_and_refuse_non_drift_points() {
 /// A frame transform: a quarter turn about z, then `dx` along x.
 fn shift(dx: f64) -> FrameTransform {
     FrameTransform {
-        to_first: nalgebra::Isometry3::new(
+        to_first: crate::model::Pose::from_rotation_vector(
+            &nalgebra::Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
             nalgebra::Vector3::new(dx, 0.0, 0.0),
-            nalgebra::Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
         ),
         rms_mm: 0.01,
         max_mm: 0.02,
