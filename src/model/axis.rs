@@ -43,7 +43,7 @@ impl SignedAxis {
     pub const MINUS_Z: SignedAxis = SignedAxis::named(5);
 
     const fn named(i: usize) -> SignedAxis {
-        let s = if i % 2 == 0 { 1.0 } else { -1.0 };
+        let s = if i.is_multiple_of(2) { 1.0 } else { -1.0 };
         let mut v = [0.0; 3];
         v[i / 2] = s;
         SignedAxis {
