@@ -90,7 +90,9 @@ impl CampaignOverrides {
     pub fn apply(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
         let c = &mut cfg.campaign;
         if let Some(m) = &self.model {
-            c.model = m.clone();
+            c.model = m
+                .parse()
+                .map_err(|e| DaemonError::BadRequest(format!("campaign.model: {e}")))?;
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);
@@ -1110,24 +1112,17 @@ impl Daemon {
     /// The campaign's measured poses as identification rows (segment 0's tracker frame, plan
     /// order). Cancel-safe (reads only).
     pub async fn measurements(&self, id: i64) -> Result<Vec<MeasurementRow>, DaemonError> {
-        let rows = self.read(move |s| s.observations(id)).await?;
-        rows.into_iter()
-            .map(|o| {
-                let pose = o.id.parse().map_err(|_| {
-                    DaemonError::Store(StoreError::Corrupt(format!(
-                        "campaign {id}: pose id `{}` is not a pose index",
-                        o.id
-                    )))
-                })?;
-                Ok(MeasurementRow {
-                    pose,
-                    set: o.set.as_str(),
-                    q_rad: o.q,
-                    p1_mm: o.p1.into(),
-                    p2_mm: o.p2.map(Into::into),
-                })
+        let poses = self.read(move |s| s.measured(id)).await?;
+        Ok(poses
+            .into_iter()
+            .map(|m| MeasurementRow {
+                pose: m.index,
+                set: m.set.as_str(),
+                q_rad: m.joints_rad,
+                p1_mm: m.p1.position_mm.into(),
+                p2_mm: m.p2.map(|p| p.position_mm.into()),
             })
-            .collect()
+            .collect())
     }
 
     /// The campaign's measurements as the identify CSV that `cellcal export` writes (setup

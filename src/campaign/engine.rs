@@ -40,7 +40,9 @@ use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::report::{calibrate, CalibrateError, IdentifyReport};
-use crate::store::{EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
+use crate::store::{
+    identification_rows, EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError,
+};
 use crate::wall_clock::{now_unix_ms, unix_ms};
 
 /// The three devices of the cell.
@@ -1143,7 +1145,7 @@ pub fn campaign_identification(
 /// `guarded`), never by dropping it.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
-    let rows = with_store(&ctx.store, move |s| s.observations(id)).await?;
+    let rows = identification_rows(with_store(&ctx.store, move |s| s.measured(id)).await?);
     let setup = with_store(&ctx.store, move |s| SetupResult::load(s, id)).await?;
     let (nominal, opts, travel) = campaign_identification(&ctx.cfg, &ctx.nominal, setup.as_ref());
     let (report, _) =

@@ -24,7 +24,7 @@ use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::identify::{all_params, structural_set, ObsModel};
 use crate::measure::tool_frame::plan_tool_frame;
-use crate::model::RobotModel;
+use crate::model::{RobotModel, SignedAxis};
 use crate::plan::target_ok;
 use crate::store::{Store, StoreError};
 
@@ -181,7 +181,10 @@ pub fn check_resumed(
         .filter(|p| p.set == PoseSet::Ident)
         .count();
     let mut cfg = cfg.clone();
-    cfg.campaign.model = row.model;
+    cfg.campaign.model = match row.model.parse() {
+        Ok(m) => m,
+        Err(_) => return in_file(&cfg, Err(Infeasible::UnknownModel(row.model))),
+    };
     in_file(&cfg, check_campaign(&cfg, nominal, ident))
 }
 
@@ -198,8 +201,7 @@ pub fn check_campaign(
     nominal: &RobotModel,
     ident: usize,
 ) -> Result<(), Infeasible> {
-    let model = ObsModel::parse(&cfg.campaign.model)
-        .ok_or_else(|| Infeasible::UnknownModel(cfg.campaign.model.clone()))?;
+    let model = cfg.campaign.model;
     check_measurable(model, &cfg.stage.axis)?;
     check_tracker(cfg)?;
     check_stage_range(cfg)?;
@@ -208,12 +210,11 @@ pub fn check_campaign(
 }
 
 /// The model is one a 1D stage along `axis` can measure (module doc).
-fn check_measurable(model: ObsModel, axis: &str) -> Result<(), Infeasible> {
-    let along = |a: char| axis.ends_with(a);
+fn check_measurable(model: ObsModel, axis: &SignedAxis) -> Result<(), Infeasible> {
     let reason = match model {
         ObsModel::Position => return Ok(()),
-        ObsModel::Np if along('x') => return Ok(()),
-        ObsModel::Op if along('y') => return Ok(()),
+        ObsModel::Np if axis.is_named_along(0) => return Ok(()),
+        ObsModel::Op if axis.is_named_along(1) => return Ok(()),
         ObsModel::Np => format!("measures flange x (n): stage.axis must be +x or -x, not {axis}"),
         ObsModel::Op => format!("measures flange y (o): stage.axis must be +y or -y, not {axis}"),
         ObsModel::Full => "needs the full flange orientation (n, o and a: a 6-DOF measurement); \

@@ -114,15 +114,8 @@ pub fn iso_report(store: &Store, id: i64) -> Result<IsoReport, IsoResultError> {
     let label = PathBuf::from(format!("campaign {id}.toml"));
     let cfg = parse_cell_config(&row.config_toml, &label)
         .map_err(|e| stored(format!("its stored configuration: {e}")))?;
-    let rows = store.observations(id)?;
-    let indices = rows
-        .iter()
-        .map(|o| {
-            o.id.parse::<usize>()
-                .map_err(|_| stored(format!("visit `{}`", o.id)))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let complete = complete_cycles(indices.iter().copied());
+    let rows = store.measured(id)?;
+    let complete = complete_cycles(rows.iter().map(|m| m.index));
     if complete < 2 {
         return Err(IsoResultError::TooFewCycles { id, complete });
     }
@@ -131,11 +124,10 @@ pub fn iso_report(store: &Store, id: i64) -> Result<IsoReport, IsoResultError> {
     let to_base = base.inverse();
     let visits: Vec<Visit> = rows
         .into_iter()
-        .zip(indices)
-        .map(|(o, index)| Visit {
-            index,
-            p1_mm: to_base.transform_point(&o.p1),
-            p2_mm: o.p2.map(|p| to_base.transform_point(&p)),
+        .map(|m| Visit {
+            index: m.index,
+            p1_mm: to_base.transform_point(&m.p1.position_mm),
+            p2_mm: m.p2.map(|p| to_base.transform_point(&p.position_mm)),
         })
         .collect();
     let axis = setup

@@ -22,6 +22,7 @@ use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::dataset::PoseSet;
+use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
@@ -287,7 +288,7 @@ struct Prepared {
     /// The ISO 9283 plan of an ISO campaign.
     iso: Option<IsoPlan>,
     /// The observation model a resumed campaign was created with.
-    model_of_resumed: Option<String>,
+    model_of_resumed: Option<ObsModel>,
     lock: CampaignLock,
     /// The cell, once [`open_session_with`] has recorded the campaign in it.
     cell: Option<CellLock>,
@@ -421,7 +422,7 @@ fn lock_store(store: &Mutex<Store>) -> Result<std::sync::MutexGuard<'_, Store>, 
 /// A stored campaign that may be resumed.
 struct StoredCampaign {
     id: i64,
-    model: String,
+    model: ObsModel,
     /// The planning seed it was created with.
     seed: u64,
     poses: Vec<PlanEntry>,
@@ -469,7 +470,9 @@ fn stored_campaign(
     };
     Ok(StoredCampaign {
         id: r.id,
-        model: row.model,
+        model: row.model.parse().map_err(|e| {
+            SessionError::Invalid(format!("campaign {}: its stored model: {e}", r.id))
+        })?,
         seed: row.seed,
         poses,
         iso,
@@ -570,7 +573,7 @@ fn store_new_campaign(
             Some(_) => format!("{} {ISO9283_KIND}", nominal.name),
         },
         created_at_ms: now_unix_ms(),
-        model: cfg.campaign.model.clone(),
+        model: cfg.campaign.model.name().to_owned(),
         seed: cfg.campaign.seed,
         config_toml: cfg.text.clone(),
         robot_toml: robot_text,

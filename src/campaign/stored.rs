@@ -14,7 +14,7 @@ use crate::identify::IdentifyOptions;
 use crate::model::{parse_robot, RobotFileError, RobotModel};
 use crate::report::model_file::sha256_hex;
 use crate::report::{corrected_model_toml, BaseSource, IdentifyReport, ModelFileError};
-use crate::store::{Store, StoreError};
+use crate::store::{identification_rows, Store, StoreError};
 
 /// Why a stored campaign cannot be identified.
 #[derive(Debug, thiserror::Error)]
@@ -107,7 +107,10 @@ pub fn load_stored(
     let mut cfg = parse_cell_config(&row.config_toml, &label)
         .map_err(|source| StoredError::Config { id, source })?;
     if row.config_toml.trim().is_empty() {
-        cfg.campaign.model = row.model.clone();
+        // an imported campaign: its recorded model (an unknown name keeps the default, `op`)
+        if let Ok(m) = row.model.parse() {
+            cfg.campaign.model = m;
+        }
     }
     let mut nominal = match robot {
         Some(r) => r,
@@ -133,7 +136,7 @@ pub fn load_stored(
         nominal,
         opts,
         travel_mm,
-        rows: store.observations(id)?,
+        rows: identification_rows(store.measured(id)?),
         setup: csv_setup,
     })
 }

@@ -12,13 +12,13 @@ use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
 use cellcal::dataset::{
-    parse_stage_axis, parse_vec3, read_csv, read_text, CsvSetup, Observation, ReadError, Required,
+    parse_vec3, read_csv, read_text, CsvSetup, Observation, ReadError, Required,
 };
 use cellcal::identify::solver::{Options, DEFAULT_MAX_ITERATIONS};
 use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
-use cellcal::model::RobotModel;
+use cellcal::model::{RobotModel, SignedAxis};
 use cellcal::report::html::{CampaignFacts, InputDigest, Provenance, ReportInput};
 use cellcal::report::model_file::sha256_hex;
 use cellcal::report::{
@@ -82,8 +82,8 @@ pub struct IdentifyArgs {
     model: Option<ModelArg>,
     /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a measured vector X,Y,Z
     /// (normalised). Default: the data's setup, else +x for np and +y otherwise.
-    #[arg(long, value_parser = parse_stage_axis, allow_hyphen_values = true)]
-    stage_axis: Option<Vector3<f64>>,
+    #[arg(long, value_parser = SignedAxis::parse, allow_hyphen_values = true)]
+    stage_axis: Option<SignedAxis>,
     /// Stage travel between P1 and P2 (mm). Default: the data's setup, else 10.
     #[arg(long)]
     stage_travel_mm: Option<f64>,
@@ -476,7 +476,7 @@ fn resolve(
     }
     let mut obs = ObsConfig::new(model, travel);
     if let Some(u) = agree(
-        ("--stage-axis", a.stage_axis),
+        ("--stage-axis", a.stage_axis.map(|s| s.unit())),
         ("stage_axis", setup.stage_axis),
         &origin,
         vectors_differ,

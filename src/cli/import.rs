@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use cellcal::dataset::{parse_csv, Required};
+use cellcal::identify::ObsModel;
 use cellcal::model::load_robot;
 use cellcal::store::{NewCampaign, Store};
 
@@ -23,13 +24,13 @@ pub struct ImportArgs {
     #[arg(long)]
     data: PathBuf,
     /// Observation model recorded with the campaign.
-    #[arg(long, default_value = "op")]
-    model: String,
+    #[arg(long, default_value = "op", value_parser = ObsModel::parse)]
+    model: ObsModel,
 }
 
 /// `cellcal import`: a CSV data set as a new, fully measured campaign.
 pub fn run(a: ImportArgs) -> Result<(), Failure> {
-    let (store, robot, data, model) = (&a.store, &a.robot, &a.data, a.model.as_str());
+    let (store, robot, data, model) = (&a.store, &a.robot, &a.data, a.model.name());
     let m = load_robot(robot).map_err(input)?;
     let text = std::fs::read_to_string(data)
         .with_context(|| format!("{}: cannot read", data.display()))

@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use anyhow::{anyhow, Context};
 use nalgebra::Vector3;
 
-use cellcal::dataset::{parse_stage_axis, parse_vec3, write_csv};
+use cellcal::dataset::{parse_vec3, write_csv};
 use cellcal::model::rotation::{from_rotation_vector, to_rotation_vector};
+use cellcal::model::SignedAxis;
 use cellcal::model::{load_robot, RobotModel};
 use cellcal::simulate::{self, truth, SimConfig, TrackerNoise};
 
@@ -41,8 +42,8 @@ pub struct SimArgs {
     #[arg(long, default_value_t = 1)]
     error_seed: u64,
     /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a vector X,Y,Z (normalised).
-    #[arg(long, value_parser = parse_stage_axis, default_value = "+y", allow_hyphen_values = true)]
-    stage_axis: Vector3<f64>,
+    #[arg(long, value_parser = SignedAxis::parse, default_value = "+y", allow_hyphen_values = true)]
+    stage_axis: SignedAxis,
     /// Stage travel (mm).
     #[arg(long, default_value_t = 10.0)]
     stage_travel_mm: f64,
@@ -204,7 +205,7 @@ fn sim_config(a: &SimArgs, tracker_pos: Vector3<f64>) -> SimConfig {
         tracker: (!a.no_noise).then(|| TrackerNoise::at960(tracker_pos)),
         joint_jitter_rad: if a.no_noise { 0.0 } else { a.joint_jitter_rad },
         stage_travel_mm: a.stage_travel_mm,
-        stage_axis: a.stage_axis,
+        stage_axis: a.stage_axis.unit(),
         stage_misalignment_rad: a.stage_misalignment_mrad.unwrap_or_else(Vector3::zeros) / 1000.0,
         stage_cross_mm_per_mm: a.stage_cross_mm_per_mm,
         stage_repeatability_mm: a.stage_repeatability_mm,

@@ -9,6 +9,7 @@ use crate::auth::{Role, TokenDigest};
 use crate::identify::ObsModel;
 use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
+use crate::model::SignedAxis;
 
 /// Why a configuration could not be loaded (names the file and the key).
 pub type ConfigError = crate::model::file::FileError;
@@ -127,7 +128,7 @@ pub struct StageSection {
     /// Travel from P1 to P2 (mm).
     pub travel_mm: f64,
     /// Stage axis in the flange frame: `+x`, `-x`, `+y` or `-y`.
-    pub axis: String,
+    pub axis: SignedAxis,
     /// Accepted difference between requested and read stage position (mm).
     pub tolerance_mm: f64,
     /// Usable range of the stage or micrometer, `[min, max]` (mm): P1 and P1 + travel must lie
@@ -148,7 +149,7 @@ impl Default for StageSection {
             microsteps_per_mm: None,
             p1_mm: 0.0,
             travel_mm: 10.0,
-            axis: "+y".into(),
+            axis: SignedAxis::PLUS_Y,
             tolerance_mm: 0.02,
             range_mm: [0.0, 25.0],
             confirm_clear: None,
@@ -159,13 +160,8 @@ impl Default for StageSection {
 impl StageSection {
     /// The stage axis as a unit vector in the flange frame.
     pub fn axis_vector(&self) -> Option<Vector3<f64>> {
-        match self.axis.as_str() {
-            "+x" => Some(Vector3::x()),
-            "-x" => Some(-Vector3::x()),
-            "+y" => Some(Vector3::y()),
-            "-y" => Some(-Vector3::y()),
-            _ => None,
-        }
+        let named = self.axis.is_named_along(0) || self.axis.is_named_along(1);
+        named.then(|| self.axis.unit())
     }
 
     /// Whether the technician confirms the cell clear before the robot moves after a manual
@@ -190,7 +186,7 @@ pub struct CampaignSection {
     /// Planning seed.
     pub seed: u64,
     /// Observation model: `position`, `np`, `op` or `full`.
-    pub model: String,
+    pub model: ObsModel,
     /// Minimum wrist angle from the singular configuration (deg).
     pub wrist_min_deg: f64,
     /// Every frame origin above this height (mm).
@@ -219,7 +215,7 @@ impl Default for CampaignSection {
             poses: 300,
             ident: 100,
             seed: 4802,
-            model: "op".into(),
+            model: ObsModel::Op,
             wrist_min_deg: 10.0,
             floor_z_mm: -300.0,
             path_margin_mm: 100.0,
@@ -291,7 +287,7 @@ pub struct Iso9283Section {
     pub diagonal_fraction: f64,
     /// Direction of the last motion into every pose, robot base frame: `+x`, `-x`, `+y`, `-y`,
     /// `+z` or `-z` (`-z`: from above).
-    pub approach: String,
+    pub approach: SignedAxis,
     /// Length of that last motion from the pre-pose (mm).
     pub approach_mm: f64,
     /// Robot speed of the campaign (percent; ISO uses 100, 50 and 10 % of rated speed); unset:
@@ -315,7 +311,7 @@ impl Default for Iso9283Section {
         Iso9283Section {
             cycles: 30,
             diagonal_fraction: 0.1,
-            approach: "-z".into(),
+            approach: SignedAxis::MINUS_Z,
             approach_mm: 50.0,
             speed_pct: None,
             measure_axis: true,
@@ -330,17 +326,7 @@ impl Default for Iso9283Section {
 impl Iso9283Section {
     /// The approach direction as a unit vector (robot base frame).
     pub fn approach_vector(&self) -> Option<Vector3<f64>> {
-        let axis = match self.approach.get(1..) {
-            Some("x") => Vector3::x(),
-            Some("y") => Vector3::y(),
-            Some("z") => Vector3::z(),
-            _ => return None,
-        };
-        match self.approach.get(..1) {
-            Some("+") => Some(axis),
-            Some("-") => Some(-axis),
-            _ => None,
-        }
+        self.approach.name().map(|_| self.approach.unit())
     }
 
     /// The ISO rules: at least 2 cycles, a fraction in (0, 0.5), a known approach axis, a
@@ -547,7 +533,7 @@ pub struct CellConfig {
 impl CellConfig {
     /// The configured observation model.
     pub fn model(&self) -> ObsModel {
-        ObsModel::parse(&self.campaign.model).unwrap_or(ObsModel::Op)
+        self.campaign.model
     }
 
     /// Whether any device is simulated.
@@ -749,11 +735,6 @@ impl CampaignSection {
     /// zero. The daemon applies the same rules to its overrides.
     pub fn check(&self) -> Result<(), InvalidKey> {
         rule(
-            ObsModel::parse(&self.model).is_some(),
-            "campaign.model",
-            format!("`{}` is not one of position, np, op, full", self.model),
-        )?;
-        rule(
             self.poses <= MAX_POSES,
             "campaign.poses",
             format!("at most {MAX_POSES}, got {}", self.poses),
@@ -888,6 +869,10 @@ mod tests {
                 "campaign.path_margin_mm",
             ),
             ("[stage]\naxis = \"+z\"\n", "stage.axis"),
+            ("[stage]\naxis = \"0,0,0\"\n", "stage.axis"),
+            ("[stage]\naxis = \"nan,1,0\"\n", "stage.axis"),
+            ("[stage]\naxis = \"0,1,0\"\n", "stage.axis"),
+            ("[campaign]\nmodel = \"NP\"\n", "campaign.model"),
             (
                 "[robot_controller]\nspeed_pct = 150\n",
                 "robot_controller.speed_pct",

@@ -19,6 +19,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::identify::observation::ObsModel;
 use crate::identify::problem::{join_parts, split_map};
+use crate::model::SignedAxis;
 
 /// Identification or verification set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -199,30 +200,6 @@ pub fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
     Ok(Vector3::new(v[0], v[1], v[2]))
 }
 
-/// A stage axis: `+x`, `-x`, `+y`, `-y`, `+z`, `-z`, or a measured vector `X,Y,Z`, normalised
-/// (a vector already unit to 1e-12 is kept bit for bit, so a stored axis reads back exactly);
-/// a zero or non-finite vector is an error.
-pub fn parse_stage_axis(s: &str) -> Result<Vector3<f64>, String> {
-    let named = match s.trim() {
-        "+x" => Some(Vector3::x()),
-        "-x" => Some(-Vector3::x()),
-        "+y" => Some(Vector3::y()),
-        "-y" => Some(-Vector3::y()),
-        "+z" => Some(Vector3::z()),
-        "-z" => Some(-Vector3::z()),
-        _ => None,
-    };
-    if let Some(v) = named {
-        return Ok(v);
-    }
-    let v = parse_vec3(s).map_err(|e| format!("{e} (or one of +x, -x, +y, -y, +z, -z)"))?;
-    let n = v.norm();
-    if !(n.is_finite() && n > 1e-9) {
-        return Err(format!("`{s}`: the stage axis must be a non-zero vector"));
-    }
-    Ok(if (n - 1.0).abs() <= 1e-12 { v } else { v / n })
-}
-
 /// The setup header of a data set: the `# key = value` lines among the comment lines before
 /// the header row (other comment lines are ignored; nothing after the header row is read).
 pub fn parse_setup_header(text: &str) -> Result<CsvSetup, CsvError> {
@@ -251,7 +228,11 @@ pub fn parse_setup_header(text: &str) -> Result<CsvSetup, CsvError> {
         let taken = match key {
             "stage_axis" => setup
                 .stage_axis
-                .replace(parse_stage_axis(value).map_err(bad)?)
+                .replace(
+                    SignedAxis::parse(value)
+                        .map_err(|e| bad(e.to_string()))?
+                        .unit(),
+                )
                 .is_some(),
             "tool_mm" => setup
                 .tool_mm
@@ -947,16 +928,6 @@ mod tests {
         }
         let e = h("# tool_mm = 0,0,60\n# tool_mm = 0,0,61\n").unwrap_err();
         assert_eq!(e.to_string(), "line 2: header `tool_mm` given twice");
-    }
-
-    #[test]
-    fn stage_axis_names_and_vectors() {
-        assert_eq!(parse_stage_axis("+z"), Ok(Vector3::z()));
-        assert_eq!(parse_stage_axis("-x"), Ok(-Vector3::x()));
-        let u = parse_stage_axis("3,0,4").unwrap();
-        assert_eq!(u, Vector3::new(0.6, 0.0, 0.8));
-        assert!(parse_stage_axis("y").is_err());
-        assert!(parse_stage_axis("1,inf,0").is_err());
     }
 
     /// A data set with rotation columns; `cell` replaces the `n_y` of row `bad`.

@@ -274,9 +274,8 @@ pub fn initial_model(
             })
             .collect();
         let b: Vec<Vector3<f64>> = poses.iter().map(|p| p.p1).collect();
-        let (r, t) = fit_rigid(&a, &b).map_err(|e| IdentifyError::Registration(e.to_string()))?;
-        m.base_rotation = r;
-        m.base_translation = t;
+        let base = fit_rigid(&a, &b).map_err(|e| IdentifyError::Registration(e.to_string()))?;
+        m.set_base(base);
     }
     Ok(m)
 }

@@ -19,8 +19,10 @@ thread_local! {
     static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
 }
 
-/// Which quantities the identification uses.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// Which quantities the identification uses; spelled `position`, `np`, `op`, `full` in every
+/// file, flag and body (serde, [`FromStr`](std::str::FromStr), [`Display`](std::fmt::Display)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum ObsModel {
     /// Position of the ball only.
     Position,
@@ -43,15 +45,17 @@ impl ObsModel {
         }
     }
 
-    /// Parse a contract name.
-    pub fn parse(s: &str) -> Option<ObsModel> {
-        match s {
-            "position" => Some(ObsModel::Position),
-            "np" => Some(ObsModel::Np),
-            "op" => Some(ObsModel::Op),
-            "full" => Some(ObsModel::Full),
-            _ => None,
-        }
+    /// Parse a contract name (exact spelling).
+    pub fn parse(s: &str) -> Result<ObsModel, UnknownModel> {
+        [
+            ObsModel::Position,
+            ObsModel::Np,
+            ObsModel::Op,
+            ObsModel::Full,
+        ]
+        .into_iter()
+        .find(|m| m.name() == s)
+        .ok_or_else(|| UnknownModel(s.to_owned()))
     }
 
     /// Residual rows per pose.
@@ -87,6 +91,25 @@ impl ObsModel {
         self != ObsModel::Position
     }
 }
+
+impl std::str::FromStr for ObsModel {
+    type Err = UnknownModel;
+    fn from_str(s: &str) -> Result<ObsModel, UnknownModel> {
+        ObsModel::parse(s)
+    }
+}
+
+impl std::fmt::Display for ObsModel {
+    /// The contract name.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A name that is not an observation model.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("`{0}` is not one of position, np, op, full")]
+pub struct UnknownModel(pub String);
 
 /// How observations are turned into residuals.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -363,6 +386,29 @@ impl Columns<'_> {
 mod tests {
     use super::*;
     use crate::identify::params::{all_params, retract};
+
+    #[test]
+    fn model_names_parse_once_and_unknown_ones_are_refused_clearly() {
+        for m in [
+            ObsModel::Position,
+            ObsModel::Np,
+            ObsModel::Op,
+            ObsModel::Full,
+        ] {
+            assert_eq!(m.name().parse::<ObsModel>(), Ok(m));
+            assert_eq!(m.to_string(), m.name());
+            let json = serde_json::to_string(&m).unwrap();
+            assert_eq!(json, format!("\"{}\"", m.name()));
+            assert_eq!(serde_json::from_str::<ObsModel>(&json).unwrap(), m);
+        }
+        for bad in ["xyz", "OP", " op", "", "nan"] {
+            assert_eq!(
+                ObsModel::parse(bad).unwrap_err().to_string(),
+                format!("`{bad}` is not one of position, np, op, full")
+            );
+            assert!(serde_json::from_str::<ObsModel>(&format!("\"{bad}\"")).is_err());
+        }
+    }
     use crate::model::rotation::from_rotation_vector;
     use proptest::prelude::*;
 

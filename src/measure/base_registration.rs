@@ -7,7 +7,7 @@
 //! (~0.5–1 mm), and the transform absorbs part of it. That is expected; the identification
 //! refines the base afterwards.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use super::rigid::{fit_rigid, RigidFitError};
 use super::tool_frame::ToolFrame;
@@ -17,10 +17,8 @@ use crate::model::RobotModel;
 /// A fitted base transform with its residuals.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BaseRegistration {
-    /// Rotation robot base → tracker frame.
-    pub rotation: Matrix3<f64>,
-    /// Translation robot base → tracker frame (mm).
-    pub translation: Vector3<f64>,
+    /// The robot base in the tracker frame (tracker ← robot base).
+    pub base: Pose,
     /// Per-point residual `measured − R·nominal − t` (mm, tracker frame), in input order.
     pub residuals_mm: Vec<Vector3<f64>>,
     /// RMS of the residual norms (mm).
@@ -32,19 +30,14 @@ pub struct BaseRegistration {
 impl BaseRegistration {
     /// The transform as a pose (tracker ← base).
     pub fn pose(&self) -> Pose {
-        Pose {
-            r: self.rotation,
-            p: self.translation,
-        }
+        self.base
     }
 
     /// The model with this base transform.
     pub fn apply_to(&self, model: &RobotModel) -> RobotModel {
-        RobotModel {
-            base_rotation: self.rotation,
-            base_translation: self.translation,
-            ..model.clone()
-        }
+        let mut m = model.clone();
+        m.set_base(self.base);
+        m
     }
 }
 
@@ -94,18 +87,17 @@ pub fn register_base(
     }
     let a: Vec<Vector3<f64>> = pairs.iter().map(|(q, _)| nominal_ball(model, q)).collect();
     let b: Vec<Vector3<f64>> = pairs.iter().map(|(_, p)| *p).collect();
-    let (rotation, translation) = fit_rigid(&a, &b)?;
+    let base = fit_rigid(&a, &b)?;
     let residuals_mm: Vec<Vector3<f64>> = a
         .iter()
         .zip(&b)
-        .map(|(x, y)| y - (rotation * x + translation))
+        .map(|(x, y)| y - base.transform_point(x))
         .collect();
     let n = residuals_mm.len() as f64;
     let rms_mm = (residuals_mm.iter().map(|r| r.norm_squared()).sum::<f64>() / n).sqrt();
     let max_mm = residuals_mm.iter().fold(0.0, |m: f64, r| m.max(r.norm()));
     Ok(BaseRegistration {
-        rotation,
-        translation,
+        base,
         residuals_mm,
         rms_mm,
         max_mm,
@@ -202,8 +194,8 @@ mod tests {
             })
             .collect();
         let reg = register_base(&m, &pairs).expect("registers");
-        assert!((reg.rotation - m.base_rotation).norm() < 1e-12);
-        assert!((reg.translation - m.base_translation).norm() < 1e-9);
+        assert!((reg.base.r - m.base_rotation).norm() < 1e-12);
+        assert!((reg.base.p - m.base_translation).norm() < 1e-9);
         assert!(reg.rms_mm < 1e-9 && reg.max_mm < 1e-9);
         assert_eq!(reg.residuals_mm.len(), 12);
         let applied = reg.apply_to(&m);

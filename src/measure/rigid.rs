@@ -2,6 +2,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::model::Pose;
+
 /// Why a rigid fit failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RigidFitError {
@@ -13,11 +15,8 @@ pub enum RigidFitError {
     Degenerate,
 }
 
-/// Best rigid transform mapping points `a` onto points `b`.
-pub fn fit_rigid(
-    a: &[Vector3<f64>],
-    b: &[Vector3<f64>],
-) -> Result<(Matrix3<f64>, Vector3<f64>), RigidFitError> {
+/// Best rigid transform mapping points `a` onto points `b` (`b ≈ T·a`).
+pub fn fit_rigid(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Result<Pose, RigidFitError> {
     if a.len() != b.len() || a.len() < 3 {
         return Err(RigidFitError::TooFewPoints(a.len().min(b.len())));
     }
@@ -43,7 +42,7 @@ pub fn fit_rigid(
         d[(2, 2)] = -1.0;
     }
     let r = v * d * u.transpose();
-    Ok((r, cb - r * ca))
+    Ok(Pose { r, p: cb - r * ca })
 }
 
 #[cfg(test)]
@@ -65,8 +64,8 @@ mod tests {
             })
             .collect();
         let b: Vec<_> = a.iter().map(|x| r * x + t).collect();
-        let (rf, tf) = fit_rigid(&a, &b).unwrap();
-        assert!((rf - r).norm() < 1e-10 && (tf - t).norm() < 1e-7);
+        let fit = fit_rigid(&a, &b).unwrap();
+        assert!((fit.r - r).norm() < 1e-10 && (fit.p - t).norm() < 1e-7);
     }
 
     #[test]

@@ -6,6 +6,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::kinematics::Pose;
+
 /// One joint's MDH parameters (θ offset and angles in rad, lengths in mm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Mdh {
@@ -130,6 +132,20 @@ pub struct RobotModel {
 }
 
 impl RobotModel {
+    /// The robot base in the measurement frame (measurement ← base).
+    pub fn base(&self) -> Pose {
+        Pose {
+            r: self.base_rotation,
+            p: self.base_translation,
+        }
+    }
+
+    /// Set the base (measurement ← base).
+    pub fn set_base(&mut self, base: Pose) {
+        self.base_rotation = base.r;
+        self.base_translation = base.p;
+    }
+
     /// Number of joints.
     pub fn dof(&self) -> usize {
         self.joints.len()

@@ -6,11 +6,17 @@
 //! along an axis. [`Frames::screws`] returns these axes for all 5n parameters in the robot base
 //! frame; the identification builds every Jacobian from them.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 use super::chain::{Mdh, RobotModel};
+use super::rotation::{from_rotation_vector, to_rotation_vector};
 
-/// A rigid transform: rotation and translation (mm).
+/// The one rigid-transform type (`x ↦ r·x + p`): a link, the flange, the robot base in the
+/// measurement frame, a fitted registration, a tracker frame segment into the first. Rotation
+/// as a matrix (what the MDH chain, its Jacobians and the stored frames compute with, so every
+/// result stays bit for bit); files and JSON keep their own spellings (rotation vector,
+/// `translation_mm`) and convert at the edge ([`Pose::from_rotation_vector`],
+/// [`Pose::rotation_vector`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
     /// Rotation; columns are the frame's x (n), y (o), z (a) axes.
@@ -48,6 +54,30 @@ impl Pose {
     /// Apply to a point.
     pub fn transform_point(&self, x: &Vector3<f64>) -> Vector3<f64> {
         self.r * x + self.p
+    }
+
+    /// Apply to a direction (rotation only).
+    pub fn transform_vector(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        self.r * v
+    }
+
+    /// The transform of rotation vector `rotation_vector_rad` (exponential map) and
+    /// translation `p`.
+    pub fn from_rotation_vector(rotation_vector_rad: &Vector3<f64>, p: Vector3<f64>) -> Pose {
+        Pose {
+            r: from_rotation_vector(rotation_vector_rad),
+            p,
+        }
+    }
+
+    /// The rotation as a rotation vector (rad; logarithm map).
+    pub fn rotation_vector(&self) -> Vector3<f64> {
+        to_rotation_vector(&self.r)
+    }
+
+    /// The rotation angle (rad, in [0, π]).
+    pub fn rotation_angle(&self) -> f64 {
+        Rotation3::from_matrix_unchecked(self.r).angle()
     }
 }
 
@@ -339,6 +369,27 @@ pub fn measured_rotation(model: &RobotModel, q: &[f64]) -> Matrix3<f64> {
 mod tests {
     use super::*;
     use crate::model::tx60;
+
+    #[test]
+    fn a_pose_is_the_rigid_transform_of_its_rotation_vector_and_translation() {
+        let rv = Vector3::new(0.3, -0.2, 1.1);
+        let t = Vector3::new(2400.0, -30.0, 700.0);
+        let a = Pose::from_rotation_vector(&rv, t);
+        assert!((a.rotation_vector() - rv).norm() < 1e-14);
+        assert!((a.rotation_angle() - rv.norm()).abs() < 1e-14);
+        let x = Vector3::new(1.0, 2.0, 3.0);
+        assert_eq!(a.transform_point(&x), a.r * x + t);
+        assert_eq!(a.transform_vector(&x), a.r * x);
+        // inverse and composition
+        let back = a.inverse().compose(&a);
+        assert!((back.r - Matrix3::identity()).norm() < 1e-14 && back.p.norm() < 1e-12);
+        assert!(back.rotation_angle() < 1e-7);
+        // the robot base of a model is one
+        let mut m = tx60();
+        m.set_base(a);
+        assert_eq!(m.base(), a);
+        assert_eq!((m.base_rotation, m.base_translation), (a.r, a.p));
+    }
 
     #[test]
     fn candle_pose() {

@@ -3,6 +3,7 @@
 //!
 //! Pure code: no I/O except [`file::load_robot`], which reads one TOML file.
 
+pub mod axis;
 pub mod chain;
 pub mod checked_toml;
 pub mod file;
@@ -10,6 +11,7 @@ pub mod ik;
 pub mod kinematics;
 pub mod rotation;
 
+pub use axis::{AxisError, SignedAxis};
 pub use chain::{JointLimit, Mdh, ParamKind, RobotModel};
 pub use file::{load_robot, parse_robot, FileError, RobotFileError};
 pub use ik::{solve_flange, solve_motion, FlangeMotion, IkError, IkOptions, IkSolution};

@@ -100,10 +100,10 @@ pub struct BaseFrame {
 impl BaseFrame {
     /// The pose tracker ← robot base.
     pub fn pose(&self) -> Pose {
-        Pose {
-            r: from_rotation_vector(&Vector3::from(self.rotation_vector_rad)),
-            p: Vector3::from(self.translation_mm),
-        }
+        Pose::from_rotation_vector(
+            &Vector3::from(self.rotation_vector_rad),
+            Vector3::from(self.translation_mm),
+        )
     }
 }
 

@@ -129,10 +129,10 @@ pub struct Verdict {
 /// Independent measured values per pose: position 3, a unit direction 2 more, a rotation 3 more.
 fn values_per_pose(model: &str) -> usize {
     match ObsModel::parse(model) {
-        Some(ObsModel::Position) => 3,
-        Some(ObsModel::Np | ObsModel::Op) => 5,
-        Some(ObsModel::Full) => 6,
-        None => 3,
+        Ok(ObsModel::Position) => 3,
+        Ok(ObsModel::Np | ObsModel::Op) => 5,
+        Ok(ObsModel::Full) => 6,
+        Err(_) => 3,
     }
 }
 

@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::model::SignedAxis;
+
 /// How the target-ball stage is simulated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -52,8 +54,8 @@ pub struct SimWorldConfig {
     pub seed: u64,
     /// Joint repeatability σ (rad), drawn per move.
     pub joint_jitter_rad: f64,
-    /// Nominal stage axis in the flange frame: `+x`, `-x`, `+y`, `-y`, `+z`, `-z`.
-    pub stage_axis: String,
+    /// Nominal stage axis in the flange frame: `+x`, `-x`, `+y`, `-y`, `+z`, `-z` (or `X,Y,Z`).
+    pub stage_axis: SignedAxis,
     /// Misalignment of the real stage axis, rotation vector (mrad).
     pub stage_misalignment_mrad: [f64; 3],
     /// Systematic cross-travel deviation (mm per mm of travel).
@@ -111,7 +113,7 @@ impl Default for SimWorldConfig {
             error_seed: 1,
             seed: 4802,
             joint_jitter_rad: 1.2746e-5,
-            stage_axis: "+y".into(),
+            stage_axis: SignedAxis::PLUS_Y,
             stage_misalignment_mrad: [0.0; 3],
             stage_cross_mm_per_mm: 0.0,
             stage_repeatability_mm: 0.0,

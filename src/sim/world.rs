@@ -137,19 +137,6 @@ pub struct World {
     pub faults: WorldFaults,
 }
 
-/// Parse a stage axis token (`+x`, `-y`, …).
-pub fn parse_axis(s: &str) -> Option<Vector3<f64>> {
-    Some(match s.trim() {
-        "+x" | "x" => Vector3::x(),
-        "-x" => -Vector3::x(),
-        "+y" | "y" => Vector3::y(),
-        "-y" => -Vector3::y(),
-        "+z" | "z" => Vector3::z(),
-        "-z" => -Vector3::z(),
-        _ => return None,
-    })
-}
-
 fn gauss<R: Rng>(rng: &mut R) -> f64 {
     StandardNormal.sample(rng)
 }
@@ -170,12 +157,7 @@ impl World {
         cfg: &SimWorldConfig,
         stage: StageSource,
     ) -> Result<World, SimError> {
-        let u = parse_axis(&cfg.stage_axis).ok_or_else(|| {
-            SimError::Config(format!(
-                "stage_axis `{}`: expected +x, -x, +y, -y, +z or -z",
-                cfg.stage_axis
-            ))
-        })?;
+        let u = cfg.stage_axis.unit();
         let mis = Vector3::from(cfg.stage_misalignment_mrad) / 1000.0;
         let u_actual = from_rotation_vector(&mis) * u;
         let cross_dir = {

@@ -4,7 +4,7 @@
 //! with the rigid transform of its frame into segment 0's; a measurement belongs to the segment
 //! whose reference row is the last one at or before its own row id.
 
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 use rusqlite::{params, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
@@ -12,13 +12,14 @@ use super::error::{Ctx, StoreError};
 use super::measurements::read_point;
 use super::records::{from_sql_index, to_sql_index, PointRecord};
 use super::Store;
+use crate::model::Pose;
 
 /// Where a re-registered segment's tracker frame lies in segment 0's, and how well the common
 /// points agreed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameTransform {
     /// Segment 0 ← this segment (p₀ = T · pₖ).
-    pub to_first: Isometry3<f64>,
+    pub to_first: Pose,
     /// RMS residual of the common points after the fit (mm).
     pub rms_mm: f64,
     /// Largest residual (mm).
@@ -39,9 +40,8 @@ struct TransformJson {
 
 impl FrameTransform {
     fn to_json(&self) -> Result<String, StoreError> {
-        let r = self.to_first.rotation.to_rotation_matrix();
-        let m = r.matrix();
-        let t = self.to_first.translation.vector;
+        let m = &self.to_first.r;
+        let t = self.to_first.p;
         let j = TransformJson {
             rotation: [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]),
             translation_mm: [t.x, t.y, t.z],
@@ -62,13 +62,11 @@ impl FrameTransform {
         let j: TransformJson = serde_json::from_str(text)
             .map_err(|e| StoreError::Corrupt(format!("frame transform: {e}")))?;
         let m = Matrix3::from_fn(|i, k| j.rotation[i][k]);
-        let r = Rotation3::from_matrix(&m);
-        let [x, y, z] = j.translation_mm;
         Ok(FrameTransform {
-            to_first: Isometry3::from_parts(
-                Translation3::new(x, y, z),
-                UnitQuaternion::from_rotation_matrix(&r),
-            ),
+            to_first: Pose {
+                r: Rotation3::from_matrix(&m).into_inner(),
+                p: Vector3::from(j.translation_mm),
+            },
             rms_mm: j.rms_mm,
             max_mm: j.max_mm,
             points: j.points,
@@ -93,17 +91,17 @@ pub struct JointPoint {
 }
 
 /// Segment 0 ← the frame of the measurement at `row`, given the segments (oldest first).
-pub fn to_first_frame(refs: &[FrameRef], row: i64) -> Isometry3<f64> {
+pub fn to_first_frame(refs: &[FrameRef], row: i64) -> Pose {
     refs.iter()
         .rev()
         .find(|r| r.measurement_id <= row)
         .and_then(|r| r.to_first.as_ref())
-        .map_or_else(Isometry3::identity, |t| t.to_first)
+        .map_or_else(Pose::identity, |t| t.to_first)
 }
 
 /// `p` (tracker frame of its segment) in segment 0's frame.
-pub fn map_point(t: &Isometry3<f64>, p: Vector3<f64>) -> Vector3<f64> {
-    t.transform_point(&p.into()).coords
+pub fn map_point(t: &Pose, p: Vector3<f64>) -> Vector3<f64> {
+    t.transform_point(&p)
 }
 
 /// One frame segment of a campaign.

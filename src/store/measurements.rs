@@ -14,12 +14,76 @@ use super::records::{
 };
 use super::Store;
 use crate::dataset::{Observation, PoseSet};
+use crate::model::Pose;
 
 /// State given to campaigns made by [`Store::import_observations`].
 pub const IMPORTED_STATE: &str = "imported";
 
 const POINT_COLUMNS: &str = "x_mm, y_mm, z_mm, std_x_mm, std_y_mm, std_z_mm, std_total_mm, \
      temperature_c, pressure_mbar, humidity_pct, stage_mm, sent_at_ms, received_at_ms, joints_rad";
+
+/// One tracker point of a measured pose as recorded, in the campaign's first tracker frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasuredPoint {
+    /// Ball position (mm, the campaign's first tracker frame).
+    pub position_mm: Vector3<f64>,
+    /// Stage position when measured (mm); `None` when not recorded (an imported data set).
+    pub stage_mm: Option<f64>,
+    /// The tracker's total standard deviation of the point (mm); `None` when not recorded.
+    /// (The per-axis σ stays in the raw [`PointRecord`]: its axes are the tracker frame of
+    /// the point's segment, not the first frame.)
+    pub sigma_mm: Option<f64>,
+}
+
+impl MeasuredPoint {
+    /// The stored point `p` mapped by `to_first` into the first frame; NaN ("not recorded")
+    /// becomes `None`.
+    fn of(to_first: &Pose, p: &PointRecord) -> MeasuredPoint {
+        let recorded = |v: f64| Some(v).filter(|v| !v.is_nan());
+        MeasuredPoint {
+            position_mm: map_point(to_first, Vector3::new(p.x_mm, p.y_mm, p.z_mm)),
+            stage_mm: recorded(p.stage_mm),
+            sigma_mm: recorded(p.std_total_mm),
+        }
+    }
+}
+
+/// A completely measured plan pose as the store keeps it ([`Store::measured`]): what was
+/// measured, not a data-set row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredPose {
+    /// Plan pose index.
+    pub index: usize,
+    /// Identification or verification set (from the plan).
+    pub set: PoseSet,
+    /// Joint values read from the controller after settling (rad).
+    pub joints_rad: Vec<f64>,
+    /// Ball at stage position P1.
+    pub p1: MeasuredPoint,
+    /// Ball at stage position P2, when the stage direction was measured.
+    pub p2: Option<MeasuredPoint>,
+}
+
+impl From<MeasuredPose> for Observation {
+    /// The identification row of a measured pose: `id` = pose index, no rotation, `line` 0.
+    fn from(m: MeasuredPose) -> Observation {
+        Observation {
+            line: 0,
+            id: m.index.to_string(),
+            set: m.set,
+            q: m.joints_rad,
+            p1: m.p1.position_mm,
+            p2: m.p2.map(|p| p.position_mm),
+            rotation: None,
+        }
+    }
+}
+
+/// The identification input of a campaign's measured poses (`cellcal export`, `identify
+/// --store`, the engine): the one place a [`MeasuredPose`] becomes a data-set row.
+pub fn identification_rows(poses: Vec<MeasuredPose>) -> Vec<Observation> {
+    poses.into_iter().map(Observation::from).collect()
+}
 
 /// Insert one measurement row; returns its id.
 fn insert_point(
@@ -315,27 +379,25 @@ impl Store {
             .collect()
     }
 
-    /// The campaign's measured poses as data-set rows, in plan (move) order: `id` = pose
-    /// index, `set` from the plan, `q` = joints read after settling, `p1`, `p2` (when
-    /// measured), no rotation, `line` 0; every point in segment 0's tracker frame (a
-    /// re-registered segment's points mapped by its stored transform). This is what
-    /// `cellcal export` writes and what identification consumes.
-    pub fn observations(&self, id: i64) -> Result<Vec<Observation>, StoreError> {
+    /// The campaign's measured poses as measured, in plan (move) order: set from the plan,
+    /// joints read after settling, P1 and P2 with their recorded stage positions and the
+    /// tracker's σ, every point in segment 0's tracker frame (a re-registered segment's points
+    /// mapped by its stored transform). What `cellcal export`, the measurements route and
+    /// identification ([`identification_rows`]) read.
+    pub fn measured(&self, id: i64) -> Result<Vec<MeasuredPose>, StoreError> {
         let refs = self.frame_refs(id)?;
         Ok(self
             .measured_rows(id)?
             .into_iter()
             .map(|(set, m, p1_row)| {
                 let t = to_first_frame(&refs, p1_row);
-                let v = |p: PointRecord| map_point(&t, Vector3::new(p.x_mm, p.y_mm, p.z_mm));
-                Observation {
-                    line: 0,
-                    id: m.index.to_string(),
+                let point = |p: PointRecord| MeasuredPoint::of(&t, &p);
+                MeasuredPose {
+                    index: m.index,
                     set,
-                    q: m.joints_rad,
-                    p1: v(m.p1),
-                    p2: m.p2.map(v),
-                    rotation: None,
+                    joints_rad: m.joints_rad,
+                    p1: point(m.p1),
+                    p2: m.p2.map(point),
                 }
             })
             .collect())
@@ -399,5 +461,108 @@ impl Store {
         }
         tx.commit().ctx("commit import")?;
         Ok(id)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::schema::MIGRATIONS;
+    use crate::store::tests::setup;
+
+    fn recorded(x: f64, stage_mm: f64, sigma_mm: f64) -> PointRecord {
+        PointRecord {
+            stage_mm,
+            std_mm: [0.001, 0.002, 0.003],
+            std_total_mm: sigma_mm,
+            ..PointRecord::position_only(x, -2.5, 1.0 / 3.0, 7)
+        }
+    }
+
+    #[test]
+    fn a_measured_pose_keeps_stage_positions_and_the_trackers_sigma() {
+        let mut s = Store::open_in_memory().unwrap();
+        let id = setup(&mut s);
+        let q = vec![0.1, -0.2, 0.3, 0.4, -0.5, 0.6];
+        s.commit_pose(
+            id,
+            &PoseMeasurement {
+                index: 1,
+                joints_rad: q.clone(),
+                p1: recorded(1.5, 2.25, 0.0041),
+                p2: Some(recorded(11.5, 12.25, 0.0052)),
+            },
+        )
+        .unwrap();
+        s.commit_pose(
+            id,
+            &PoseMeasurement {
+                index: 0,
+                joints_rad: q.clone(),
+                p1: PointRecord::position_only(3.0, 4.0, 5.0, 9),
+                p2: None,
+            },
+        )
+        .unwrap();
+        let got = s.measured(id).unwrap();
+        assert_eq!(
+            got[1],
+            MeasuredPose {
+                index: 1,
+                set: PoseSet::Ident,
+                joints_rad: q.clone(),
+                p1: MeasuredPoint {
+                    position_mm: Vector3::new(1.5, -2.5, 1.0 / 3.0),
+                    stage_mm: Some(2.25),
+                    sigma_mm: Some(0.0041),
+                },
+                p2: Some(MeasuredPoint {
+                    position_mm: Vector3::new(11.5, -2.5, 1.0 / 3.0),
+                    stage_mm: Some(12.25),
+                    sigma_mm: Some(0.0052),
+                }),
+            }
+        );
+        // what was not recorded reads back as not recorded, not as a number
+        assert_eq!(got[0].p1.stage_mm, None);
+        assert_eq!(got[0].p1.sigma_mm, None);
+        assert_eq!(got[0].p2, None);
+        // the identification row of it: the same joints and points, id = pose index
+        let rows = identification_rows(got);
+        assert_eq!(rows[1].id, "1");
+        assert_eq!(rows[1].q, q);
+        assert_eq!(rows[1].p2, Some(Vector3::new(11.5, -2.5, 1.0 / 3.0)));
+    }
+
+    #[test]
+    fn a_store_written_by_the_first_schema_reads_as_measured_poses() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("v1.db");
+        {
+            // a store as the first cellcal wrote it: schema version 1, rows by hand
+            let c = rusqlite::Connection::open(&path).unwrap();
+            c.execute_batch(MIGRATIONS[0]).unwrap();
+            c.pragma_update(None, "user_version", 1).unwrap();
+            c.execute_batch(
+                "INSERT INTO campaigns VALUES (1, 'old', 0, 'done', 'np', 4, '', '');
+                 INSERT INTO plan_poses VALUES (1, 0, 'verify', 0, '[0.5,0.25]');
+                 INSERT INTO measurements (id, campaign_id, pose_index, kind, x_mm, y_mm, z_mm,
+                     std_total_mm, stage_mm, sent_at_ms, received_at_ms, joints_rad)
+                 VALUES (1, 1, 0, 'p1', 1.0, 2.0, 3.0, 0.004, 0.0, 1, 2, '[0.5,0.25]'),
+                        (2, 1, 0, 'p2', 1.0, 12.0, 3.0, NULL, 10.0, 3, 4, '[0.5,0.25]');
+                 INSERT INTO pose_done VALUES (1, 0, 1, 2);",
+            )
+            .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        let got = s.measured(1).unwrap();
+        assert_eq!(got.len(), 1);
+        let m = &got[0];
+        assert_eq!((m.index, m.set), (0, PoseSet::Verify));
+        assert_eq!(m.joints_rad, vec![0.5, 0.25]);
+        assert_eq!(m.p1.position_mm, Vector3::new(1.0, 2.0, 3.0));
+        assert_eq!((m.p1.stage_mm, m.p1.sigma_mm), (Some(0.0), Some(0.004)));
+        let p2 = m.p2.unwrap();
+        assert_eq!((p2.stage_mm, p2.sigma_mm), (Some(10.0), None));
     }
 }

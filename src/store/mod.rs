@@ -50,7 +50,7 @@ pub use error::StoreError;
 pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint};
 pub use kinds::{CampaignKind, ISO9283_KIND};
 pub use locks::{Acquired, LockHolder};
-pub use measurements::IMPORTED_STATE;
+pub use measurements::{identification_rows, MeasuredPoint, MeasuredPose, IMPORTED_STATE};
 pub use records::{
     CampaignRow, EventRecord, JournalEntry, NewCampaign, PlannedPose, PointKind, PointRecord,
     PoseMeasurement,

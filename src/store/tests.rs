@@ -269,9 +269,9 @@ fn frame_references_number_segments_and_refuse_non_drift_points() {
 /// A frame transform: a quarter turn about z, then `dx` along x.
 fn shift(dx: f64) -> FrameTransform {
     FrameTransform {
-        to_first: nalgebra::Isometry3::new(
+        to_first: crate::model::Pose::from_rotation_vector(
+            &nalgebra::Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
             nalgebra::Vector3::new(dx, 0.0, 0.0),
-            nalgebra::Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2),
         ),
         rms_mm: 0.01,
         max_mm: 0.02,
@@ -295,7 +295,7 @@ fn observations_of_a_re_registered_segment_are_mapped_into_the_first_frame() {
     s.add_frame_ref(id, d1, 1, Some(&shift(5.0))).unwrap();
     s.commit_pose(id, &pose(1)).unwrap();
     let raw = s.measured_poses(id).unwrap();
-    let obs = s.observations(id).unwrap();
+    let obs = s.measured(id).map(identification_rows).unwrap();
     // segment 0 unchanged
     let p0 = &raw[0].1.p1;
     assert_eq!(obs[0].p1, nalgebra::Vector3::new(p0.x_mm, p0.y_mm, p0.z_mm));

@@ -2,6 +2,7 @@
 //! faults with nothing lost or duplicated, the armed gate, crash-resume of the real binary,
 //! bad configuration.
 
+use cellcal::store::identification_rows;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -125,7 +126,8 @@ pub(crate) async fn run_in_process(text: &str) -> Finished {
         .store
         .lock()
         .expect("store")
-        .observations(ctx.campaign_id)
+        .measured(ctx.campaign_id)
+        .map(identification_rows)
         .expect("rows");
     let opts = identify_options(&ctx.cfg);
     let (_, verify) = split(&rows);
@@ -158,7 +160,7 @@ pub(crate) fn check_complete(store: &Path, id: i64, poses: usize) {
     assert_eq!(done.len(), poses, "every pose measured once");
     let unique: BTreeSet<usize> = done.iter().copied().collect();
     assert_eq!(unique.len(), poses, "no duplicated pose");
-    let rows = s.observations(id).expect("rows");
+    let rows = s.measured(id).map(identification_rows).expect("rows");
     assert_eq!(rows.len(), poses);
     assert!(
         s.latest_result(id).expect("result").is_some(),

@@ -3,6 +3,7 @@
 //! simulated cell whose corrected model comes from the daemon), where the nominal joints miss
 //! by the robot's uncompensated error; the CSV contract and its bad input.
 
+use cellcal::store::identification_rows;
 use std::path::Path;
 
 use cellcal::compensate::table::{parse_joints, parse_targets};
@@ -423,7 +424,8 @@ fn a_campaign_on_the_simulated_cell_compensates_the_true_robot() {
     let comp = Compensator::new(&tx60(), &identified).expect("a calibration of the TX60");
     let rows = cellcal::store::Store::open(&f.store)
         .unwrap()
-        .observations(f.id)
+        .measured(f.id)
+        .map(identification_rows)
         .unwrap();
     let (_, verify) = split(&rows);
     let qs: Vec<Vec<f64>> = verify

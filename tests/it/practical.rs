@@ -3,6 +3,7 @@
 //! UR5 data the parameters the narrow grid does not determine are held at nominal with their
 //! reason, at no cost in rms.
 
+use cellcal::store::identification_rows;
 use std::path::{Path, PathBuf};
 
 use cellcal::campaign::engine::identify_options;
@@ -96,7 +97,8 @@ async fn readme_campaign_parameters_are_plausible_with_sigma_within_bounds() {
     // with the campaign's own setup (measured tool and stage axis)
     let rows = Store::open(&f.store)
         .expect("store")
-        .observations(f.id)
+        .measured(f.id)
+        .map(identification_rows)
         .expect("rows");
     let (ident_rows, _) = split(&rows);
     let mut opts = identify_options(&f.cfg);

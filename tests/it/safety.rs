@@ -523,7 +523,7 @@ async fn a_failed_identification_ends_in_failed_with_the_reason() {
     let session = sim_session(dir.path(), &text).await;
     let (mut ctx, mut devices) = (session.ctx, session.devices);
     // the stored data can then not serve the model: the 1D stage gives no full orientation
-    ctx.cfg.campaign.model = "full".into();
+    ctx.cfg.campaign.model = cellcal::identify::ObsModel::Full;
     let mut rx = ctx.control.events.subscribe();
     ctx.control.apply(&CampaignCommand::Arm);
     ctx.control.apply(&CampaignCommand::Start);
@@ -666,7 +666,7 @@ async fn a_tracker_moved_between_sessions_is_re_registered_and_the_campaign_stay
     assert_eq!(refs.len(), 2, "a second frame segment");
     let t = refs[1].to_first.as_ref().expect("segment 1's transform");
     assert!(t.points >= 4 && t.rms_mm < 0.05 && t.max_mm < 0.1, "{t:?}");
-    let turned = t.to_first.rotation.angle().to_degrees();
+    let turned = t.to_first.rotation_angle().to_degrees();
     assert!((turned - 0.1).abs() < 0.01, "rotation {turned}°");
     assert_eq!(refs[1].poses_done, 10);
     // identification used one frame: the result is as good as an unmoved campaign's

@@ -211,8 +211,8 @@ fn exact_cell_is_recovered_exactly() {
         .collect();
     let reg = register_base(&nominal, &pairs).expect("registers");
     assert!(reg.rms_mm < 1e-8, "rms {}", reg.rms_mm);
-    assert!((reg.rotation - cell.truth.base_rotation).norm() < 1e-11);
-    assert!((reg.translation - cell.truth.base_translation).norm() < 1e-8);
+    assert!((reg.base.r - cell.truth.base_rotation).norm() < 1e-11);
+    assert!((reg.base.p - cell.truth.base_translation).norm() < 1e-8);
     // and the one-pose estimate from the tool frame
     let b = base_from_tool_frame(&nominal, &home(&cell), &tf);
     assert!((b.r - cell.truth.base_rotation).norm() < 1e-10);
@@ -235,8 +235,8 @@ fn register(cell: &mut Cell, tf: &ToolFrame) -> BaseRegistration {
 /// Rotation (rad) and translation (mm) error of a registration against the true base.
 fn base_errors(cell: &Cell, reg: &BaseRegistration) -> (f64, f64) {
     (
-        log_so3(&(reg.rotation * cell.truth.base_rotation.transpose())).norm(),
-        (reg.translation - cell.truth.base_translation).norm(),
+        log_so3(&(reg.base.r * cell.truth.base_rotation.transpose())).norm(),
+        (reg.base.p - cell.truth.base_translation).norm(),
     )
 }
 

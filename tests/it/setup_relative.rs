@@ -9,6 +9,7 @@ use cellcal::dataset::PoseSet;
 use cellcal::identify::BeforeBase;
 use cellcal::model::ParamKind;
 use cellcal::report::{summary_text, ParamStatus};
+use cellcal::store::identification_rows;
 use cellcal::store::Store;
 
 use super::campaign::{config_text, run_in_process};
@@ -91,7 +92,8 @@ async fn readme_campaign_marks_what_the_setup_absorbs_and_names_one_before() {
     assert_eq!(r.before_base, Some(BeforeBase::SetupRegistration));
     let store = Store::open(&f.store).expect("store");
     let ident: Vec<String> = store
-        .observations(f.id)
+        .measured(f.id)
+        .map(identification_rows)
         .expect("rows")
         .into_iter()
         .filter(|o| o.set == PoseSet::Ident)

@@ -2,6 +2,7 @@
 //! `src/store/tests.rs`, which needs the raw connection).
 
 use cellcal::dataset::{parse_csv, write_csv, Observation, PoseSet, Required};
+use cellcal::store::identification_rows;
 use cellcal::store::{
     schema_version, EventRecord, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement,
     Store, StoreError, IMPORTED_STATE, INITIAL_STATE,
@@ -178,7 +179,7 @@ fn observations_are_bit_identical_in_plan_order() {
     for m in [measurement(2), no_p2.clone(), measurement(4)] {
         s.commit_pose(id, &m).unwrap();
     }
-    let obs = s.observations(id).unwrap();
+    let obs = s.measured(id).map(identification_rows).unwrap();
     // Plan order is 4, 3, 2, 1, 0; measured: 4, 2, 0.
     let ids: Vec<&str> = obs.iter().map(|o| o.id.as_str()).collect();
     assert_eq!(ids, ["4", "2", "0"]);
@@ -259,14 +260,14 @@ fn reopen_finds_everything() {
             s.save_result(id, "np", "{oops"),
             Err(StoreError::Invalid(_))
         ));
-        (id, s.observations(id).unwrap())
+        (id, s.measured(id).map(identification_rows).unwrap())
     };
     let s = Store::open(&path).unwrap();
     assert_eq!(s.user_version().unwrap(), schema_version());
     assert_eq!(s.latest_campaign().unwrap(), Some(id));
     assert_eq!(s.campaign(id).unwrap().state, "measuring");
     assert_eq!(s.done_poses(id).unwrap(), vec![0, 4]);
-    assert_eq!(s.observations(id).unwrap(), obs);
+    assert_eq!(s.measured(id).map(identification_rows).unwrap(), obs);
     assert_eq!(s.events(id).unwrap()[0].message, "pose 0");
     assert_eq!(
         s.latest_result(id).unwrap().as_deref(),
@@ -333,15 +334,19 @@ fn import_then_observations_round_trip() {
         .unwrap();
     assert_eq!(s.campaign(id).unwrap().state, IMPORTED_STATE);
     assert_eq!(s.done_poses(id).unwrap(), vec![10, 11, 12, 13]);
-    assert_eq!(s.observations(id).unwrap(), rows());
+    assert_eq!(s.measured(id).map(identification_rows).unwrap(), rows());
 
     // Export as CSV, parse, import again: the same observations (ids kept).
-    let csv = write_csv(&s.observations(id).unwrap(), 6, "export");
+    let csv = write_csv(
+        &s.measured(id).map(identification_rows).unwrap(),
+        6,
+        "export",
+    );
     let parsed = parse_csv(&csv, 6, Required::default()).unwrap();
     let id2 = s
         .import_observations(&new_campaign("again"), &parsed)
         .unwrap();
-    let back: Vec<Observation> = s.observations(id2).unwrap();
+    let back: Vec<Observation> = s.measured(id2).map(identification_rows).unwrap();
     assert_eq!(back, rows());
 
     // Non-numeric ids: row numbers.

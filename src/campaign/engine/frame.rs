@@ -6,12 +6,12 @@
 
 use std::collections::HashSet;
 
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 
 use super::{Run, SetupResult, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::measure::{fit_rigid, select_spread};
-use crate::model::{forward, RobotModel};
+use crate::model::{forward, Pose, RobotModel};
 use crate::store::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint, PointKind};
 
 /// Spread points (beyond the unverified poses) a re-registration measures again.
@@ -30,7 +30,7 @@ pub(super) struct Aim {
     stage_axis: Vector3<f64>,
     p1_mm: f64,
     /// The current segment ← segment 0.
-    from_first: Isometry3<f64>,
+    from_first: Pose,
 }
 
 impl Aim {
@@ -49,7 +49,7 @@ impl Aim {
             model,
             stage_axis: axis,
             p1_mm,
-            from_first: Isometry3::identity(),
+            from_first: Pose::identity(),
         })
     }
 
@@ -60,20 +60,14 @@ impl Aim {
         }
         let in_flange = self.model.tool + self.stage_axis * (stage_mm - self.p1_mm);
         let in_base = forward(&self.model, q).flange().transform_point(&in_flange);
-        let first = self.model.base_rotation * in_base + self.model.base_translation;
+        let first = self.model.base().transform_point(&in_base);
         Some(map_point(&self.from_first, first))
     }
 
     /// Aim in the frame of a segment (segment 0 ← it: `to_first`).
     fn in_segment(&mut self, to_first: Option<&FrameTransform>) {
-        self.from_first = to_first.map_or_else(Isometry3::identity, |t| t.to_first.inverse());
+        self.from_first = to_first.map_or_else(Pose::identity, |t| t.to_first.inverse());
     }
-}
-
-/// An isometry from `fit_rigid`'s rotation matrix and translation.
-fn isometry(r: Matrix3<f64>, t: Vector3<f64>) -> Isometry3<f64> {
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    Isometry3::from_parts(Translation3::from(t), q)
 }
 
 fn position(p: &JointPoint) -> Vector3<f64> {
@@ -223,9 +217,8 @@ impl Run<'_> {
             now.push(p.p_mm);
             first.push(map_point(&to_first_frame(refs, c.row), position(c)));
         }
-        let (r, t) =
+        let to_first =
             fit_rigid(&now, &first).map_err(|e| Stop::Fault(format!("cannot re-register: {e}")))?;
-        let to_first = isometry(r, t);
         let residuals: Vec<f64> = now
             .iter()
             .zip(&first)
@@ -262,14 +255,16 @@ impl Run<'_> {
         let segment = self
             .store(move |s| s.add_frame_ref(id, ref_row, poses_done, Some(&transform)))
             .await?;
-        let step = to_first_frame(refs, ref_row - 1).inverse() * to_first;
+        let step = to_first_frame(refs, ref_row - 1)
+            .inverse()
+            .compose(&to_first);
         self.journal(CampaignEvent::Note {
             text: format!(
                 "tracker frame re-registered (segment {segment}): the reference had moved by \
                  {moved_mm:.3} mm; the new frame is {:.3} mm and {:.3} mrad from the previous one, \
                  fitted on {} points re-measured at stored joints (rms {rms:.4} mm, max {:.4} mm)",
-                step.translation.vector.norm(),
-                step.rotation.angle() * 1e3,
+                step.p.norm(),
+                step.rotation_angle() * 1e3,
                 now.len(),
                 worst.1
             ),

@@ -13,7 +13,6 @@ use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
 };
-use crate::model::rotation::to_rotation_vector;
 use crate::model::{forward, RobotModel};
 use crate::store::{PointKind, Store, StoreError};
 
@@ -293,10 +292,10 @@ impl Run<'_> {
                 reg.rms_mm
             )));
         }
-        let tracker_in_base = reg.rotation.transpose() * (-reg.translation);
+        let tracker_in_base = reg.base.r.transpose() * (-reg.base.p);
         Ok(BaseResult {
-            translation_mm: arr(&reg.translation),
-            rotation_vector_rad: arr(&to_rotation_vector(&reg.rotation)),
+            translation_mm: arr(&reg.base.p),
+            rotation_vector_rad: arr(&reg.base.rotation_vector()),
             rms_mm: reg.rms_mm,
             max_mm: reg.max_mm,
             tracker_in_base_mm: arr(&tracker_in_base),
