@@ -12,6 +12,7 @@ mod commander;
 mod common;
 mod compensate;
 mod deploy;
+mod device_config;
 mod frame_first;
 mod frames;
 mod house;
