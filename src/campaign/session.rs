@@ -29,7 +29,7 @@ use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targetin
 use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
-use crate::sim::{start_cell_with, RunningSimCell, SimTechnician, SimWorldConfig};
+use crate::sim::{start_cell_with, RunningSimCell, SimTechnician};
 use crate::store::{CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, ISO9283_KIND};
 use crate::wall_clock::now_unix_ms;
 
@@ -591,56 +591,43 @@ fn store_new_campaign(
     })
 }
 
-/// Start the simulated cell when any device is simulated (`[sim]`).
-/// Not cancel-safe: a drop once the cell started leaves its servers running until the
-/// runtime ends.
+/// Start the simulated cell when any device is simulated (`[sim]`, parsed and checked with the
+/// configuration). Not cancel-safe: a drop once the cell started leaves its servers running
+/// until the runtime ends.
 async fn simulated_cell(
     cfg: &CellConfig,
     nominal: &RobotModel,
     robot_secret: SharedSecret,
 ) -> Result<Option<RunningSimCell>, SessionError> {
-    if !cfg.any_simulated() {
+    let Some(world) = cfg.sim.clone().filter(|_| cfg.any_simulated()) else {
         return Ok(None);
-    }
-    let sim_err = |message: String| SessionError::Sim {
-        path: cfg.path.display().to_string(),
-        message,
     };
-    let table = cfg.sim.clone().unwrap_or_default();
-    let mut sc: SimWorldConfig = table
-        .try_into()
-        .map_err(|e: toml::de::Error| sim_err(e.to_string().trim_end().replace('\n', " ")))?;
-    if !matches!(sc.errors.as_str(), "paper" | "random" | "none" | "") {
-        let dir = cfg.path.parent().unwrap_or(Path::new("."));
-        sc.errors = dir.join(&sc.errors).to_string_lossy().into_owned();
-    }
-    if cfg.stage.kind != StageMode::Serial {
-        sc.stage_mode = crate::sim::config::StageMode::Manual;
-    }
-    let cell = start_cell_with(nominal.bare(), sc, robot_secret, std::future::pending())
+    let cell = start_cell_with(nominal.bare(), world, robot_secret, std::future::pending())
         .await
-        .map_err(|e| sim_err(e.to_string()))?;
+        .map_err(|e| SessionError::Sim {
+            path: cfg.path.display().to_string(),
+            message: e.to_string(),
+        })?;
     Ok(Some(cell))
 }
 
 /// The device adapters: to the simulated cell's devices where simulated, else to the
-/// configured addresses.
+/// configured addresses; either way with every device setting of the configuration (the
+/// simulated cell only supplies the defaults a section leaves unset).
 fn cell_devices(
     cfg: &CellConfig,
     sim: Option<&RunningSimCell>,
     robot_secret: SharedSecret,
     prompter: Arc<dyn Prompter>,
 ) -> Result<Devices, SessionError> {
-    let mut tcfg = match (sim, cfg.tracker.mode) {
+    let tracker = match (sim, cfg.tracker.mode) {
         (Some(s), DeviceMode::Sim) => s.tracker_config(),
         _ => EmsconTrackerConfig {
             address: cfg.tracker.address.clone(),
-            reflector_id: cfg.tracker.reflector_id,
             ..EmsconTrackerConfig::default()
         },
     };
-    tcfg.meas_time_ms = cfg.tracker.measure_ms as i32;
-    let rcfg = match (sim, cfg.robot_controller.mode) {
+    let robot = match (sim, cfg.robot_controller.mode) {
         (Some(s), DeviceMode::Sim) => s.robot_config(),
         _ => LinkRobotConfig {
             address: cfg.robot_controller.address.clone(),
@@ -649,8 +636,8 @@ fn cell_devices(
         },
     };
     Ok(Devices {
-        tracker: Box::new(EmsconTracker::new(tcfg)),
-        robot: Box::new(LinkRobot::new(rcfg)),
+        tracker: Box::new(EmsconTracker::new(tracker.with_section(&cfg.tracker))),
+        robot: Box::new(LinkRobot::new(robot.with_section(&cfg.robot_controller))),
         stage: stage_device(cfg, sim, prompter)?,
     })
 }
@@ -664,22 +651,16 @@ fn stage_device(
 ) -> Result<Box<dyn crate::cell::Stage>, SessionError> {
     Ok(match cfg.stage.kind {
         StageMode::Serial => {
-            let scfg = match (sim, cfg.stage.mode) {
+            let device = match (sim, cfg.stage.mode) {
                 (Some(s), DeviceMode::Sim) => s.stage_config().ok_or_else(|| {
                     SessionError::Invalid("the simulated cell has no serial stage".into())
                 })?,
                 _ => ZaberStageAdapterConfig {
                     port: cfg.stage.serial_path.clone(),
-                    microsteps_per_mm: cfg.stage.microsteps_per_mm,
-                    min_mm: cfg.stage.range_mm[0],
-                    max_mm: cfg.stage.range_mm[1],
                     ..ZaberStageAdapterConfig::default()
                 },
             };
-            Box::new(ZaberStageAdapter::new(ZaberStageAdapterConfig {
-                tolerance_mm: cfg.stage.tolerance_mm,
-                ..scfg
-            }))
+            Box::new(ZaberStageAdapter::new(device.with_section(&cfg.stage)))
         }
         StageMode::Manual | StageMode::ManualGauge => {
             let asker = match (sim, cfg.stage.mode) {
@@ -693,8 +674,8 @@ fn stage_device(
                 asker,
                 ManualStageConfig {
                     tolerance_mm: cfg.stage.tolerance_mm,
+                    max_tries: cfg.stage.max_tries,
                     confirm_clear: cfg.stage.confirm_clear(),
-                    ..ManualStageConfig::default()
                 },
             ))
         }

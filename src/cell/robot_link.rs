@@ -41,6 +41,17 @@ impl Default for LinkRobotConfig {
 }
 
 impl LinkRobotConfig {
+    /// These settings (the controller's address, secret and default timings) with every
+    /// setting `[robot_controller]` gives: the one place the section reaches the adapter.
+    pub fn with_section(self, s: &RobotSection) -> LinkRobotConfig {
+        LinkRobotConfig {
+            connect_timeout_ms: s.connect_timeout_ms.unwrap_or(self.connect_timeout_ms),
+            request_timeout_ms: s.request_timeout_ms.unwrap_or(self.request_timeout_ms),
+            wait_margin_ms: s.wait_margin_ms.unwrap_or(self.wait_margin_ms),
+            ..self
+        }
+    }
+
     /// The driver's client configuration.
     pub fn client_config(&self) -> ClientConfig {
         ClientConfig {

@@ -10,6 +10,7 @@ use tracing::{info, warn};
 use zaber::{StageConfig, StageError, ZaberStage};
 
 use super::{CellError, DeviceKind, FaultKind, Stage};
+use crate::config::StageSection;
 
 /// Configuration of a [`ZaberStageAdapter`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -67,6 +68,27 @@ impl Default for ZaberStageAdapterConfig {
 }
 
 impl ZaberStageAdapterConfig {
+    /// These settings (the port, the device's default timings and scale) with every setting
+    /// `[stage]` gives: the one place the section reaches the adapter (range, tolerance, Zaber
+    /// address, baud, homing; a configured scale replaces the default one).
+    pub fn with_section(self, s: &StageSection) -> ZaberStageAdapterConfig {
+        ZaberStageAdapterConfig {
+            device: s.device_address,
+            axis: s.axis_number,
+            microsteps_per_mm: s.microsteps_per_mm.or(self.microsteps_per_mm),
+            min_mm: s.range_mm[0],
+            max_mm: s.range_mm[1],
+            tolerance_mm: s.tolerance_mm,
+            home_on_prepare: s.home_on_prepare,
+            reply_timeout_ms: s.reply_timeout_ms.unwrap_or(self.reply_timeout_ms),
+            poll_interval_ms: s.poll_interval_ms.unwrap_or(self.poll_interval_ms),
+            move_timeout_ms: s.move_timeout_ms.unwrap_or(self.move_timeout_ms),
+            home_timeout_ms: s.home_timeout_ms.unwrap_or(self.home_timeout_ms),
+            baud: s.baud,
+            port: self.port,
+        }
+    }
+
     /// The driver's stage configuration.
     pub fn stage_config(&self) -> StageConfig {
         StageConfig {

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use tracing::{debug, info, warn};
 
 use super::{CellError, DeviceKind, FaultKind, Tracker, TrackerPoint};
+use crate::config::TrackerSection;
 
 /// Configuration of an [`EmsconTracker`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -60,6 +61,43 @@ impl Default for EmsconTrackerConfig {
 }
 
 impl EmsconTrackerConfig {
+    /// The settings of a simulated cell's tracker at `address`: the measuring time the cell's
+    /// clients should use, short timeouts.
+    pub fn simulated(address: String, meas_time_ms: i32) -> EmsconTrackerConfig {
+        EmsconTrackerConfig {
+            address,
+            meas_time_ms,
+            search_distance_mm: 2500.0,
+            connect_timeout_ms: 2000,
+            command_timeout_ms: 2000,
+            initialize_timeout_ms: 5000,
+            search_timeout_ms: 2000,
+            measure_margin_ms: 2000,
+            ..EmsconTrackerConfig::default()
+        }
+    }
+
+    /// These settings (the device's address and default timings) with every setting
+    /// `[tracker]` gives: the one place the section reaches the adapter.
+    pub fn with_section(self, s: &TrackerSection) -> EmsconTrackerConfig {
+        EmsconTrackerConfig {
+            meas_time_ms: i32::try_from(s.measure_ms).unwrap_or(i32::MAX),
+            reflector_id: s.reflector_id,
+            use_adm: s.use_adm,
+            beam_break_codes: s.beam_break_codes.clone(),
+            beam_break_code: s.beam_break_code,
+            search_distance_mm: s.search_distance_mm.unwrap_or(self.search_distance_mm),
+            connect_timeout_ms: s.connect_timeout_ms.unwrap_or(self.connect_timeout_ms),
+            command_timeout_ms: s.command_timeout_ms.unwrap_or(self.command_timeout_ms),
+            initialize_timeout_ms: s
+                .initialize_timeout_ms
+                .unwrap_or(self.initialize_timeout_ms),
+            search_timeout_ms: s.search_timeout_ms.unwrap_or(self.search_timeout_ms),
+            measure_margin_ms: s.measure_margin_ms.unwrap_or(self.measure_margin_ms),
+            address: self.address,
+        }
+    }
+
     /// The driver's client configuration.
     pub fn client_config(&self) -> ClientConfig {
         let mut c = ClientConfig {

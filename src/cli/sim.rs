@@ -4,18 +4,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Context};
 
-use cellcal::model::checked_toml::parse_checked;
+use cellcal::config::parse_sim_config;
 use cellcal::model::load_robot;
 
 use super::{input, other, runtime, Failure};
 use crate::signals;
-
-/// The part of a cell configuration file that `cellcal sim` reads.
-#[derive(serde::Deserialize, serde::Serialize)]
-struct SimFile {
-    #[serde(default)]
-    sim: cellcal::sim::SimWorldConfig,
-}
 
 /// The robot model path: top-level `robot = "PATH"` (or `[robot] model = "PATH"`), relative to
 /// the config file; else the TX60 file relative to the working directory.
@@ -89,12 +82,9 @@ pub fn run(a: SimCellArgs) -> Result<(), Failure> {
     let table: toml::Table = toml::from_str(&text)
         .with_context(|| format!("{}: invalid TOML", config.display()))
         .map_err(input)?;
-    // every number finite and every array its exact length, in the whole file
-    let mut cfg = parse_checked::<SimFile>(&text, config).map_err(input)?.sim;
+    // [sim] by the cell configuration's parser and rules (every number of the file finite)
+    let cfg = parse_sim_config(&text, config).map_err(input)?;
     let dir = config.parent().unwrap_or(Path::new("."));
-    if !matches!(cfg.errors.as_str(), "paper" | "random" | "none" | "") {
-        cfg.errors = dir.join(&cfg.errors).to_string_lossy().into_owned();
-    }
     let robot_path = sim_robot_path(&table, dir, config)?;
     let robot = load_robot(&robot_path).map_err(input)?;
     let robot_secret = sim_robot_secret(&table, dir, config)?;

@@ -11,6 +11,8 @@ use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
 use crate::model::SignedAxis;
 
+use super::sim::SimWorldConfig;
+
 /// Why a configuration could not be loaded (names the file and the key).
 pub type ConfigError = crate::model::file::FileError;
 
@@ -42,6 +44,28 @@ pub struct TrackerSection {
     pub max_attempts: u32,
     /// Tracker position in the robot base frame, for the line-of-sight check in planning (mm).
     pub position_mm: [f64; 3],
+    /// Measure distances with the ADM (absolute distance meter).
+    pub use_adm: bool,
+    /// Status codes that mean "beam broken" (or "no target" for a search); unset: the emScon
+    /// driver's set (10004, 10009, 10014).
+    pub beam_break_codes: Option<Vec<i32>>,
+    /// One extra site-specific beam-break status code (e.g. a newer server's "no target").
+    pub beam_break_code: Option<i32>,
+    /// Approximate distance given to FindReflector when re-locking (mm); unset: 3000 (the
+    /// simulated cell: 2500).
+    pub search_distance_mm: Option<f64>,
+    /// TCP connect timeout (ms); unset: 5000 (the simulated cell: 2000).
+    pub connect_timeout_ms: Option<u64>,
+    /// Reply timeout of ordinary commands (ms); unset: 30000 (the simulated cell: 2000).
+    pub command_timeout_ms: Option<u64>,
+    /// Timeout of Initialize (ms); unset: 90000 (the simulated cell: 5000).
+    pub initialize_timeout_ms: Option<u64>,
+    /// Timeout of FindReflector and GoLastMeasuredPoint (ms); unset: 30000 (the simulated
+    /// cell: 2000).
+    pub search_timeout_ms: Option<u64>,
+    /// Added to the measuring time to get a measurement's result timeout (ms); unset: 5000
+    /// (the simulated cell: 2000).
+    pub measure_margin_ms: Option<u64>,
 }
 
 impl Default for TrackerSection {
@@ -54,6 +78,15 @@ impl Default for TrackerSection {
             max_std_total_mm: 0.05,
             max_attempts: 5,
             position_mm: [2550.0, 0.0, 0.0],
+            use_adm: true,
+            beam_break_codes: None,
+            beam_break_code: None,
+            search_distance_mm: None,
+            connect_timeout_ms: None,
+            command_timeout_ms: None,
+            initialize_timeout_ms: None,
+            search_timeout_ms: None,
+            measure_margin_ms: None,
         }
     }
 }
@@ -79,6 +112,12 @@ pub struct RobotSection {
     /// authentication), relative to this file; required for a real controller, optional for a
     /// simulated one (else a fresh random secret). Only the path is ever kept or shown.
     pub secret_file: Option<PathBuf>,
+    /// TCP connect timeout (ms); unset: 5000 (the simulated cell: 2000).
+    pub connect_timeout_ms: Option<u64>,
+    /// Reply timeout of every request but WAIT (ms); unset: 5000 (the simulated cell: 2000).
+    pub request_timeout_ms: Option<u64>,
+    /// Extra client-side time granted to WAIT beyond `settle_timeout_ms` (ms); unset: 2000.
+    pub wait_margin_ms: Option<u64>,
 }
 
 impl Default for RobotSection {
@@ -91,6 +130,9 @@ impl Default for RobotSection {
             max_attempts: 3,
             settle_tolerance_deg: 0.05,
             secret_file: None,
+            connect_timeout_ms: None,
+            request_timeout_ms: None,
+            wait_margin_ms: None,
         }
     }
 }
@@ -137,6 +179,24 @@ pub struct StageSection {
     /// After a manual stage answer, no robot motion until the technician confirms the cell
     /// clear (its own step); unset = on for manual stages. Only manual stages take it.
     pub confirm_clear: Option<bool>,
+    /// Manual stages: how many times the technician is asked before the move fails.
+    pub max_tries: u32,
+    /// Zaber device address on the daisy chain (1..=99).
+    pub device_address: u8,
+    /// Zaber axis number of the stage on that device (1..=9).
+    pub axis_number: u8,
+    /// Zaber serial baud rate.
+    pub baud: u32,
+    /// Home the Zaber axis when the campaign prepares the devices.
+    pub home_on_prepare: bool,
+    /// Timeout of one Zaber reply (ms); unset: 500.
+    pub reply_timeout_ms: Option<u64>,
+    /// Zaber status poll period while a move runs (ms); unset: 20 (the simulated cell: 1).
+    pub poll_interval_ms: Option<u64>,
+    /// Timeout of a Zaber move (ms); unset: 30000 (the simulated cell: from its stage speed).
+    pub move_timeout_ms: Option<u64>,
+    /// Timeout of Zaber homing (ms); unset: 60000 (the simulated cell: from its stage speed).
+    pub home_timeout_ms: Option<u64>,
 }
 
 impl Default for StageSection {
@@ -153,6 +213,15 @@ impl Default for StageSection {
             tolerance_mm: 0.02,
             range_mm: [0.0, 25.0],
             confirm_clear: None,
+            max_tries: 3,
+            device_address: 1,
+            axis_number: 1,
+            baud: 115_200,
+            home_on_prepare: true,
+            reply_timeout_ms: None,
+            poll_interval_ms: None,
+            move_timeout_ms: None,
+            home_timeout_ms: None,
         }
     }
 }
@@ -495,7 +564,7 @@ struct CellFile {
     #[serde(default)]
     api: ApiFile,
     iso9283: Option<Iso9283Section>,
-    sim: Option<toml::Table>,
+    sim: Option<SimWorldConfig>,
 }
 
 /// The whole cell configuration.
@@ -526,8 +595,10 @@ pub struct CellConfig {
     pub api: ApiSection,
     /// An ISO 9283 campaign instead of a calibration (`[iso9283]`, paths resolved).
     pub iso9283: Option<Iso9283Section>,
-    /// The `[sim]` table, if any (the simulated world's own configuration).
-    pub sim: Option<toml::Table>,
+    /// The simulated world (`[sim]`, checked, its `errors` file resolved, its stage kind and
+    /// Zaber address those of `[stage]`): set when any device is simulated or the table is
+    /// given.
+    pub sim: Option<SimWorldConfig>,
 }
 
 impl CellConfig {
@@ -580,6 +651,15 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     }
     let dir = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: PathBuf| if p.is_absolute() { p } else { dir.join(p) };
+    let simulated =
+        [f.tracker.mode, f.robot_controller.mode, f.stage.mode].contains(&DeviceMode::Sim);
+    let sim = match f.sim {
+        Some(s) => Some(s),
+        None if simulated => Some(SimWorldConfig::default()),
+        None => None,
+    }
+    .map(|s| simulated_world(s, &f.stage, path))
+    .transpose()?;
     let iso9283 = f.iso9283.map(|i| Iso9283Section {
         compensated_model: i.compensated_model.map(resolve),
         ..i
@@ -612,8 +692,67 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         setup: f.setup,
         api,
         iso9283,
-        sim: f.sim,
+        sim,
     })
+}
+
+/// Parse the `[sim]` table of a cell configuration alone (`cellcal sim`: the other tables are
+/// not read, but every number of the file is finite) with the rules of [`parse_cell_config`].
+pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, ConfigError> {
+    /// The part of a cell configuration file that `cellcal sim` reads.
+    #[derive(Deserialize, Serialize)]
+    struct SimFile {
+        #[serde(default)]
+        sim: SimWorldConfig,
+    }
+    let f: SimFile = parse_checked(text, path)?;
+    simulated_world(f.sim, &StageSection::default(), path)
+}
+
+/// The checked `[sim]` world of the cell: its rules, its `errors` file resolved against the
+/// configuration's folder, the stage kind and Zaber address of `[stage]` (one stage), and a
+/// simulated Zaber stage that can reach `stage.range_mm`.
+fn simulated_world(
+    mut sim: SimWorldConfig,
+    stage: &StageSection,
+    path: &Path,
+) -> Result<SimWorldConfig, ConfigError> {
+    let invalid = |e: InvalidKey| ConfigError::Invalid {
+        path: path.to_owned(),
+        key: e.key,
+        message: e.message,
+    };
+    sim.check().map_err(invalid)?;
+    if !matches!(sim.errors.as_str(), "paper" | "random" | "none" | "") {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        sim.errors = dir.join(&sim.errors).to_string_lossy().into_owned();
+    }
+    sim.stage_address = (stage.device_address, stage.axis_number);
+    if stage.kind == StageMode::Serial {
+        rule(
+            sim.stage_mode == super::sim::StageMode::Zaber,
+            "sim.stage_mode",
+            "`manual` contradicts stage.kind = \"serial\" (the simulated stage follows [stage])",
+        )
+        .map_err(invalid)?;
+        if stage.mode == DeviceMode::Sim {
+            let [lo, hi] = stage.range_mm;
+            rule(
+                lo >= 0.0 && hi <= sim.stage_max_mm,
+                "stage.range_mm",
+                format!(
+                    "[{lo}, {hi}] mm is beyond the simulated stage's travel [0, {}] mm \
+                     (sim.stage_max_mm)",
+                    sim.stage_max_mm
+                ),
+            )
+            .map_err(invalid)?;
+        }
+    } else {
+        // a manual stage: the simulated micrometer follows the technician's answers
+        sim.stage_mode = super::sim::StageMode::Manual;
+    }
+    Ok(sim)
 }
 
 /// A value outside its key's rule (the key is dotted from the file's top, e.g.
@@ -628,7 +767,7 @@ pub struct InvalidKey {
 }
 
 /// `Err` naming `key` and `rule` unless `ok`.
-fn rule(ok: bool, key: &str, rule: impl Into<String>) -> Result<(), InvalidKey> {
+pub(super) fn rule(ok: bool, key: &str, rule: impl Into<String>) -> Result<(), InvalidKey> {
     if ok {
         Ok(())
     } else {
@@ -641,30 +780,66 @@ fn rule(ok: bool, key: &str, rule: impl Into<String>) -> Result<(), InvalidKey> 
 
 /// A length, time or tolerance that must be above zero (a zero or negative one would switch
 /// its check off).
-fn positive(key: &str, v: f64) -> Result<(), InvalidKey> {
+pub(super) fn positive(key: &str, v: f64) -> Result<(), InvalidKey> {
     rule(v > 0.0, key, format!("must be positive, got {v}"))
 }
 
+/// Longest device timeout or time a key may give (ms): one day.
+pub const MAX_DEVICE_MS: u64 = 86_400_000;
+
+/// A device time in ms, when set: above zero (a zero timeout fails every call) and at most
+/// [`MAX_DEVICE_MS`]. (NaN, inf, fractions and negative values are refused by the parser.)
+fn device_ms(key: &str, v: Option<u64>) -> Result<(), InvalidKey> {
+    match v {
+        Some(ms) => rule(
+            ms > 0 && ms <= MAX_DEVICE_MS,
+            key,
+            format!("must be in 1..={MAX_DEVICE_MS} ms, got {ms}"),
+        ),
+        None => Ok(()),
+    }
+}
+
 impl TrackerSection {
-    /// The tracker rules: measuring time, quality gate and attempts above zero.
+    /// The tracker rules: measuring time, quality gate and attempts above zero; a search
+    /// distance above zero; device times in 1..=[`MAX_DEVICE_MS`] ms; a beam-break code list
+    /// that is not empty.
     pub fn check(&self) -> Result<(), InvalidKey> {
         rule(
-            self.measure_ms > 0,
+            self.measure_ms > 0 && u64::from(self.measure_ms) <= MAX_DEVICE_MS,
             "tracker.measure_ms",
-            "must be positive",
+            format!("must be in 1..={MAX_DEVICE_MS} ms, got {}", self.measure_ms),
         )?;
         positive("tracker.max_std_total_mm", self.max_std_total_mm)?;
         rule(
             self.max_attempts > 0,
             "tracker.max_attempts",
             "must be at least 1",
-        )
+        )?;
+        if let Some(d) = self.search_distance_mm {
+            positive("tracker.search_distance_mm", d)?;
+        }
+        rule(
+            self.beam_break_codes.as_ref().is_none_or(|c| !c.is_empty()),
+            "tracker.beam_break_codes",
+            "must list at least one code (unset: the driver's 10004, 10009, 10014)",
+        )?;
+        for (key, v) in [
+            ("tracker.connect_timeout_ms", self.connect_timeout_ms),
+            ("tracker.command_timeout_ms", self.command_timeout_ms),
+            ("tracker.initialize_timeout_ms", self.initialize_timeout_ms),
+            ("tracker.search_timeout_ms", self.search_timeout_ms),
+            ("tracker.measure_margin_ms", self.measure_margin_ms),
+        ] {
+            device_ms(key, v)?;
+        }
+        Ok(())
     }
 }
 
 impl RobotSection {
-    /// The robot controller rules: speed in (0, 100] %, settle time, attempts and settle
-    /// tolerance above zero.
+    /// The robot controller rules: speed in (0, 100] %, attempts and settle tolerance above
+    /// zero, device times in 1..=[`MAX_DEVICE_MS`] ms.
     pub fn check(&self) -> Result<(), InvalidKey> {
         rule(
             self.speed_pct > 0.0 && self.speed_pct <= 100.0,
@@ -685,14 +860,33 @@ impl RobotSection {
             self.settle_tolerance_deg > 0.0,
             "robot_controller.settle_tolerance_deg",
             "must be positive",
-        )
+        )?;
+        device_ms(
+            "robot_controller.settle_timeout_ms",
+            Some(self.settle_timeout_ms),
+        )?;
+        for (key, v) in [
+            (
+                "robot_controller.connect_timeout_ms",
+                self.connect_timeout_ms,
+            ),
+            (
+                "robot_controller.request_timeout_ms",
+                self.request_timeout_ms,
+            ),
+            ("robot_controller.wait_margin_ms", self.wait_margin_ms),
+        ] {
+            device_ms(key, v)?;
+        }
+        Ok(())
     }
 }
 
 impl StageSection {
     /// The stage rules: a known axis, positive scale, travel and tolerance, a tolerance below
-    /// half the travel (else a stage that did not move passes), and `range_mm` = [min, max]
-    /// with min < max. Whether P1 and P2 lie in the range is a campaign feasibility check.
+    /// half the travel (else a stage that did not move passes), `range_mm` = [min, max]
+    /// with min < max, at least one try, a Zaber address 1..=99 and axis 1..=9, device times
+    /// in 1..=[`MAX_DEVICE_MS`] ms. Whether P1 and P2 lie in the range is a campaign feasibility check.
     pub fn check(&self) -> Result<(), InvalidKey> {
         rule(
             self.axis_vector().is_some(),
@@ -722,7 +916,28 @@ impl StageSection {
             lo < hi,
             "stage.range_mm",
             format!("must be [min, max] with min < max, got [{lo}, {hi}]"),
-        )
+        )?;
+        rule(self.max_tries > 0, "stage.max_tries", "must be at least 1")?;
+        rule(
+            (1..=99).contains(&self.device_address),
+            "stage.device_address",
+            format!("must be in 1..=99, got {}", self.device_address),
+        )?;
+        rule(
+            (1..=9).contains(&self.axis_number),
+            "stage.axis_number",
+            format!("must be in 1..=9, got {}", self.axis_number),
+        )?;
+        rule(self.baud > 0, "stage.baud", "must be positive")?;
+        for (key, v) in [
+            ("stage.reply_timeout_ms", self.reply_timeout_ms),
+            ("stage.poll_interval_ms", self.poll_interval_ms),
+            ("stage.move_timeout_ms", self.move_timeout_ms),
+            ("stage.home_timeout_ms", self.home_timeout_ms),
+        ] {
+            device_ms(key, v)?;
+        }
+        Ok(())
     }
 }
 
@@ -1090,6 +1305,177 @@ mod tests {
     }
 
     #[test]
+    fn device_settings_default_to_the_drivers_and_bad_ones_are_named() {
+        let c = parse_cell_config("", Path::new("c.toml")).unwrap();
+        assert_eq!(c.tracker.command_timeout_ms, None);
+        assert_eq!((c.stage.device_address, c.stage.axis_number), (1, 1));
+        let c = parse_cell_config(
+            "[tracker]\nbeam_break_code = 10050\ncommand_timeout_ms = 300\nuse_adm = false\n\
+             [robot_controller]\nrequest_timeout_ms = 250\n\
+             [stage]\ndevice_address = 2\naxis_number = 3\nmove_timeout_ms = 9000\n",
+            Path::new("c.toml"),
+        )
+        .unwrap();
+        assert_eq!(c.tracker.beam_break_code, Some(10050));
+        assert_eq!(c.tracker.command_timeout_ms, Some(300));
+        assert!(!c.tracker.use_adm);
+        assert_eq!(c.robot_controller.request_timeout_ms, Some(250));
+        assert_eq!((c.stage.device_address, c.stage.axis_number), (2, 3));
+        assert_eq!(c.stage.move_timeout_ms, Some(9000));
+        for (text, want) in [
+            (
+                "[tracker]\ncommand_timeout_ms = 0\n",
+                "tracker.command_timeout_ms: must be in",
+            ),
+            (
+                "[tracker]\nconnect_timeout_ms = -5\n",
+                "tracker.connect_timeout_ms: ",
+            ),
+            (
+                "[tracker]\nsearch_timeout_ms = nan\n",
+                "tracker.search_timeout_ms: nan is not a finite number",
+            ),
+            (
+                "[tracker]\nmeasure_margin_ms = inf\n",
+                "tracker.measure_margin_ms: inf is not a finite number",
+            ),
+            (
+                "[tracker]\ninitialize_timeout_ms = 1.5\n",
+                "tracker.initialize_timeout_ms: ",
+            ),
+            (
+                "[tracker]\nmeasure_ms = 100000000\n",
+                "tracker.measure_ms: must be in",
+            ),
+            (
+                "[tracker]\nsearch_distance_mm = -1\n",
+                "tracker.search_distance_mm: must be positive",
+            ),
+            (
+                "[tracker]\nbeam_break_codes = []\n",
+                "tracker.beam_break_codes: must list",
+            ),
+            (
+                "[robot_controller]\nrequest_timeout_ms = 0\n",
+                "robot_controller.request_timeout_ms: ",
+            ),
+            (
+                "[robot_controller]\nconnect_timeout_ms = nan\n",
+                "robot_controller.connect_timeout_ms: nan",
+            ),
+            (
+                "[robot_controller]\nwait_margin_ms = -1\n",
+                "robot_controller.wait_margin_ms: ",
+            ),
+            (
+                "[robot_controller]\nsettle_timeout_ms = 86400001\n",
+                "robot_controller.settle_timeout_ms: ",
+            ),
+            (
+                "[stage]\nmove_timeout_ms = 86400001\n",
+                "stage.move_timeout_ms: must be in",
+            ),
+            (
+                "[stage]\nreply_timeout_ms = 0\n",
+                "stage.reply_timeout_ms: ",
+            ),
+            (
+                "[stage]\nhome_timeout_ms = inf\n",
+                "stage.home_timeout_ms: inf",
+            ),
+            (
+                "[stage]\npoll_interval_ms = -20\n",
+                "stage.poll_interval_ms: ",
+            ),
+            (
+                "[stage]\ndevice_address = 0\n",
+                "stage.device_address: must be in 1..=99",
+            ),
+            ("[stage]\ndevice_address = 300\n", "stage.device_address: "),
+            (
+                "[stage]\naxis_number = 10\n",
+                "stage.axis_number: must be in 1..=9",
+            ),
+            ("[stage]\nbaud = 0\n", "stage.baud: "),
+            ("[stage]\nmax_tries = 0\n", "stage.max_tries: "),
+        ] {
+            let e = load_error(text);
+            assert!(e.starts_with(&format!("cell.toml: {want}")), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn sim_is_read_by_the_same_strict_parser() {
+        let p = Path::new("/etc/cellcal/cell.toml");
+        // unknown keys, wrong lengths and the world's rules: refused when the file is read, on
+        // every path (`run` and `serve` through parse_cell_config, `sim` through
+        // parse_sim_config), before any campaign is stored
+        for (text, want) in [
+            ("[sim]\nbogus = 1\n", "bogus"),
+            ("[sim.faults.robot]\nreject_move = 2\n", "reject_move"),
+            (
+                "[sim]\ntracker_position_mm = [0, 0, 0, 1]\n",
+                "sim.tracker_position_mm: has 4 values; it takes exactly 3",
+            ),
+            (
+                "[sim]\nstage_max_mm = 0\n",
+                "sim.stage_max_mm: must be positive",
+            ),
+            (
+                "[sim.faults.tracker]\nbeam_break_probability = 1.5\n",
+                "sim.faults.tracker.beam_break_probability: must be in [0, 1]",
+            ),
+            (
+                "[sim]\nstage_speed_mm_s = -1\n",
+                "sim.stage_speed_mm_s: must be positive",
+            ),
+        ] {
+            for e in [
+                parse_cell_config(text, p).unwrap_err().to_string(),
+                parse_sim_config(text, p).unwrap_err().to_string(),
+            ] {
+                assert!(
+                    e.starts_with("/etc/cellcal/cell.toml: ") && e.contains(want),
+                    "{text}: {e}"
+                );
+            }
+        }
+        // one stage: the simulated one follows [stage]
+        for (text, want) in [
+            (
+                "[sim]\nstage_mode = \"manual\"\n",
+                "cell.toml: sim.stage_mode: `manual` contradicts stage.kind",
+            ),
+            (
+                "[stage]\nrange_mm = [0, 60]\n",
+                "cell.toml: stage.range_mm: [0, 60] mm is beyond the simulated stage's travel",
+            ),
+        ] {
+            assert!(
+                load_error(text).starts_with(want),
+                "{text}: {}",
+                load_error(text)
+            );
+        }
+        let c = parse_cell_config(
+            "[stage]\nkind = \"manual\"\ndevice_address = 4\naxis_number = 2\n\
+             [sim]\nerrors = \"errors.toml\"\n",
+            p,
+        )
+        .unwrap();
+        let sim = c.sim.expect("[sim]");
+        assert_eq!(sim.stage_mode, super::super::sim::StageMode::Manual);
+        assert_eq!(sim.stage_address, (4, 2));
+        assert_eq!(sim.errors, "/etc/cellcal/errors.toml");
+        // a simulated device without a [sim] table: the default world, checked the same way
+        let c = parse_cell_config("", p).unwrap();
+        assert_eq!(c.sim, Some(SimWorldConfig::default()));
+        let real = "[tracker]\nmode = \"real\"\n[robot_controller]\nmode = \"real\"\n\
+                    [stage]\nmode = \"real\"\nrange_mm = [0, 60]\n";
+        assert_eq!(parse_cell_config(real, p).unwrap().sim, None);
+    }
+
+    #[test]
     fn wrong_type_named() {
         let e = parse_cell_config("[campaign]\nposes = \"many\"\n", Path::new("c.toml"))
             .unwrap_err()
@@ -1101,6 +1487,126 @@ mod tests {
 #[cfg(test)]
 mod shipped_files {
     use super::*;
+
+    /// The field names serde reads for the struct `T` (its `deny_unknown_fields` list).
+    fn fields_of<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
+        struct Fields(Option<&'static [&'static str]>);
+        impl<'de> serde::Deserializer<'de> for &mut Fields {
+            type Error = serde::de::value::Error;
+            fn deserialize_any<V: serde::de::Visitor<'de>>(
+                self,
+                _: V,
+            ) -> Result<V::Value, Self::Error> {
+                Err(serde::de::Error::custom("not a struct"))
+            }
+            fn deserialize_struct<V: serde::de::Visitor<'de>>(
+                self,
+                _: &'static str,
+                fields: &'static [&'static str],
+                _: V,
+            ) -> Result<V::Value, Self::Error> {
+                self.0 = Some(fields);
+                Err(serde::de::Error::custom("fields read"))
+            }
+            serde::forward_to_deserialize_any! {
+                bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+                byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map enum
+                identifier ignored_any
+            }
+        }
+        let mut f = Fields(None);
+        let _ = T::deserialize(&mut f);
+        f.0.expect("a struct")
+    }
+
+    /// Whether `text` sets or shows (commented out) `key` inside `[table]` (`""`: the top).
+    fn documents(text: &str, table: &str, key: &str) -> bool {
+        let mut current = String::new();
+        for line in text.lines() {
+            let l = line.trim_start_matches('#').trim();
+            if l.starts_with('[') {
+                let name = l.trim_start_matches('[');
+                if let Some(end) = name.find(']') {
+                    current = name[..end].to_owned();
+                    continue;
+                }
+            }
+            let Some((k, _)) = l.split_once('=') else {
+                continue;
+            };
+            if current == table && k.trim() == key {
+                return true;
+            }
+        }
+        false
+    }
+
+    #[test]
+    fn every_key_is_documented_in_the_shipped_files() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+        let read = |name: &str| std::fs::read_to_string(dir.join(name)).expect("shipped file");
+        let (example, sim) = (read("cell.example.toml"), read("cell.sim.toml"));
+        let cell_tables: [(&str, &[&str]); 9] = [
+            ("", fields_of::<CellFile>()),
+            ("tracker", fields_of::<TrackerSection>()),
+            ("robot_controller", fields_of::<RobotSection>()),
+            ("stage", fields_of::<StageSection>()),
+            ("campaign", fields_of::<CampaignSection>()),
+            ("setup", fields_of::<SetupSection>()),
+            ("iso9283", fields_of::<Iso9283Section>()),
+            ("api", fields_of::<ApiFile>()),
+            ("api.tokens", fields_of::<ApiTokenFile>()),
+        ];
+        let sim_tables: [(&str, &[&str]); 4] = [
+            ("sim", fields_of::<SimWorldConfig>()),
+            (
+                "sim.faults.tracker",
+                fields_of::<super::super::sim::TrackerFaults>(),
+            ),
+            (
+                "sim.faults.robot",
+                fields_of::<super::super::sim::RobotFaults>(),
+            ),
+            (
+                "sim.faults.stage",
+                fields_of::<super::super::sim::StageFaults>(),
+            ),
+        ];
+        let mut missing = Vec::new();
+        for (file, text, tables) in [
+            ("cell.example.toml", &example, &cell_tables[..]),
+            ("cell.sim.toml", &sim, &sim_tables[..]),
+        ] {
+            for (table, keys) in tables {
+                for key in keys.iter() {
+                    let is_table = cell_tables.iter().any(|(t, _)| t == key)
+                        || ["sim", "faults", "api", "tokens"].contains(key);
+                    if !is_table && !documents(text, table, key) {
+                        missing.push(format!("{file}: [{table}] {key}"));
+                    }
+                }
+            }
+        }
+        assert!(missing.is_empty(), "not documented: {missing:?}");
+        // the example's values are the defaults (its header says so) where not marked "example"
+        let c = load_cell_config(&dir.join("cell.example.toml")).unwrap();
+        let d = TrackerSection::default();
+        assert_eq!(
+            (c.tracker.use_adm, c.tracker.measure_ms),
+            (d.use_adm, d.measure_ms)
+        );
+        let d = StageSection::default();
+        assert_eq!(
+            (
+                c.stage.device_address,
+                c.stage.axis_number,
+                c.stage.baud,
+                c.stage.max_tries
+            ),
+            (d.device_address, d.axis_number, d.baud, d.max_tries)
+        );
+        assert_eq!(c.stage.home_on_prepare, d.home_on_prepare);
+    }
 
     #[test]
     fn shipped_configurations_parse() {

@@ -5,9 +5,11 @@
 
 pub mod cell;
 pub mod diff;
+pub mod sim;
 
 pub use cell::{
-    load_cell_config, parse_cell_config, ApiSection, ApiToken, CampaignSection, CellConfig,
-    ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotSection, SetupSection, StageMode,
-    StageSection, TrackerSection, MAX_POSES,
+    load_cell_config, parse_cell_config, parse_sim_config, ApiSection, ApiToken, CampaignSection,
+    CellConfig, ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotSection, SetupSection,
+    StageMode, StageSection, TrackerSection, MAX_DEVICE_MS, MAX_POSES,
 };
+pub use sim::SimWorldConfig;

@@ -131,17 +131,7 @@ impl RunningSimCell {
     /// Tracker adapter settings for this cell (address, measuring time, short timeouts).
     pub fn tracker_config(&self) -> EmsconTrackerConfig {
         let meas = i32::try_from(self.config.effective_measure_ms()).unwrap_or(i32::MAX);
-        EmsconTrackerConfig {
-            address: self.tracker_addr.to_string(),
-            meas_time_ms: meas,
-            search_distance_mm: 2500.0,
-            connect_timeout_ms: 2000,
-            command_timeout_ms: 2000,
-            initialize_timeout_ms: 5000,
-            search_timeout_ms: 2000,
-            measure_margin_ms: 2000,
-            ..EmsconTrackerConfig::default()
-        }
+        EmsconTrackerConfig::simulated(self.tracker_addr.to_string(), meas)
     }
 
     /// Robot adapter settings for this cell.
@@ -155,7 +145,8 @@ impl RunningSimCell {
         }
     }
 
-    /// Stage adapter settings for this cell (stage mode `zaber`).
+    /// Stage adapter settings for this cell (stage mode `zaber`): its pty, the simulated
+    /// device's address, scale and range, timeouts from its stage speed.
     pub fn stage_config(&self) -> Option<ZaberStageAdapterConfig> {
         let port = self.stage_path.clone()?;
         let speed = self.config.effective_stage_speed_mm_s().max(1e-3);
@@ -163,6 +154,8 @@ impl RunningSimCell {
         let move_ms = (travel_s * 1000.0 * 2.0) as u64 + 2000;
         Some(ZaberStageAdapterConfig {
             port,
+            device: self.config.stage_address.0,
+            axis: self.config.stage_address.1,
             // A cross-check: the adapter derives the scale from the simulated device.
             microsteps_per_mm: Some(self.config.stage_microsteps_per_mm),
             min_mm: 0.0,
@@ -368,17 +361,8 @@ fn check_world_config(robot: &RobotModel, cfg: &SimWorldConfig) -> Result<(), Si
             robot.dof()
         )));
     }
-    if !(cfg.stage_max_mm > 0.0 && cfg.stage_microsteps_per_mm > 0.0) {
-        return Err(SimError::Config(
-            "stage_max_mm and stage_microsteps_per_mm must be positive".into(),
-        ));
-    }
-    if !(0.0..=1.0).contains(&cfg.faults.tracker.beam_break_probability) {
-        return Err(SimError::Config(
-            "faults.tracker.beam_break_probability must be in [0, 1]".into(),
-        ));
-    }
-    Ok(())
+    // the parser's rules, for a configuration built in code
+    cfg.check().map_err(|e| SimError::Config(e.to_string()))
 }
 
 /// The motorised stage's simulator with the configured range, speed and faults (`None`: a
@@ -395,6 +379,8 @@ fn stage_simulator(cfg: &SimWorldConfig) -> Result<Option<StageSim>, SimError> {
         speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
         homed: false,
         move_overhead: Duration::from_millis(cfg.stage_settle_ms),
+        device: cfg.stage_address.0,
+        axis: cfg.stage_address.1,
         ..StageSimConfig::default()
     });
     {

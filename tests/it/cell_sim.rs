@@ -656,9 +656,9 @@ fn drift_is_linear_plus_decaying_warm_up() {
 #[test]
 fn config_file_documents_the_defaults() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/cell.sim.toml");
-    let text = std::fs::read_to_string(path).expect("config/cell.sim.toml");
-    let table: toml::Table = toml::from_str(&text).expect("valid TOML");
-    let sim: SimWorldConfig = table["sim"].clone().try_into().expect("valid [sim]");
+    let text = std::fs::read_to_string(&path).expect("config/cell.sim.toml");
+    // the strict parser of every path (`run`, `serve`, `sim`)
+    let sim = cellcal::config::parse_sim_config(&text, &path).expect("valid [sim]");
     // every key shows its default, but for those set deliberately: the ball 60 mm above the
     // flange, slightly off the campaign's design tool (the setup step measures it); a tracker
     // frame that is not the robot's (the tracker 2.5 m away, turned); a stage slightly off its

@@ -13,6 +13,7 @@ mod common;
 mod compensate;
 mod contract;
 mod deploy;
+mod device_config;
 mod frame_first;
 mod frames;
 mod house;
