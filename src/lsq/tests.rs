@@ -247,3 +247,143 @@ fn geodesic_acceleration_follows_a_narrow_curved_valley() {
         slow.iterations
     );
 }
+
+fn tenfold(diagonal: Diagonal) -> Options {
+    Options {
+        geodesic_acceleration: false,
+        damping: Damping::Tenfold {
+            initial: 1e-3,
+            max: 1e12,
+            diagonal,
+        },
+        ..Options::default()
+    }
+}
+
+#[test]
+fn tenfold_damping_reaches_the_same_optima() {
+    for diagonal in [Diagonal::MeanTrace, Diagonal::Own { floor: 1e-12 }] {
+        let opts = tenfold(diagonal);
+        let p = Small(Banana { a: 10.0, c: 0.0 }, 2);
+        let sol = solve(&p, vec![-1.2, 1.0], &opts);
+        assert!(sol.termination.converged(), "{:?}", sol.termination);
+        assert!((sol.state[0] - 1.0).abs() < 1e-9 && (sol.state[1] - 1.0).abs() < 1e-9);
+        if diagonal == Diagonal::MeanTrace {
+            // isotropic damping is for parameters of one unit, not the 1e8 scales below
+            continue;
+        }
+        let lin = Linear::new();
+        let exact = lin.exact();
+        let p = Small(lin, 3);
+        let tight = Options {
+            ftol: 1e-15,
+            xtol: 1e-15,
+            gtol: 0.0,
+            ..opts
+        };
+        let sol = solve(&p, vec![0.0; 3], &tight);
+        assert!(sol.termination.converged(), "{:?}", sol.termination);
+        for j in 0..3 {
+            let rel = (sol.state[j] - exact[j]) / exact[j];
+            assert!(rel.abs() < 1e-6, "{diagonal:?} x{j}: {rel:e}");
+        }
+    }
+}
+
+/// `r = x − 1` from 0, every step capped at 0.1 per component, done within 1e-12.
+struct Capped;
+
+impl Problem for Capped {
+    type State = Vec<f64>;
+    fn dim(&self) -> usize {
+        2
+    }
+    fn rows(&self) -> usize {
+        2
+    }
+    fn linearize(&self, x: &Vec<f64>) -> Linearization {
+        let r = DVector::from_iterator(2, x.iter().map(|v| v - 1.0));
+        (0.5 * r.norm_squared(), r, DMatrix::identity(2, 2))
+    }
+    fn cost(&self, x: &Vec<f64>) -> f64 {
+        self.linearize(x).0
+    }
+    fn retract(&self, x: &Vec<f64>, d: &[f64]) -> Vec<f64> {
+        x.iter().zip(d).map(|(a, b)| a + b).collect()
+    }
+    fn values(&self, x: &Vec<f64>) -> Vec<f64> {
+        x.clone()
+    }
+    fn shape_step(&self, _: &Vec<f64>, step: &mut DVector<f64>) {
+        let big = step.amax();
+        if big > 0.1 {
+            *step *= 0.1 / big;
+        }
+    }
+    fn reached(&self, x: &Vec<f64>) -> bool {
+        x.iter().all(|v| (v - 1.0).abs() <= 1e-12)
+    }
+}
+
+#[test]
+fn a_capped_problem_stops_at_its_own_target() {
+    let opts = Options {
+        ftol: 0.0,
+        xtol: 0.0,
+        gtol: 0.0,
+        ..tenfold(Diagonal::MeanTrace)
+    };
+    let sol = solve(&Capped, vec![0.0, 0.0], &opts);
+    assert_eq!(sol.termination, Termination::TargetReached);
+    assert!(sol.termination.converged());
+    assert!(Capped.reached(&sol.state));
+    // a distance of 1 in steps of at most 0.1
+    assert!((10..=12).contains(&sol.iterations), "{}", sol.iterations);
+    // without the cap: a few Gauss–Newton steps (the damping shrinks tenfold per step)
+    struct Free;
+    impl Problem for Free {
+        type State = Vec<f64>;
+        fn dim(&self) -> usize {
+            2
+        }
+        fn rows(&self) -> usize {
+            2
+        }
+        fn linearize(&self, x: &Vec<f64>) -> Linearization {
+            Capped.linearize(x)
+        }
+        fn cost(&self, x: &Vec<f64>) -> f64 {
+            Capped.cost(x)
+        }
+        fn retract(&self, x: &Vec<f64>, d: &[f64]) -> Vec<f64> {
+            Capped.retract(x, d)
+        }
+        fn values(&self, x: &Vec<f64>) -> Vec<f64> {
+            x.clone()
+        }
+        fn reached(&self, x: &Vec<f64>) -> bool {
+            Capped.reached(x)
+        }
+    }
+    let free = solve(&Free, vec![0.0, 0.0], &opts);
+    assert_eq!(free.termination, Termination::TargetReached);
+    assert!(free.iterations <= 3, "{}", free.iterations);
+}
+
+#[test]
+fn without_tolerances_the_solver_stops_at_machine_precision() {
+    // a non-zero-residual optimum and no tolerance: only round-off ends the iteration
+    let p = Small(Banana { a: 10.0, c: 0.5 }, 2);
+    let tight = solve(&p, vec![-1.2, 1.0], &only(0.0, 0.0, 0.0));
+    assert_eq!(tight.termination, Termination::NoFurtherReduction);
+    assert!(tight.termination.converged());
+    let (_, g, h) = p.linearize(&tight.state);
+    assert!(gradient_cosine(tight.final_cost, &g, &h) < 1e-7);
+}
+
+#[test]
+fn tenfold_damping_gives_up_unconverged_on_non_finite_residuals() {
+    let sol = solve(&Small(Cliff, 1), vec![1.0], &tenfold(Diagonal::MeanTrace));
+    assert_eq!(sol.termination, Termination::Stalled);
+    assert_eq!(sol.state, vec![1.0]);
+}
