@@ -1,6 +1,7 @@
 //! Numerical inverse kinematics of the flange for small Cartesian motions.
 //!
-//! Damped Newton (Levenberg–Marquardt) on the flange pose error in the robot base frame:
+//! Damped Newton (Levenberg–Marquardt, the crate's least-squares core [`crate::lsq`] with
+//! Marquardt's ten-fold damping) on the flange pose error in the robot base frame:
 //! position error `p* − p(q)` (mm) and rotation error `log(R*·R(q)ᵀ)` (rad, weighted by
 //! [`IkOptions::rotation_scale_mm`]). The joint Jacobian is built from the θ screws of
 //! [`Frames::screws`]: in MDH the derivative with respect to joint `i` equals the derivative
