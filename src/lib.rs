@@ -39,6 +39,7 @@ pub mod daemon;
 pub mod dataset;
 pub mod identify;
 pub mod iso9283;
+pub mod lsq;
 pub mod measure;
 pub mod metrics;
 pub mod model;

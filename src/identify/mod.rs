@@ -17,6 +17,7 @@ pub mod params;
 pub mod problem;
 pub mod robust;
 pub mod solver;
+pub mod tracker_noise;
 
 use nalgebra::{DMatrix, Vector3};
 use rand::{Rng, SeedableRng};
@@ -26,6 +27,7 @@ pub use observation::{predict, Measured, ObsConfig, ObsModel};
 pub use params::{all_params, retract, ParamId};
 pub use problem::JointTrig;
 pub use robust::RobustLoss;
+pub use tracker_noise::TrackerNoise;
 
 use crate::measure::fit_rigid;
 use crate::model::kinematics::forward;
@@ -53,7 +55,7 @@ pub struct IdentifyOptions {
     pub robust: Option<RobustLoss>,
     /// Per-point weights from the tracker's uncertainty model: each pose is weighted by
     /// σ(1 m)/σ(range), range measured from this tracker (measurement frame). `None` = equal weights.
-    pub point_weights: Option<crate::simulate::TrackerNoise>,
+    pub point_weights: Option<TrackerNoise>,
     /// Solver options.
     pub solver: solver::Options,
     /// Practical identifiability: a-priori noise and the σ bounds over which a parameter is held
@@ -293,7 +295,7 @@ fn practical_bounds(opts: &IdentifyOptions) -> PracticalBounds {
 }
 
 /// σ (mm) of a unit-weight row under tracker weights: the model's σ at 1 m range.
-fn unit_weight_sigma_mm(t: &crate::simulate::TrackerNoise) -> f64 {
+fn unit_weight_sigma_mm(t: &TrackerNoise) -> f64 {
     (t.a_um + t.b_um_per_m) / 1000.0 / t.k
 }
 

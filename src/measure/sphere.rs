@@ -1,5 +1,5 @@
 //! Least-squares sphere fit: an algebraic linear fit for the start, then Levenberg–Marquardt
-//! on the geometric residuals `‖p_i − c‖ − r`.
+//! (the crate's least-squares core, [`crate::lsq`]) on the geometric residuals `‖p_i − c‖ − r`.
 //!
 //! The conditioning of the geometric fit is reported: points on a small cap of the sphere (the
 //! tool-setup pattern: two short arcs through one point) determine the centre along the cap's
@@ -9,6 +9,8 @@
 //! 1 mm of point noise, `√trace((JᵀJ)⁻¹)` over the centre block.
 
 use nalgebra::{DMatrix, DVector, Matrix4, Vector3, Vector4};
+
+use crate::lsq::{self, Damping, Diagonal, Linearization, Termination};
 
 /// Condition numbers above this count as degenerate (points on one circle or one line).
 pub const MAX_SPHERE_CONDITION: f64 = 1e7;
@@ -131,6 +133,65 @@ fn normal_equations(
     (cost, g, h)
 }
 
+/// The geometric fit as a least-squares problem for the core ([`crate::lsq`]): state
+/// `(cx, cy, cz, r)`, residuals `‖p_i − c‖ − r`.
+struct SphereProblem<'a>(&'a [Vector3<f64>]);
+
+impl SphereProblem<'_> {
+    /// The solver's settings: Marquardt's ten-fold damping on each parameter's own diagonal,
+    /// stopped at a relative cost change of 1e-15 or a relative step of 1e-13 (round-off).
+    fn lsq_options() -> lsq::Options {
+        lsq::Options {
+            max_iterations: MAX_ITER,
+            ftol: 1e-15,
+            xtol: 1e-13,
+            gtol: 0.0,
+            geodesic_acceleration: false,
+            damping: Damping::Tenfold {
+                initial: 1e-6,
+                max: 1e16,
+                diagonal: Diagonal::Own { floor: 1e-12 },
+            },
+        }
+    }
+}
+
+/// Iteration limit of the geometric refinement.
+const MAX_ITER: usize = 100;
+
+impl lsq::Problem for SphereProblem<'_> {
+    type State = Vector4<f64>;
+
+    fn dim(&self) -> usize {
+        4
+    }
+
+    fn rows(&self) -> usize {
+        self.0.len()
+    }
+
+    fn linearize(&self, x: &Vector4<f64>) -> Linearization {
+        let (cost, g, h) = normal_equations(self.0, &x.xyz(), x.w);
+        (
+            0.5 * cost,
+            DVector::from_column_slice(g.as_slice()),
+            DMatrix::from_column_slice(4, 4, h.as_slice()),
+        )
+    }
+
+    fn cost(&self, x: &Vector4<f64>) -> f64 {
+        0.5 * normal_equations(self.0, &x.xyz(), x.w).0
+    }
+
+    fn retract(&self, x: &Vector4<f64>, step: &[f64]) -> Vector4<f64> {
+        Vector4::new(x.x + step[0], x.y + step[1], x.z + step[2], x.w + step[3])
+    }
+
+    fn values(&self, x: &Vector4<f64>) -> Vec<f64> {
+        x.as_slice().to_vec()
+    }
+}
+
 /// Fit a sphere to at least four points (least squares on the geometric distances).
 pub fn fit_sphere(points: &[Vector3<f64>]) -> Result<Sphere, SphereFitError> {
     if points.len() < 4 {
@@ -139,47 +200,18 @@ pub fn fit_sphere(points: &[Vector3<f64>]) -> Result<Sphere, SphereFitError> {
     if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
         return Err(SphereFitError::NotFinite(i));
     }
-    let (mut c, mut r) = algebraic(points)?;
-    let (mut cost, mut g, mut h) = normal_equations(points, &c, r);
-    let mut lambda = 1e-6;
-    let mut iterations = 0;
-    const MAX_ITER: usize = 100;
-    loop {
-        if iterations >= MAX_ITER {
-            return Err(SphereFitError::NoConvergence(iterations));
-        }
-        let mut accepted = None;
-        while lambda < 1e16 {
-            let mut a = h;
-            for i in 0..4 {
-                a[(i, i)] += lambda * h[(i, i)].max(1e-12);
-            }
-            let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let step = chol.solve(&(-g));
-            let tc = c + Vector3::new(step[0], step[1], step[2]);
-            let tr = r + step[3];
-            let (ncost, ng, nh) = normal_equations(points, &tc, tr);
-            if ncost.is_finite() && ncost <= cost {
-                accepted = Some((step, tc, tr, ncost, ng, nh));
-                break;
-            }
-            lambda *= 10.0;
-        }
-        let Some((step, tc, tr, ncost, ng, nh)) = accepted else {
-            break; // no lower cost: at the minimum to machine precision
-        };
-        iterations += 1;
-        let small = step.norm() <= 1e-13 * (r + c.norm());
-        let flat = cost - ncost <= 1e-15 * cost;
-        (c, r, cost, g, h) = (tc, tr, ncost, ng, nh);
-        lambda = (lambda / 10.0).max(1e-15);
-        if small || flat {
-            break;
-        }
+    let (c0, r0) = algebraic(points)?;
+    let sol = lsq::solve(
+        &SphereProblem(points),
+        Vector4::new(c0.x, c0.y, c0.z, r0),
+        &SphereProblem::lsq_options(),
+    );
+    if sol.termination == Termination::MaxIterations {
+        return Err(SphereFitError::NoConvergence(sol.iterations));
     }
+    // any other stop is the minimum to the precision the residuals allow
+    let (c, r, iterations) = (sol.state.xyz(), sol.state.w, sol.iterations);
+    let h: Matrix4<f64> = sol.normal_matrix.fixed_view::<4, 4>(0, 0).into_owned();
     let eig = h.symmetric_eigen();
     let (emax, emin) = (eig.eigenvalues.max(), eig.eigenvalues.min());
     let condition = if emin > 0.0 {

@@ -1,6 +1,7 @@
 //! Numerical inverse kinematics of the flange for small Cartesian motions.
 //!
-//! Damped Newton (Levenberg–Marquardt) on the flange pose error in the robot base frame:
+//! Damped Newton (Levenberg–Marquardt, the crate's least-squares core [`crate::lsq`] with
+//! Marquardt's ten-fold damping) on the flange pose error in the robot base frame:
 //! position error `p* − p(q)` (mm) and rotation error `log(R*·R(q)ᵀ)` (rad, weighted by
 //! [`IkOptions::rotation_scale_mm`]). The joint Jacobian is built from the θ screws of
 //! [`Frames::screws`]: in MDH the derivative with respect to joint `i` equals the derivative
@@ -15,6 +16,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use super::kinematics::{forward, Frames, Pose};
 use super::rotation::{from_rotation_vector, log_so3};
 use super::{JointLimit, RobotModel};
+use crate::lsq::{self, Damping, Diagonal, Linearization, Termination};
 
 /// Options of the inverse-kinematics iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -238,10 +240,124 @@ fn pushed_out(q: f64, g: f64, l: &JointLimit) -> bool {
     (q <= l.min && g < 0.0) || (q >= l.max && g > 0.0)
 }
 
-/// Damped Newton from `q0` towards `goal` (see the module doc). With `bounds`, each trial is
-/// clamped into the joint limits and a joint the descent pushes against its bound takes no
-/// step (projected Newton), so the iterate never leaves the limits. Stops converged within the
-/// tolerances, or not converged after `max_iterations` or when no damping gives a better pose.
+/// An iterate: joints (inside the bounds, when there are bounds), their frames and the
+/// position (mm) and rotation (rad) error there.
+#[derive(Clone)]
+struct IkState {
+    q: Vec<f64>,
+    frames: Frames,
+    ep: Vector3<f64>,
+    er: Vector3<f64>,
+}
+
+/// The inverse kinematics as a least-squares problem for the core ([`crate::lsq`]): residual
+/// `−`[`IkGoal::weighted`] error, the step capped at [`IkOptions::max_step_rad`], each trial
+/// clamped into the bounds and a joint the descent pushes against its bound held (projected
+/// Newton), the target the tolerances of [`IkOptions`].
+struct IkProblem<'a> {
+    model: &'a RobotModel,
+    goal: &'a IkGoal,
+    opts: &'a IkOptions,
+    bounds: Option<&'a [JointLimit]>,
+}
+
+impl IkProblem<'_> {
+    /// The iterate at joints `q` (clamped into the bounds first).
+    fn at(&self, mut q: Vec<f64>) -> IkState {
+        if let Some(b) = self.bounds {
+            for (v, l) in q.iter_mut().zip(b) {
+                *v = v.clamp(l.min, l.max);
+            }
+        }
+        let frames = forward(self.model, &q);
+        let (ep, er) = self.goal.error(&frames);
+        IkState { q, frames, ep, er }
+    }
+
+    /// The solver's settings: Marquardt's ten-fold damping on the mean diagonal (joint angles
+    /// share one unit), no relative tolerances (the target tolerances decide).
+    fn lsq_options(&self) -> lsq::Options {
+        lsq::Options {
+            max_iterations: self.opts.max_iterations,
+            ftol: 0.0,
+            xtol: 0.0,
+            gtol: 0.0,
+            geodesic_acceleration: false,
+            damping: Damping::Tenfold {
+                initial: 1e-3,
+                max: 1e12,
+                diagonal: Diagonal::MeanTrace,
+            },
+        }
+    }
+}
+
+impl lsq::Problem for IkProblem<'_> {
+    type State = IkState;
+
+    fn dim(&self) -> usize {
+        self.model.dof()
+    }
+
+    fn rows(&self) -> usize {
+        match self.goal {
+            IkGoal::Flange(_) => 6,
+            IkGoal::Point { .. } => 3,
+        }
+    }
+
+    fn linearize(&self, s: &IkState) -> Linearization {
+        let w = self.opts.rotation_scale_mm;
+        let e = self.goal.weighted(&s.ep, &s.er, w);
+        let j = self.goal.jacobian(self.model, &s.frames, w);
+        let jt = j.transpose();
+        let mut h = &jt * &j;
+        // the descent direction Jᵀe (e = target − current = −r)
+        let mut g = &jt * &e;
+        if let Some(b) = self.bounds {
+            for (i, l) in b.iter().enumerate() {
+                if pushed_out(s.q[i], g[i], l) {
+                    h.row_mut(i).fill(0.0);
+                    h.column_mut(i).fill(0.0);
+                    g[i] = 0.0;
+                }
+            }
+        }
+        (0.5 * e.norm_squared(), -g, h)
+    }
+
+    fn cost(&self, s: &IkState) -> f64 {
+        let e = self
+            .goal
+            .weighted(&s.ep, &s.er, self.opts.rotation_scale_mm);
+        0.5 * e.norm_squared()
+    }
+
+    fn retract(&self, s: &IkState, step: &[f64]) -> IkState {
+        self.at(s.q.iter().zip(step).map(|(a, b)| a + b).collect())
+    }
+
+    fn values(&self, s: &IkState) -> Vec<f64> {
+        s.q.clone()
+    }
+
+    fn shape_step(&self, _: &IkState, step: &mut DVector<f64>) {
+        let big = step.amax();
+        if big > self.opts.max_step_rad {
+            *step *= self.opts.max_step_rad / big;
+        }
+    }
+
+    fn reached(&self, s: &IkState) -> bool {
+        s.ep.norm() <= self.opts.tol_mm && s.er.norm() <= self.opts.tol_rad
+    }
+}
+
+/// Damped Newton from `q0` towards `goal` (see the module doc) on the least-squares core.
+/// With `bounds`, each trial is clamped into the joint limits and a joint the descent pushes
+/// against its bound takes no step (projected Newton), so the iterate never leaves the limits.
+/// Stops converged within the tolerances, or not converged after `max_iterations` or when no
+/// damping gives a better pose.
 fn iterate(
     model: &RobotModel,
     q0: &[f64],
@@ -259,86 +375,22 @@ fn iterate(
     if q0.iter().any(|v| !v.is_finite()) || !goal.is_finite() {
         return Err(IkError::NotFinite);
     }
-    let w = opts.rotation_scale_mm;
-    let clamp = |q: &mut [f64]| {
-        if let Some(b) = bounds {
-            for (v, l) in q.iter_mut().zip(b) {
-                *v = v.clamp(l.min, l.max);
-            }
-        }
+    let problem = IkProblem {
+        model,
+        goal,
+        opts,
+        bounds,
     };
-    let mut q = q0.to_vec();
-    clamp(&mut q);
-    let mut f = forward(model, &q);
-    let (mut ep, mut er) = goal.error(&f);
-    let mut e = goal.weighted(&ep, &er, w);
-    let mut cost = e.norm_squared();
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    let stop = |q: Vec<f64>, iterations, ep: &Vector3<f64>, er: &Vector3<f64>, converged| Reached {
-        q,
-        iterations,
-        position_mm: ep.norm(),
-        rotation_rad: er.norm(),
-        converged,
-    };
-    loop {
-        if ep.norm() <= opts.tol_mm && er.norm() <= opts.tol_rad {
-            return Ok(stop(q, iterations, &ep, &er, true));
-        }
-        if iterations >= opts.max_iterations {
-            return Ok(stop(q, iterations, &ep, &er, false));
-        }
-        let j = goal.jacobian(model, &f, w);
-        let jt = j.transpose();
-        let mut h = &jt * &j;
-        let mut g = &jt * &e;
-        if let Some(b) = bounds {
-            for (i, l) in b.iter().enumerate() {
-                if pushed_out(q[i], g[i], l) {
-                    h.row_mut(i).fill(0.0);
-                    h.column_mut(i).fill(0.0);
-                    g[i] = 0.0;
-                }
-            }
-        }
-        let scale = (h.trace() / n as f64).max(1e-300);
-        let mut accepted = false;
-        while lambda < 1e12 {
-            let mut a = h.clone();
-            for i in 0..n {
-                a[(i, i)] += lambda * scale;
-            }
-            let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let mut step = chol.solve(&g);
-            let big = step.amax();
-            if big > opts.max_step_rad {
-                step *= opts.max_step_rad / big;
-            }
-            let mut trial: Vec<f64> = q.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
-            clamp(&mut trial);
-            let tf = forward(model, &trial);
-            let (tp, tr) = goal.error(&tf);
-            let te = goal.weighted(&tp, &tr, w);
-            let tc = te.norm_squared();
-            if tc.is_finite() && tc < cost {
-                q = trial;
-                f = tf;
-                (ep, er, e, cost) = (tp, tr, te, tc);
-                lambda = (lambda / 10.0).max(1e-15);
-                accepted = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !accepted {
-            return Ok(stop(q, iterations, &ep, &er, false));
-        }
-        iterations += 1;
-    }
+    let start = problem.at(q0.to_vec());
+    let sol = lsq::solve(&problem, start, &problem.lsq_options());
+    let s = sol.state;
+    Ok(Reached {
+        position_mm: s.ep.norm(),
+        rotation_rad: s.er.norm(),
+        q: s.q,
+        iterations: sol.iterations,
+        converged: sol.termination == Termination::TargetReached,
+    })
 }
 
 /// Solve for joints that put the flange at `target` (robot base frame), starting from `q0`.

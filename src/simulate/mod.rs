@@ -22,38 +22,8 @@ use crate::model::rotation::{from_rotation_vector, project_so3};
 use crate::model::RobotModel;
 use crate::plan::{sample_poses, PlanError, Workspace};
 
+pub use crate::identify::TrackerNoise;
 pub use truth::{paper_errors, random_errors, ErrorTable};
-
-/// Laser-tracker noise model: per-axis σ = (a + b·range)/k.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TrackerNoise {
-    /// Tracker position in the measurement frame (mm).
-    pub position_mm: Vector3<f64>,
-    /// Constant term of the MPE (µm).
-    pub a_um: f64,
-    /// Range-proportional term of the MPE (µm per m).
-    pub b_um_per_m: f64,
-    /// Coverage factor: σ = MPE/k.
-    pub k: f64,
-}
-
-impl TrackerNoise {
-    /// AT960 noise with the tracker at `position_mm`.
-    pub fn at960(position_mm: Vector3<f64>) -> TrackerNoise {
-        TrackerNoise {
-            position_mm,
-            a_um: 15.0,
-            b_um_per_m: 6.0,
-            k: 2.0,
-        }
-    }
-
-    /// Per-axis σ (mm) of a point at `p` (measurement frame).
-    pub fn sigma_mm(&self, p: &Vector3<f64>) -> f64 {
-        let range_m = (p - self.position_mm).norm() / 1000.0;
-        (self.a_um + self.b_um_per_m * range_m) / 1000.0 / self.k
-    }
-}
 
 /// Everything that defines a simulated data set apart from the robots.
 #[derive(Debug, Clone, PartialEq)]
