@@ -1172,7 +1172,8 @@ impl Daemon {
         })
     }
 
-    /// The campaign's latest result (the `cellcal identify` JSON), if any. Cancel-safe.
+    /// The campaign's latest result (the `cellcal identify` JSON rendered from the stored typed
+    /// result; an ISO campaign's figures), if any. Cancel-safe.
     pub async fn result(&self, id: i64) -> Result<Option<serde_json::Value>, DaemonError> {
         self.read(move |s| Ok(stored_result_json(s, id)))
             .await?

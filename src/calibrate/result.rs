@@ -420,3 +420,88 @@ fn errors_of(model: &RobotModel, poses: &[Measured], obs: &ObsConfig) -> Vec<Pos
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibrate::calibrate_result;
+    use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
+    use crate::model::tx60;
+    use crate::simulate::{simulate, truth, SimConfig};
+
+    fn small_op() -> (CalibrationResult, RobotModel) {
+        let nominal = tx60();
+        let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("paper errors");
+        let cfg = SimConfig {
+            poses: 60,
+            ident: 40,
+            ..SimConfig::default()
+        };
+        let rows = simulate(&nominal, &truth, &cfg)
+            .expect("sampled")
+            .observations;
+        let opts = IdentifyOptions {
+            obs: ObsConfig::new(ObsModel::Op, 10.0),
+            identify_base: false,
+            identify_tool: false,
+            registered_base: false,
+            robust: None,
+            point_weights: None,
+            solver: Default::default(),
+            practical: PracticalBounds::default(),
+        };
+        let (r, _) = calibrate_result(&nominal, &rows, &opts, 10.0, BaseSource::Nominal)
+            .expect("identified");
+        (r, nominal)
+    }
+
+    #[test]
+    fn the_stored_form_reads_back_exactly_and_leads_with_the_contract() {
+        let (r, nominal) = small_op();
+        let text = serde_json::to_string_pretty(&r).expect("stored form");
+        let contract = r.identify_json().expect("contract");
+        // the contract's fields first, in the contract's order: the stored text starts with them
+        let head = contract.trim_end_matches("\n}");
+        assert!(
+            text.starts_with(head),
+            "the stored form leads with the contract"
+        );
+        let back = CalibrationResult::from_stored_json(&text).expect("reads");
+        assert_eq!(back.layout, RESULT_LAYOUT);
+        assert_eq!(back.identify_json().expect("contract"), contract);
+        assert_eq!(back.residuals, r.residuals);
+        assert_eq!(back.corrected, r.corrected);
+        assert_eq!(
+            corrected_model(&back, &nominal).expect("model"),
+            corrected_model(&r, &nominal).expect("model")
+        );
+        // every MDH parameter of every joint, keyed by its id, nothing else
+        assert_eq!(
+            r.corrected.values.len(),
+            nominal.dof() * ParamKind::ALL.len()
+        );
+        assert_eq!(r.corrected.base_source, Some(BaseSource::Nominal));
+    }
+
+    #[test]
+    fn a_contract_alone_reads_as_layout_0_with_the_same_corrected_model() {
+        let (r, nominal) = small_op();
+        let old = CalibrationResult::from_stored_json(&r.identify_json().expect("contract"))
+            .expect("reads");
+        assert_eq!(old.layout, 0);
+        assert_eq!(old.residuals, None);
+        assert_eq!(old.corrected.base_source, None);
+        assert_eq!(old.corrected.values, r.corrected.values);
+        assert_eq!(
+            corrected_model(&old, &nominal).expect("model"),
+            corrected_model(&r, &nominal).expect("model")
+        );
+        // a parameter row missing from an old contract is named when the model is built
+        let mut gap = r.report.clone();
+        gap.parameters.retain(|p| p.name != "alpha4");
+        let e = CorrectedModel::from_report(&gap)
+            .model(&nominal)
+            .unwrap_err();
+        assert_eq!(e, ModelFileError::Parameter("alpha4".into()));
+    }
+}
