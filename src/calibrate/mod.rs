@@ -184,8 +184,8 @@ pub fn calibrate(
     Ok((report, id))
 }
 
-/// [`calibrate`] and the typed result of it ([`CalibrationResult::of`]: the contract, the
-/// per-pose residuals of both sets, the corrected model with `base` as its base's source).
+/// [`calibrate`] and the typed result of it, as a campaign stores it: the contract, the
+/// per-pose residuals of both sets and the corrected model with `base` as its base's source.
 pub fn calibrate_result(
     robot: &RobotModel,
     rows: &[Observation],
@@ -194,6 +194,7 @@ pub fn calibrate_result(
     base: BaseSource,
 ) -> Result<(CalibrationResult, Identification), CalibrateError> {
     let (report, id) = calibrate(robot, rows, opts, stage_travel_mm)?;
-    let result = CalibrationResult::of(report, &id, rows, stage_travel_mm, base)?;
+    let result =
+        CalibrationResult::of(report, &id, base).with_residuals(&id, rows, stage_travel_mm)?;
     Ok((result, id))
 }

@@ -41,7 +41,7 @@ pub struct CalibrationResult {
     /// `result` event carry).
     pub report: IdentifyReport,
     /// Per-pose errors before and after of both sets; `None` for a result stored before they
-    /// were kept (layout 0).
+    /// were kept (layout 0), or not asked for (`identify` without `--report`).
     pub residuals: Option<PoseErrors>,
     /// The corrected model's values.
     pub corrected: CorrectedModel,
@@ -60,16 +60,10 @@ struct StoredForm<'a> {
 }
 
 impl CalibrationResult {
-    /// The result of identification `id` of `rows` (its contract `report`; `base`: where the
-    /// corrected model's base comes from).
-    pub fn of(
-        report: IdentifyReport,
-        id: &Identification,
-        rows: &[Observation],
-        travel_mm: f64,
-        base: BaseSource,
-    ) -> Result<CalibrationResult, ConvertError> {
-        let residuals = PoseErrors::compute(id, rows, travel_mm)?;
+    /// The result of identification `id` (its contract `report`; `base`: where the corrected
+    /// model's base comes from), without per-pose errors ([`CalibrationResult::with_residuals`]
+    /// adds them).
+    pub fn of(report: IdentifyReport, id: &Identification, base: BaseSource) -> CalibrationResult {
         let corrected = CorrectedModel {
             values: id
                 .estimates
@@ -85,12 +79,23 @@ impl CalibrationResult {
             tool_mm: report.tool.translation_mm,
             base_source: Some(base),
         };
-        Ok(CalibrationResult {
+        CalibrationResult {
             report,
-            residuals: Some(residuals),
+            residuals: None,
             corrected,
             layout: RESULT_LAYOUT,
-        })
+        }
+    }
+
+    /// With the per-pose errors of identification `id` of `rows` ([`PoseErrors::compute`]).
+    pub fn with_residuals(
+        mut self,
+        id: &Identification,
+        rows: &[Observation],
+        travel_mm: f64,
+    ) -> Result<CalibrationResult, ConvertError> {
+        self.residuals = Some(PoseErrors::compute(id, rows, travel_mm)?);
+        Ok(self)
     }
 
     /// A stored result, of any layout (see the module doc for layout 0).

@@ -8,7 +8,7 @@ use anyhow::{anyhow, Context};
 use clap::ValueEnum;
 use nalgebra::Vector3;
 
-use cellcal::calibrate::{calibrate_result, BaseSource, IdentifyReport, Quality};
+use cellcal::calibrate::{calibrate, BaseSource, CalibrationResult, IdentifyReport, Quality};
 use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
@@ -167,9 +167,17 @@ pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
     let context = std::mem::take(&mut source.report);
     let (robot, opts, travel, rows) = resolve(&a, source)?;
     let base = BaseSource::of(opts.identify_base, registered);
-    let (result, _) = calibrate_result(&robot, &rows, &opts, travel, base)
+    let (report, id) = calibrate(&robot, &rows, &opts, travel)
         .with_context(|| label.clone())
         .map_err(input)?;
+    let mut result = CalibrationResult::of(report, &id, base);
+    if a.report.is_some() {
+        // the per-pose errors only for the report: a large data set does not pay for them
+        result = result
+            .with_residuals(&id, &rows, travel)
+            .with_context(|| label.clone())
+            .map_err(input)?;
+    }
     let report = &result.report;
     print!("{}", summary_text(report));
     if let Some(path) = &a.json {
