@@ -10,11 +10,11 @@ use std::hint::black_box;
 use std::path::Path;
 
 use cellcal::analysis::metrics::evaluate_pair;
+use cellcal::calibrate::calibrate;
 use cellcal::dataset::{read_csv, split_measured, write_csv, Required};
 use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, JointTrig, ObsConfig, ObsModel};
 use cellcal::model::tx60;
-use cellcal::report::calibrate;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, Criterion};
 

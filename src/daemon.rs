@@ -28,7 +28,7 @@ use crate::campaign::cell_lock::CellLockError;
 use crate::campaign::lock::{is_dead, mark_interrupted};
 use crate::campaign::report::{campaign_report, ReportError};
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
-use crate::campaign::stored::{load_stored, stored_model_toml, StoredError};
+use crate::campaign::stored::{load_stored, stored_model_toml, stored_result_json, StoredError};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
@@ -1167,10 +1167,15 @@ impl Daemon {
         })
     }
 
-    /// The campaign's latest result (the `cellcal identify` JSON), if any. Cancel-safe.
+    /// The campaign's latest result (the `cellcal identify` JSON rendered from the stored typed
+    /// result; an ISO campaign's figures), if any. Cancel-safe.
     pub async fn result(&self, id: i64) -> Result<Option<serde_json::Value>, DaemonError> {
-        let text = self.read(move |s| s.latest_result(id)).await?;
-        Ok(text.and_then(|t| serde_json::from_str(&t).ok()))
+        self.read(move |s| Ok(stored_result_json(s, id)))
+            .await?
+            .map_err(|e| match e {
+                StoredError::Store(StoreError::NoCampaign(id)) => DaemonError::NotFound(id),
+                e => DaemonError::Stored(e),
+            })
     }
 
     /// The calibration report of a campaign (one self-contained HTML page), `None` while it has

@@ -31,6 +31,7 @@ pub mod analysis;
 pub mod api;
 pub mod auth;
 pub mod build_info;
+pub mod calibrate;
 pub mod campaign;
 pub mod cell;
 pub mod compensate;

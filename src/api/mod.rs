@@ -410,15 +410,16 @@ async fn journal(
     Ok(Json(d.journal(id).await?).into_response())
 }
 
-/// The `cellcal identify` JSON of a campaign.
+/// The `cellcal identify` JSON of a campaign, rendered from its stored typed result.
 ///
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "the `cellcal identify` JSON contract (see README)", body = serde_json::Value),
+    responses((status = 200, description = "the `cellcal identify` JSON contract (see README), rendered from the stored result; an ISO 9283 campaign's stored figures", body = serde_json::Value),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
-        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody)))]
+        (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
+        (status = 500, description = "the stored result cannot be read", body = ErrorBody)))]
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
         Some(v) => Ok(Json(v).into_response()),

@@ -28,6 +28,7 @@ use std::time::Duration;
 use nalgebra::Vector3;
 
 use super::events::{CampaignEvent, CampaignState, Control, Journalled};
+use crate::calibrate::{calibrate_result, BaseSource, CalibrateError, IdentifyReport};
 use crate::cell::{
     CellError, DeviceKind, FaultKind, PromptContext, Robot, Stage, StagePosition, Tracker,
     TrackerPoint,
@@ -39,10 +40,7 @@ use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
-use crate::report::{calibrate, CalibrateError, IdentifyReport};
-use crate::store::{
-    identification_rows, EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError,
-};
+use crate::store::{identification_rows, EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
 use crate::wall_clock::{now_unix_ms, unix_ms};
 
 /// The three devices of the cell.
@@ -1140,22 +1138,26 @@ pub fn campaign_identification(
     (nominal, opts, cfg.stage.travel_mm)
 }
 
-/// Identify from the stored measurements and store the result.
-/// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
-/// `guarded`), never by dropping it.
+/// Identify from the stored measurements and store the typed result
+/// ([`crate::calibrate::CalibrationResult`]: the contract, per-pose residuals, corrected model)
+/// once; returns its contract. Not cancel-safe: one step of the run, ended by the abort token
+/// (every device wait is `guarded`), never by dropping it.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
     let rows = identification_rows(with_store(&ctx.store, move |s| s.measured(id)).await?);
     let setup = with_store(&ctx.store, move |s| SetupResult::load(s, id)).await?;
     let (nominal, opts, travel) = campaign_identification(&ctx.cfg, &ctx.nominal, setup.as_ref());
-    let (report, _) =
-        tokio::task::spawn_blocking(move || calibrate(&nominal, &rows, &opts, travel))
+    let base = BaseSource::of(
+        opts.identify_base,
+        setup.as_ref().is_some_and(|s| s.base.is_some()),
+    );
+    let (result, _) =
+        tokio::task::spawn_blocking(move || calibrate_result(&nominal, &rows, &opts, travel, base))
             .await
             .map_err(|e| CampaignError::Task(e.to_string()))??;
-    let json =
-        serde_json::to_string_pretty(&report).map_err(|e| CampaignError::Task(e.to_string()))?;
-    let model = report.model.clone();
-    with_store(&ctx.store, move |s| s.save_result(id, &model, &json)).await?;
+    let model = result.report.model.clone();
+    let report = result.report.clone();
+    with_store(&ctx.store, move |s| s.save_result_as(id, &model, &result)).await?;
     Ok(report)
 }
 

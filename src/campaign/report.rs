@@ -1,23 +1,23 @@
 //! The calibration report of a stored campaign: gathers from the store alone what
-//! [`crate::report::html`] shows — the stored result, the per-pose errors of the campaign's own
-//! identification rebuilt by [`load_stored`] (the same recipe, so the same numbers), the setup
-//! result, drift checks and faults from the journal, the configured devices, the digests of the
-//! stored configuration and robot file, and the journal's times.
+//! [`crate::report::html`] shows — the stored typed result (contract and per-pose residuals as
+//! the campaign's identification left them: nothing is identified again), the significance
+//! indices of the stored nominal model, the setup result, drift checks and faults from the
+//! journal, the configured devices, the digests of the stored configuration and robot file, and
+//! the journal's times.
 
 use std::path::Path;
 
 use serde_json::Value;
 
-use super::engine::SetupResult;
-use super::stored::{load_stored, StoredCampaign, StoredError};
+use super::stored::{load_stored, StoredError};
 use crate::analysis::significance::significance;
+use crate::calibrate::{CalibrationResult, SetupResult};
 use crate::config::cell::{CellConfig, DeviceMode, StageMode};
 use crate::config::parse_cell_config;
 use crate::report::html::{
-    CampaignFacts, DeviceEntry, DriftCheck, FaultEntry, InputDigest, PoseErrors, Provenance,
-    ReportInput, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED,
+    CampaignFacts, DeviceEntry, DriftCheck, FaultEntry, InputDigest, Provenance, ReportInput,
+    SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED,
 };
-use crate::report::{calibrate, IdentifyReport};
 use crate::store::{EventRecord, Store, StoreError};
 
 /// Why a stored campaign has no calibration report.
@@ -36,8 +36,9 @@ pub enum ReportError {
 
 /// The report input of campaign `id` in `store`, or `None` while it has no result.
 /// `store_name` names the store file in the page; `generated_at_ms` is the page's time. Only a
-/// store failure is an error: a part that cannot be rebuilt (per-pose errors of a campaign
-/// whose stored robot file no longer parses) is reported missing, with the reason, in the page.
+/// store failure is an error: a part that is not there (per-pose errors of a result stored by
+/// an earlier cellcal, significance indices of a stored robot file that no longer parses) is
+/// reported missing, with the reason, in the page.
 pub fn campaign_report(
     store: &Store,
     id: i64,
@@ -47,56 +48,53 @@ pub fn campaign_report(
     if super::iso::is_iso_campaign(store, id)? {
         return Err(ReportError::NotCalibration(id));
     }
-    let Some(text) = store.latest_result(id)? else {
+    let Some(result) = store.latest_result_as::<CalibrationResult>(id)? else {
         return Ok(None);
     };
-    let result = IdentifyReport::from_json(&text)
-        .map_err(|e| StoreError::Corrupt(format!("campaign {id}: its stored result: {e}")))?;
     let (facts, inputs) = campaign_facts(store, id)?;
     let title = format!("Calibration report: campaign {id} \"{}\"", facts.name);
     let provenance = Provenance::of_this_build(generated_at_ms, inputs);
-    let mut input = ReportInput::new(
+    let mut input = ReportInput::of_result(
         &title,
         &format!("campaign {id} in {store_name}"),
-        result,
+        &result,
         provenance,
     );
-    let stored_metrics = serde_json::from_str::<Value>(&text)
-        .ok()
-        .map(|v| v["metrics"].clone());
+    // the significance indices are the nominal model's (with the campaign's setup): parsed
+    // from the store, nothing identified
     match load_stored(store, id, None) {
-        Ok(c) => rebuild(&c, stored_metrics, &mut input),
+        Ok(c) => {
+            input.significance = significance(&c.nominal, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED);
+            if result.residuals.is_none() {
+                // a result stored before the per-pose errors were kept: evaluated from its
+                // corrected model, once per page
+                match result.evaluate_residuals(&c.nominal, &c.opts, &c.rows, c.travel_mm) {
+                    Ok(poses) => {
+                        input.poses = Ok(poses);
+                        input.notes.push(
+                            "This result was stored by an earlier cellcal, which kept no \
+                             per-pose errors: the per-pose plots evaluate the stored measurements \
+                             under the stored result's corrected model (nothing was identified \
+                             again)."
+                                .to_owned(),
+                        );
+                    }
+                    Err(e) => {
+                        input.poses = Err(format!(
+                            "this result was stored by an earlier cellcal, which kept none, and \
+                             its corrected model does not give them: {e}"
+                        ))
+                    }
+                }
+            }
+        }
         Err(StoredError::Store(e)) => return Err(e.into()),
-        Err(e) => input.poses = Err(e.to_string()),
+        Err(e) => input.notes.push(format!(
+            "No significance indices: the campaign's nominal model: {e}"
+        )),
     }
     input.campaign = Some(facts);
     Ok(Some(input))
-}
-
-/// The per-pose errors and significance indices of the campaign's own identification, rebuilt
-/// from the store (a note when it no longer gives `stored_metrics`, the stored result's figures).
-fn rebuild(c: &StoredCampaign, stored_metrics: Option<Value>, input: &mut ReportInput) {
-    input.significance = significance(&c.nominal, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED);
-    let (again, ident) = match calibrate(&c.nominal, &c.rows, &c.opts, c.travel_mm) {
-        Ok(x) => x,
-        Err(e) => {
-            input.poses = Err(format!("the campaign's identification no longer runs: {e}"));
-            return;
-        }
-    };
-    // both through JSON text, as the stored figures went (a parsed number may be 1 ulp off)
-    let again_metrics = serde_json::to_string(&again.metrics)
-        .ok()
-        .and_then(|t| serde_json::from_str::<Value>(&t).ok());
-    if again_metrics.is_none() || again_metrics != stored_metrics {
-        input.notes.push(
-            "The per-pose plots come from identifying the stored measurements again with this \
-             software version; its accuracy figures differ from the stored result, which the \
-             tables show."
-                .to_owned(),
-        );
-    }
-    input.poses = PoseErrors::compute(&ident, &c.rows, c.travel_mm).map_err(|e| e.to_string());
 }
 
 /// What the store knows of campaign `id` besides its result, and the digests of its stored

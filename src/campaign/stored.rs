@@ -6,14 +6,16 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
+use serde_json::Value;
 
-use super::engine::{campaign_identification, SetupResult};
+use super::engine::campaign_identification;
+use crate::calibrate::{BaseSource, CalibrationResult, ModelFileError, SetupResult};
 use crate::config::{parse_cell_config, ConfigError};
 use crate::dataset::{write_csv, CsvSetup, Observation};
 use crate::identify::IdentifyOptions;
 use crate::model::{parse_robot, RobotFileError, RobotModel};
+use crate::report::corrected_model_toml;
 use crate::report::model_file::sha256_hex;
-use crate::report::{corrected_model_toml, BaseSource, IdentifyReport, ModelFileError};
 use crate::store::{identification_rows, Store, StoreError};
 
 /// Why a stored campaign cannot be identified.
@@ -141,37 +143,63 @@ pub fn load_stored(
     })
 }
 
-/// Campaign `id`'s corrected model as robot-file TOML ([`crate::report::model_file`]) from its
-/// stored result and its stored nominal model and setup; `None` before it has a result, and
-/// for a campaign that is no calibration (ISO 9283: its result is figures, not a model). The
-/// same store gives the same bytes (`cellcal run --model-out`, `GET /api/campaigns/{id}/model`).
-pub fn stored_model_toml(store: &Store, id: i64) -> Result<Option<String>, StoredError> {
+/// Campaign `id`'s stored typed result; `None` before it has one, and for a campaign that is
+/// no calibration (ISO 9283: its result is figures, not an identification).
+pub fn stored_result(store: &Store, id: i64) -> Result<Option<CalibrationResult>, StoredError> {
     if store.campaign_kind(id)?.is_some() {
         return Ok(None);
     }
-    let Some(text) = store.latest_result(id)? else {
+    Ok(store.latest_result_as(id)?)
+}
+
+/// What `GET /api/campaigns/{id}/result` answers: a calibration's `cellcal identify` JSON
+/// contract rendered from its stored typed result, an ISO 9283 campaign's stored figures;
+/// `None` before a result.
+pub fn stored_result_json(store: &Store, id: i64) -> Result<Option<Value>, StoredError> {
+    if store.campaign_kind(id)?.is_some() {
+        return Ok(store.latest_result_as::<Value>(id)?);
+    }
+    stored_result(store, id)?
+        .map(|r| serde_json::to_value(&r.report))
+        .transpose()
+        .map_err(|e| StoredError::Result {
+            id,
+            message: e.to_string(),
+        })
+}
+
+/// Campaign `id`'s corrected model as robot-file TOML ([`crate::report::model_file`]) from its
+/// stored typed result (its corrected model's values, base and tool) and its stored nominal
+/// model (name, joint limits); `None` before it has a result, and for a campaign that is no
+/// calibration (ISO 9283: its result is figures, not a model). The same store gives the same
+/// bytes (`cellcal run --model-out`, `GET /api/campaigns/{id}/model`).
+pub fn stored_model_toml(store: &Store, id: i64) -> Result<Option<String>, StoredError> {
+    let Some(result) = stored_result(store, id)? else {
         return Ok(None);
     };
-    let report = IdentifyReport::from_json(&text).map_err(|e| StoredError::Result {
+    let c = load_stored(store, id, None)?;
+    let row = store.campaign(id)?;
+    let base = result.corrected.base_source.unwrap_or_else(|| {
+        BaseSource::of(c.opts.identify_base, c.setup.base_translation_mm.is_some())
+    });
+    // the digest of the result's contract: the JSON `identify --json` and `run --json` write
+    let contract = result.identify_json().map_err(|e| StoredError::Result {
         id,
         message: e.to_string(),
     })?;
-    let c = load_stored(store, id, None)?;
-    let row = store.campaign(id)?;
-    let base = BaseSource::of(c.opts.identify_base, c.setup.base_translation_mm.is_some());
     let provenance = [
         format!(
             "Data: campaign {id} `{}` ({} poses), its result sha256 {}",
             row.name,
             c.rows.len(),
-            sha256_hex(text.as_bytes())
+            sha256_hex(contract.as_bytes())
         ),
         format!(
             "Nominal model: the campaign's stored robot model (sha256 {})",
             sha256_hex(row.robot_toml.as_bytes())
         ),
     ];
-    corrected_model_toml(&report, &c.nominal, &provenance, base)
+    corrected_model_toml(&result, &c.nominal, &provenance, base)
         .map(Some)
         .map_err(|source| StoredError::Model { id, source })
 }

@@ -8,7 +8,7 @@ use anyhow::Context;
 
 use cellcal::campaign::stored::load_stored;
 
-use super::identify::StoredCampaignArgs;
+use super::stored::StoredCampaignArgs;
 use super::{input, other, Failure};
 
 /// Arguments of `cellcal export`.

@@ -8,6 +8,7 @@ use anyhow::{anyhow, Context};
 use clap::ValueEnum;
 use nalgebra::Vector3;
 
+use cellcal::calibrate::{calibrate, BaseSource, CalibrationResult, IdentifyReport, Quality};
 use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::report::campaign_facts;
 use cellcal::campaign::stored::load_stored;
@@ -21,13 +22,11 @@ use cellcal::model::rotation::from_rotation_vector;
 use cellcal::model::{RobotModel, SignedAxis};
 use cellcal::report::html::{CampaignFacts, InputDigest, Provenance, ReportInput};
 use cellcal::report::model_file::sha256_hex;
-use cellcal::report::{
-    calibrate, corrected_model_toml, summary_text, BaseSource, IdentifyReport, Quality,
-};
+use cellcal::report::{corrected_model_toml, summary_text};
 use cellcal::simulate::TrackerNoise;
-use cellcal::store::Store;
 use cellcal::wall_clock::now_unix_ms;
 
+use super::stored::{campaign_id, open_store};
 use super::{input, other, Failure};
 
 /// Stage travel when neither the data nor a flag gives one (mm).
@@ -171,25 +170,32 @@ pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
     let (report, id) = calibrate(&robot, &rows, &opts, travel)
         .with_context(|| label.clone())
         .map_err(input)?;
-    print!("{}", summary_text(&report));
+    let mut result = CalibrationResult::of(report, &id, base);
+    if a.report.is_some() {
+        // the per-pose errors only for the report: a large data set does not pay for them
+        result = result
+            .with_residuals(&id, &rows, travel)
+            .with_context(|| label.clone())
+            .map_err(input)?;
+    }
+    let report = &result.report;
+    print!("{}", summary_text(report));
     if let Some(path) = &a.json {
-        let text = serde_json::to_string_pretty(&report).map_err(other)?;
-        write_file(path, &text)?;
+        write_file(path, &result.identify_json().map_err(other)?)?;
     }
     if let Some(path) = &a.model_out {
-        let text = corrected_model_toml(&report, &robot, &provenance, base).map_err(other)?;
+        let text = corrected_model_toml(&result, &robot, &provenance, base).map_err(other)?;
         write_file(path, &text)?;
     }
     if let Some(path) = &a.report {
         let provenance = Provenance::of_this_build(now_unix_ms(), context.inputs);
         let title = format!("Calibration report: {label}");
-        let mut html = ReportInput::new(&title, &label, report.clone(), provenance)
-            .with_poses(&id, &rows, travel)
-            .with_significance(&robot);
+        let mut html =
+            ReportInput::of_result(&title, &label, &result, provenance).with_significance(&robot);
         html.campaign = context.facts;
         super::report::write_report(path, &html)?;
     }
-    poor_is_exit_3(&report, "the result")
+    poor_is_exit_3(report, "the result")
 }
 
 /// Write `text` to `path` (exit 1 when it cannot).
@@ -353,45 +359,6 @@ fn store_source(a: &IdentifyArgs, store: &Path) -> Result<Source, Failure> {
         provenance,
         report,
     })
-}
-
-/// `--store FILE [--campaign ID]`: a stored campaign (default: the store's latest).
-#[derive(clap::Args)]
-pub struct StoredCampaignArgs {
-    /// Store file.
-    #[arg(long)]
-    pub store: PathBuf,
-    /// Campaign id (default: the latest).
-    #[arg(long)]
-    pub campaign: Option<i64>,
-}
-
-impl StoredCampaignArgs {
-    /// The open store and the campaign's id.
-    pub fn open(&self) -> Result<(Store, i64), Failure> {
-        let s = open_store(&self.store)?;
-        let id = campaign_id(&s, &self.store, self.campaign)?;
-        Ok((s, id))
-    }
-}
-
-/// Open an existing store (a missing file is an error, not a new store).
-pub(crate) fn open_store(path: &Path) -> Result<Store, Failure> {
-    if !path.is_file() {
-        return Err(input(anyhow!("{}: no such store file", path.display())));
-    }
-    Store::open(path).map_err(input)
-}
-
-/// The given campaign id, or the store's latest.
-pub(crate) fn campaign_id(s: &Store, path: &Path, given: Option<i64>) -> Result<i64, Failure> {
-    match given {
-        Some(id) => Ok(id),
-        None => s
-            .latest_campaign()
-            .map_err(input)?
-            .ok_or_else(|| input(anyhow!("{}: no campaign", path.display()))),
-    }
 }
 
 /// A flag and the source's setup value must agree; the agreed (or only) value. Equal within

@@ -8,7 +8,8 @@ use anyhow::anyhow;
 use cellcal::campaign::iso::{iso_report, IsoResultError};
 use cellcal::iso9283::format_table;
 
-use super::identify::{write_file, StoredCampaignArgs};
+use super::identify::write_file;
+use super::stored::StoredCampaignArgs;
 use super::{input, other, Failure};
 
 /// Arguments of `cellcal iso9283`.

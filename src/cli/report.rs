@@ -9,7 +9,7 @@ use cellcal::campaign::report::campaign_report;
 use cellcal::report::html::{render, ReportInput};
 use cellcal::wall_clock::now_unix_ms;
 
-use super::identify::StoredCampaignArgs;
+use super::stored::StoredCampaignArgs;
 use super::{input, other, Failure};
 
 /// Arguments of `cellcal report`.

@@ -9,12 +9,12 @@ use anyhow::{anyhow, Context};
 
 use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::session::{open_session, Resume, Session, SessionError};
-use cellcal::campaign::stored::stored_model_toml;
+use cellcal::campaign::stored::{stored_model_toml, stored_result};
 use cellcal::campaign::{run_campaign, CampaignCommand, Control, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
 use cellcal::config::{load_cell_config, CellConfig};
 use cellcal::iso9283::{format_table, IsoReport};
-use cellcal::report::{summary_text, IdentifyReport};
+use cellcal::report::summary_text;
 use cellcal::store::Store;
 
 use super::identify::{poor_is_exit_3, write_file};
@@ -290,16 +290,18 @@ fn print_stored_result(
     if is_iso_campaign(&store, id).map_err(other)? {
         return print_stored_iso(id, &text, json, model_out);
     }
-    let report = IdentifyReport::from_json(&text)
-        .with_context(|| format!("campaign {id}: the stored result does not parse"))
-        .map_err(other)?;
+    let result = stored_result(&store, id)
+        .with_context(|| format!("campaign {id}: the stored result"))
+        .map_err(other)?
+        .ok_or_else(|| other(anyhow!("campaign {id} is done but has no stored result")))?;
+    let report = &result.report;
     eprintln!("campaign {id} is done: nothing moves. Its stored result:");
-    print!("{}", summary_text(&report));
+    print!("{}", summary_text(report));
     if let Some(path) = json {
-        write_file(path, &text)?;
+        write_file(path, &result.identify_json().map_err(other)?)?;
     }
     if let Some(path) = model_out {
         write_model(store_path, id, path)?;
     }
-    poor_is_exit_3(&report, &format!("campaign {id}'s stored result"))
+    poor_is_exit_3(report, &format!("campaign {id}'s stored result"))
 }

@@ -101,6 +101,31 @@ impl ParamId {
         }
     }
 
+    /// The parameter of public name `name` ([`ParamId::name`]), `None` for no parameter.
+    pub fn from_name(name: &str) -> Option<ParamId> {
+        let axis = |t: &str| AXES.iter().position(|a| *a == t);
+        if let Some(t) = name.strip_prefix("base_t") {
+            return axis(t).map(ParamId::BaseTranslation);
+        }
+        if let Some(t) = name.strip_prefix("base_r") {
+            return axis(t).map(ParamId::BaseRotation);
+        }
+        if let Some(t) = name.strip_prefix("tool_") {
+            return axis(t).map(ParamId::Tool);
+        }
+        if let Some(t) = name.strip_prefix("stage_axis_r") {
+            return axis(t).map(ParamId::StageAxis);
+        }
+        let digits = name.find(|c: char| c.is_ascii_digit())?;
+        let (stem, number) = name.split_at(digits);
+        let kind = ParamKind::ALL.into_iter().find(|k| k.stem() == stem)?;
+        let joint: usize = number.parse().ok()?;
+        let joint = joint.checked_sub(1)?;
+        // the name of what was parsed is the name given (no leading zeros, no sign)
+        let id = ParamId::Mdh { joint, kind };
+        (id.name() == name).then_some(id)
+    }
+
     /// Current value in a model (base rotation and stage axis: 0, local perturbations).
     pub fn value(&self, m: &RobotModel) -> f64 {
         match self {
@@ -109,6 +134,21 @@ impl ParamId {
             ParamId::BaseRotation(_) | ParamId::StageAxis(_) => 0.0,
             ParamId::Tool(i) => m.tool[*i],
         }
+    }
+}
+
+/// Stored and sent by its public name ([`ParamId::name`]).
+impl serde::Serialize for ParamId {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.name())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for ParamId {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        ParamId::from_name(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("no parameter is named `{name}`")))
     }
 }
 
@@ -149,6 +189,21 @@ pub fn retract(model: &RobotModel, params: &[ParamId], delta: &[f64]) -> RobotMo
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_name_parses_back_and_nothing_else_does() {
+        for p in all_params(7, true, true)
+            .into_iter()
+            .chain((0..3).map(ParamId::StageAxis))
+        {
+            assert_eq!(ParamId::from_name(&p.name()), Some(p), "{}", p.name());
+        }
+        for bad in [
+            "", "theta", "theta0", "theta01", "theta+1", "base_tw", "tool_", "gamma1",
+        ] {
+            assert_eq!(ParamId::from_name(bad), None, "{bad}");
+        }
+    }
 
     #[test]
     fn names() {

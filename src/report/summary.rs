@@ -3,9 +3,8 @@
 
 use std::fmt::Write;
 
-use super::identify_json::{IdentifyReport, ParamStatus};
-use super::quality::Quality;
 use crate::analysis::metrics::Metrics;
+use crate::calibrate::{IdentifyReport, ParamStatus, Quality};
 use crate::identify::DropKind;
 
 fn cell(r: &IdentifyReport, name: &str) -> String {

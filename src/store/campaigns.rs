@@ -1,4 +1,4 @@
-//! Campaigns, plans, state, events and results.
+//! Campaigns, plans, state, events and setup results (identification results: `results.rs`).
 
 use std::collections::HashSet;
 
@@ -280,49 +280,10 @@ impl Store {
             .ctx("look up a result")
     }
 
-    /// The verdict (`quality`: `ok`, `warning`, `poor`) of the campaign's latest result, if it
-    /// has a result that carries one (without reading the rest of it).
-    pub fn result_quality(&self, id: i64) -> Result<Option<String>, StoreError> {
-        Store::ensure_campaign(&self.conn, id)?;
-        let q: Option<Option<String>> = self
-            .conn
-            .query_row(
-                "SELECT json_extract(json, '$.quality') FROM results WHERE campaign_id = ?1 \
-                 ORDER BY id DESC LIMIT 1",
-                [id],
-                |r| r.get(0),
-            )
-            .optional()
-            .ctx("read the result quality")?;
-        Ok(q.flatten())
-    }
-
     /// The campaign's events in the order they were added.
     pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
         let all = self.events_after(id, 0, usize::MAX)?;
         Ok(all.into_iter().map(|e| e.record).collect())
-    }
-
-    /// Store an identification result (`json` must be valid JSON; `model` names the
-    /// observation model). The row is time-stamped by SQLite with the wall clock.
-    pub fn save_result(&mut self, id: i64, model: &str, json: &str) -> Result<(), StoreError> {
-        let tx = self
-            .conn
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .ctx("begin save result")?;
-        Store::ensure_campaign(&tx, id)?;
-        let valid: bool = tx
-            .query_row("SELECT json_valid(?1)", [json], |r| r.get(0))
-            .ctx("check the result JSON")?;
-        if !valid {
-            return Err(StoreError::Invalid("the result is not valid JSON".into()));
-        }
-        tx.execute(
-            "INSERT INTO results (campaign_id, model, json) VALUES (?1, ?2, ?3)",
-            params![id, model, json],
-        )
-        .ctx("save a result")?;
-        tx.commit().ctx("commit save result")
     }
 
     /// Store a cell setup result (`json` must be valid JSON).
@@ -359,19 +320,6 @@ impl Store {
             )
             .optional()
             .ctx("read the setup result")
-    }
-
-    /// The JSON of the campaign's most recently saved result, if any.
-    pub fn latest_result(&self, id: i64) -> Result<Option<String>, StoreError> {
-        Store::ensure_campaign(&self.conn, id)?;
-        self.conn
-            .query_row(
-                "SELECT json FROM results WHERE campaign_id = ?1 ORDER BY id DESC LIMIT 1",
-                [id],
-                |r| r.get(0),
-            )
-            .optional()
-            .ctx("read the latest result")
     }
 }
 

@@ -33,6 +33,7 @@ mod kinds;
 mod locks;
 mod measurements;
 pub mod records;
+mod results;
 pub mod schema;
 
 #[cfg(test)]

@@ -70,7 +70,7 @@ pub(crate) struct Finished {
     pub(crate) store: PathBuf,
     pub(crate) id: i64,
     /// The stored result.
-    pub(crate) report: cellcal::report::IdentifyReport,
+    pub(crate) report: cellcal::calibrate::IdentifyReport,
     /// The simulated world's true robot (errors, base, tool) and stage axis in the flange.
     pub(crate) truth: cellcal::model::RobotModel,
     pub(crate) true_axis: nalgebra::Vector3<f64>,

@@ -6,6 +6,7 @@
 use cellcal::store::identification_rows;
 use std::path::Path;
 
+use cellcal::calibrate::{calibrate_result, BaseSource};
 use cellcal::compensate::table::{parse_joints, parse_targets};
 use cellcal::compensate::{Compensated, Compensator, Target};
 use cellcal::dataset::split;
@@ -13,7 +14,7 @@ use cellcal::identify::ObsModel;
 use cellcal::model::kinematics::{measured_point, measured_rotation};
 use cellcal::model::rotation::{from_rotation_vector, log_so3};
 use cellcal::model::{parse_robot, RobotModel};
-use cellcal::report::{calibrate, corrected_model_toml, BaseSource};
+use cellcal::report::corrected_model_toml;
 use cellcal::simulate::SimConfig;
 use nalgebra::Vector3;
 
@@ -142,7 +143,14 @@ fn compensated_targets_reach_the_true_robot_on_simulated_data() {
     opts.identify_base = true;
     let mut nominal = tx60();
     nominal.tool = truth.tool;
-    let (report, _) = calibrate(&nominal, &data.observations, &opts, 10.0).expect("identifies");
+    let (report, _) = calibrate_result(
+        &nominal,
+        &data.observations,
+        &opts,
+        10.0,
+        BaseSource::Identified,
+    )
+    .expect("identifies");
     let text = corrected_model_toml(&report, &nominal, &[], BaseSource::Identified).unwrap();
     let identified = parse_robot(&text, Path::new("identified.toml")).unwrap();
     let comp = Compensator::new(&tx60(), &identified).expect("a calibration of the TX60");

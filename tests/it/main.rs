@@ -28,6 +28,7 @@ mod quality;
 mod realdata;
 mod report;
 mod reproduce;
+mod result;
 mod robot_auth;
 mod robust;
 mod safety;

@@ -4,11 +4,12 @@
 
 use std::path::Path;
 
+use cellcal::calibrate::{calibrate, calibrate_result, corrected_model, BaseSource};
 use cellcal::identify::ObsModel;
 use cellcal::model::kinematics::{measured_point, measured_rotation};
 use cellcal::model::rotation::{from_rotation_vector, log_so3};
 use cellcal::model::{parse_robot, RobotModel};
-use cellcal::report::{calibrate, corrected_model, corrected_model_toml, BaseSource};
+use cellcal::report::corrected_model_toml;
 use cellcal::simulate::SimConfig;
 use nalgebra::Vector3;
 use serde_json::Value;
@@ -49,7 +50,14 @@ fn the_model_file_has_the_identified_kinematics_and_reidentifies_to_the_same_res
     opts.identify_base = true;
     let mut nominal = tx60();
     nominal.tool = truth.tool;
-    let (report, id) = calibrate(&nominal, &data.observations, &opts, 10.0).expect("identifies");
+    let (report, id) = calibrate_result(
+        &nominal,
+        &data.observations,
+        &opts,
+        10.0,
+        BaseSource::Identified,
+    )
+    .expect("identifies");
 
     // the file, read back, is the identified model
     let text = corrected_model_toml(
@@ -94,12 +102,12 @@ fn the_model_file_has_the_identified_kinematics_and_reidentifies_to_the_same_res
         (
             "ident",
             &again.metrics.ident.before,
-            &report.metrics.ident.after,
+            &report.report.metrics.ident.after,
         ),
         (
             "verify",
             &again.metrics.verify.as_ref().unwrap().before,
-            &report.metrics.verify.as_ref().unwrap().after,
+            &report.report.metrics.verify.as_ref().unwrap().after,
         ),
     ] {
         assert!(
@@ -123,7 +131,7 @@ fn the_model_file_has_the_identified_kinematics_and_reidentifies_to_the_same_res
         "the result has parameters of 6 joints, the nominal model has 2"
     );
     let mut gap = report.clone();
-    gap.parameters.retain(|p| p.name != "d3");
+    gap.corrected.values.retain(|v| v.param.name() != "d3");
     let e = corrected_model(&gap, &nominal).unwrap_err().to_string();
     assert_eq!(e, "the result does not give `d3` exactly once");
 }

@@ -6,12 +6,12 @@
 use cellcal::store::identification_rows;
 use std::path::{Path, PathBuf};
 
+use cellcal::calibrate::{calibrate, IdentifyReport};
 use cellcal::campaign::engine::identify_options;
 use cellcal::dataset::{parse_csv, split, to_measured, Required};
 use cellcal::identify::identifiability::{DEFAULT_MAX_SIGMA_MM, DEFAULT_MAX_SIGMA_RAD};
 use cellcal::identify::{identify, predict, Measured, ObsModel};
 use cellcal::model::load_robot;
-use cellcal::report::{calibrate, IdentifyReport};
 use cellcal::simulate::truth::paper_errors;
 use cellcal::store::Store;
 use nalgebra::Vector3;

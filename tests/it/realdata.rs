@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
+use cellcal::calibrate::{calibrate, IdentifyReport};
 use cellcal::dataset::{parse_csv, split, to_measured, Required};
 use cellcal::identify::problem::CalibProblem;
 use cellcal::identify::solver::{self, gradient_cosine, Options, Problem};
@@ -15,7 +16,6 @@ use cellcal::identify::{
     initial_model, IdentifyOptions, Measured, ObsConfig, ObsModel, PracticalBounds,
 };
 use cellcal::model::{load_robot, RobotModel};
-use cellcal::report::{calibrate, IdentifyReport};
 
 fn data_dir(robot: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
+use cellcal::campaign::stored::stored_result;
 use cellcal::campaign::Outcome;
 use cellcal::store::Store;
 use serde_json::Value;
@@ -46,15 +47,13 @@ async fn campaign() -> (PathBuf, i64, Value) {
         );
     let (outcome, store, id) = run_steered(&text, |_, _, _| {}).await;
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
-    let stored = Store::open(&store)
-        .expect("store")
-        .latest_result(id)
+    let stored = stored_result(&Store::open(&store).expect("store"), id)
         .expect("read")
         .expect("a stored result");
     (
         store,
         id,
-        serde_json::from_str(&stored).expect("stored JSON"),
+        serde_json::to_value(&stored.report).expect("the contract"),
     )
 }
 

@@ -240,9 +240,13 @@ fn a_done_campaign_moves_nothing_and_prints_its_stored_result() {
         before,
         "nothing ran"
     );
+    // the stored typed result's contract, as `identify --json` writes it
+    let stored = cellcal::campaign::stored::stored_result(&Store::open(&store).expect("store"), 1)
+        .expect("read")
+        .expect("stored result");
     assert_eq!(
         std::fs::read_to_string(&json).expect("json"),
-        before.2.expect("stored result")
+        stored.identify_json().expect("contract")
     );
 }
 

@@ -4,11 +4,12 @@
 //! CLI table, report); the live deviation of every measured pose, the result's "before" and
 //! the report's text use one named base, the setup's registration.
 
+use cellcal::calibrate::ParamStatus;
 use cellcal::campaign::report::campaign_report;
 use cellcal::dataset::PoseSet;
 use cellcal::identify::BeforeBase;
 use cellcal::model::ParamKind;
-use cellcal::report::{summary_text, ParamStatus};
+use cellcal::report::summary_text;
 use cellcal::store::identification_rows;
 use cellcal::store::Store;
 

@@ -1,6 +1,6 @@
 //! The calibration report: one self-contained HTML page (inline CSS with a print style sheet,
 //! inline SVG plots drawn by `plotters`, no script, no external reference) built from a
-//! [`ReportInput`] the caller gathers (the identify result, per-pose errors, significance
+//! [`ReportInput`] the caller gathers (the identify result and its per-pose errors, significance
 //! indices and, for a stored campaign, its setup, journal and device facts).
 //!
 //! Pure: no I/O, no clock (the caller passes the time it was generated). Every text from the
@@ -12,15 +12,11 @@ mod page;
 mod plots;
 mod sections;
 
-use nalgebra::Vector3;
 use sha2::{Digest, Sha256};
 
-use super::identify_json::IdentifyReport;
-use crate::analysis::metrics::pose_errors;
 use crate::analysis::significance::{significance, Significance};
-use crate::campaign::engine::SetupResult;
-use crate::dataset::{split, to_measured, ConvertError, Observation};
-use crate::identify::{Identification, Measured};
+use crate::calibrate::{CalibrationResult, IdentifyReport, SetupResult};
+pub use crate::calibrate::{PoseError, PoseErrors, SetErrors};
 use crate::model::RobotModel;
 
 pub use page::render;
@@ -67,10 +63,21 @@ impl ReportInput {
         }
     }
 
-    /// With the per-pose errors of identification `id` of `rows` (see [`PoseErrors::compute`]).
-    pub fn with_poses(mut self, id: &Identification, rows: &[Observation], travel_mm: f64) -> Self {
-        self.poses = PoseErrors::compute(id, rows, travel_mm).map_err(|e| e.to_string());
-        self
+    /// The report of a typed result: its contract and its stored per-pose errors (a result
+    /// stored before they were kept says so, and how to get them).
+    pub fn of_result(
+        title: &str,
+        source: &str,
+        result: &CalibrationResult,
+        provenance: Provenance,
+    ) -> Self {
+        let mut input = ReportInput::new(title, source, result.report.clone(), provenance);
+        input.poses = result.residuals.clone().ok_or_else(|| {
+            "this result was stored by an earlier cellcal, which kept no per-pose errors \
+             (`cellcal identify --store` identifies the campaign again and reports them)"
+                .to_owned()
+        });
+        input
     }
 
     /// With the significance indices of `nominal`'s MDH parameters.
@@ -78,82 +85,6 @@ impl ReportInput {
         self.significance = significance(nominal, SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED);
         self
     }
-}
-
-/// The position error `P1 − p_model` (mm) and attitude error (rad; `None` where not measured)
-/// of one pose under one model.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PoseError {
-    /// Position error x, y, z (mm, measurement frame).
-    pub position_mm: [f64; 3],
-    /// Attitude error (rad): stage-axis angle (NP/OP) or rotation angle (full).
-    pub attitude_rad: Option<f64>,
-}
-
-impl PoseError {
-    /// The comprehensive position error ‖e‖ (mm).
-    pub fn norm_mm(&self) -> f64 {
-        Vector3::from(self.position_mm).norm()
-    }
-}
-
-/// One set's per-pose errors under the nominal (before) and identified (after) model.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SetErrors {
-    /// Pose ids, in data order.
-    pub ids: Vec<String>,
-    /// Errors of the nominal model with the "before" base (`Identification::before`).
-    pub before: Vec<PoseError>,
-    /// Errors of the identified model.
-    pub after: Vec<PoseError>,
-}
-
-/// Per-pose errors of the identification and the verification set.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PoseErrors {
-    /// Identification set.
-    pub ident: SetErrors,
-    /// Verification set (`None` when the data has none).
-    pub verify: Option<SetErrors>,
-}
-
-impl PoseErrors {
-    /// The per-pose errors behind the metrics of an identification of `rows` (the same
-    /// initial and identified model, observation settings and stage travel).
-    pub fn compute(
-        id: &Identification,
-        rows: &[Observation],
-        travel_mm: f64,
-    ) -> Result<PoseErrors, ConvertError> {
-        let (ident, verify) = split(rows);
-        let model = id.options.obs.model;
-        let set = |rows: &[Observation]| -> Result<SetErrors, ConvertError> {
-            let m = to_measured(rows, model, travel_mm)?;
-            Ok(SetErrors {
-                ids: rows.iter().map(|r| r.id.clone()).collect(),
-                before: errors_of(&id.before, &m, id),
-                after: errors_of(&id.corrected, &m, id),
-            })
-        };
-        Ok(PoseErrors {
-            ident: set(&ident)?,
-            verify: if verify.is_empty() {
-                None
-            } else {
-                Some(set(&verify)?)
-            },
-        })
-    }
-}
-
-fn errors_of(model: &RobotModel, poses: &[Measured], id: &Identification) -> Vec<PoseError> {
-    pose_errors(model, poses, &id.options.obs)
-        .into_iter()
-        .map(|(e, a)| PoseError {
-            position_mm: e.into(),
-            attitude_rad: a,
-        })
-        .collect()
 }
 
 /// What the campaign store knows of a campaign beyond its result.

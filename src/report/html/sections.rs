@@ -11,10 +11,10 @@ use super::plots::{self, BeforeAfter};
 use super::{CampaignFacts, ReportInput, SetErrors, SIGNIFICANCE_SAMPLES};
 use crate::analysis::metrics::Metrics;
 use crate::analysis::significance::Significance;
-use crate::campaign::engine::{BaseResult, ToolFrameResult};
-use crate::report::identify_json::{
+use crate::calibrate::identify_json::{
     BeforeAfter as MetricsPair, IdentifyReport, NotIdentifiable, ParamStatus, ParameterJson,
 };
+use crate::calibrate::{BaseResult, ToolFrameResult};
 use crate::wall_clock::utc_text;
 
 /// `(id, heading)` of every section, in order (the table of contents).

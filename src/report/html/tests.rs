@@ -1,8 +1,10 @@
 use super::*;
 use crate::analysis::significance::significance;
+use crate::calibrate::calibrate;
+use crate::dataset::Observation;
+use crate::identify::Identification;
 use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
 use crate::model::tx60;
-use crate::report::calibrate;
 use crate::simulate::{simulate, truth, SimConfig};
 
 /// A small simulated OP identification: its rows, result and identification.
@@ -76,9 +78,9 @@ fn per_pose_errors_are_the_ones_behind_the_metrics() {
 #[test]
 fn every_text_from_the_input_is_escaped() {
     let (rows, mut report, id) = small_op();
-    report.warnings.push(crate::report::QualityWarning {
+    report.warnings.push(crate::calibrate::QualityWarning {
         code: "x<y".into(),
-        severity: crate::report::Quality::Warning,
+        severity: crate::calibrate::Quality::Warning,
         message: "<script>alert(1)</script> & \"quoted\"".into(),
     });
     let mut inp = input(&rows, report, &id);

@@ -1,4 +1,4 @@
-//! The `cellcal identify` pipeline (rows → identification → metrics) and its JSON contract.
+//! The `cellcal identify` JSON contract: [`IdentifyReport`] and its parts.
 //!
 //! JSON fields (contract, extend only): `model`, `identified`, `not_identifiable`
 //! (`{name, reason}`; extended by `kind`: `structural` | `dependent` | `poorly_determined` and
@@ -20,47 +20,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::quality::{assess, stage_axis_check, Quality, QualityBounds, QualityWarning};
-use crate::analysis::metrics::{evaluate_pair, Metrics};
-use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
-use crate::identify::{
-    identify_with, BeforeBase, DropKind, Dropped, Identification, IdentifyError, IdentifyOptions,
-    JointTrig,
-};
-use crate::model::rotation::log_so3;
-use crate::model::RobotModel;
-
-/// Why the pipeline failed.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum CalibrateError {
-    /// A row is unusable for the model.
-    #[error(transparent)]
-    Convert(#[from] ConvertError),
-    /// The identification could not run.
-    #[error(transparent)]
-    Identify(#[from] IdentifyError),
-    /// No identification rows.
-    #[error("no rows with set = ident")]
-    NoIdentRows,
-    /// The measured P2 − P1 directions contradict the stage axis (or the model) in use.
-    #[error("the stage axis in use ({}) contradicts the data: the measured P2 − P1 directions in the flange frame average ({}), {:.1}° away, scattering {:.1}° (limit {:.0}°). Give the stage axis the stage is mounted along (`--stage-axis X,Y,Z`; the np model assumes +x, op +y)", show3(used), show3(measured), angle_deg, scatter_deg, limit_deg)]
-    StageAxisContradiction {
-        /// Stage axis in use (flange frame).
-        used: [f64; 3],
-        /// Mean measured direction (flange frame of the initial model).
-        measured: [f64; 3],
-        /// Angle between them (deg).
-        angle_deg: f64,
-        /// RMS scatter of the single directions (deg).
-        scatter_deg: f64,
-        /// The refusal limit (deg).
-        limit_deg: f64,
-    },
-}
-
-fn show3(v: &[f64; 3]) -> String {
-    format!("{:.3}, {:.3}, {:.3}", v[0], v[1], v[2])
-}
+use super::quality::{assess, Quality, QualityBounds, QualityWarning};
+use crate::analysis::metrics::Metrics;
+use crate::identify::{BeforeBase, DropKind, Dropped};
 
 /// `{name, reason, kind, predicted_sigma}` of a parameter held at nominal.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -84,7 +46,7 @@ fn structural() -> String {
 }
 
 impl NotIdentifiable {
-    fn of(d: &Dropped) -> NotIdentifiable {
+    pub(super) fn of(d: &Dropped) -> NotIdentifiable {
         NotIdentifiable {
             name: d.param.name(),
             reason: d.reason.clone(),
@@ -256,7 +218,11 @@ pub struct IdentifyReport {
 impl IdentifyReport {
     /// A stored report; one stored before the verdict existed is assessed now.
     pub fn from_json(text: &str) -> Result<IdentifyReport, serde_json::Error> {
-        let value: serde_json::Value = serde_json::from_str(text)?;
+        IdentifyReport::from_value(serde_json::from_str(text)?)
+    }
+
+    /// [`IdentifyReport::from_json`] of a parsed document.
+    pub fn from_value(value: serde_json::Value) -> Result<IdentifyReport, serde_json::Error> {
         let assessed = value.get("quality").is_some();
         let has_status = value
             .pointer("/parameters/0")
@@ -285,127 +251,4 @@ impl IdentifyReport {
         self.quality = v.quality;
         self.warnings = v.warnings;
     }
-}
-
-/// The pose ids of the identification rows at `indices` (into the identification rows).
-fn ident_ids(rows: &[Observation], indices: &[usize]) -> Vec<String> {
-    if indices.is_empty() {
-        return Vec::new();
-    }
-    let ident: Vec<&Observation> = rows.iter().filter(|o| o.set == PoseSet::Ident).collect();
-    indices.iter().map(|&i| ident[i].id.clone()).collect()
-}
-
-/// Run the identify pipeline on data-set rows.
-pub fn calibrate(
-    robot: &RobotModel,
-    rows: &[Observation],
-    opts: &IdentifyOptions,
-    stage_travel_mm: f64,
-) -> Result<(IdentifyReport, Identification), CalibrateError> {
-    if !rows.iter().any(|o| o.set == PoseSet::Ident) {
-        return Err(CalibrateError::NoIdentRows);
-    }
-    let model = opts.obs.model;
-    let (ident, verify) = split_measured(rows, model, stage_travel_mm)?;
-    // one joint table for the identification and the metrics of the ident set
-    let trig = JointTrig::of(&ident);
-    let id = identify_with(robot, &ident, &trig, opts)?;
-    // the verdict judges σ by the bounds the identification kept its set within
-    let bounds = QualityBounds {
-        sigma_mm: opts.practical.max_sigma_mm,
-        sigma_rad: opts.practical.max_sigma_rad,
-        ..QualityBounds::default()
-    };
-    let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
-    if let Some(c) = axis.filter(|c| {
-        c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad
-    }) {
-        return Err(CalibrateError::StageAxisContradiction {
-            used: opts.obs.stage_axis.into(),
-            measured: c.measured.into(),
-            angle_deg: c.angle_rad.to_degrees(),
-            scatter_deg: c.scatter_rad.to_degrees(),
-            limit_deg: bounds.stage_axis_error_rad.to_degrees(),
-        });
-    }
-    let m = |set: &[_], trig| {
-        let (before, after) = evaluate_pair(&id.before, &id.corrected, set, trig, &opts.obs);
-        BeforeAfter { before, after }
-    };
-    let metrics = MetricsJson {
-        ident: m(&ident, Some(&trig)),
-        verify: (!verify.is_empty()).then(|| m(&verify, None)),
-    };
-    let names: Vec<String> = id
-        .identifiability
-        .identified
-        .iter()
-        .map(|p| p.name())
-        .collect();
-    let k = names.len();
-    let mut report = IdentifyReport {
-        model: model.name().to_owned(),
-        identified: names.clone(),
-        not_identifiable: id
-            .identifiability
-            .dropped
-            .iter()
-            .map(NotIdentifiable::of)
-            .collect(),
-        parameters: id
-            .estimates
-            .iter()
-            .map(|e| ParameterJson {
-                name: e.param.name(),
-                joint: e.param.joint_number(),
-                kind: e.param.kind_name().to_owned(),
-                unit: e.param.unit().to_owned(),
-                nominal: e.nominal,
-                error: e.error,
-                std: e.std,
-                identified: e.identified,
-                status: if !e.identified {
-                    ParamStatus::NotIdentified
-                } else if id.setup_relative.iter().any(|d| d.param == e.param) {
-                    ParamStatus::SetupRelative
-                } else {
-                    ParamStatus::Identified
-                },
-            })
-            .collect(),
-        base: BaseJson {
-            translation_mm: id.corrected.base_translation.into(),
-            rotation_vector_rad: log_so3(&id.corrected.base_rotation).into(),
-        },
-        tool: ToolJson {
-            translation_mm: id.corrected.tool.into(),
-        },
-        solver: SolverJson {
-            iterations: id.iterations,
-            converged: id.termination.converged(),
-            final_cost: id.final_cost,
-            termination: id.termination.describe().to_owned(),
-        },
-        metrics,
-        stage_axis: opts.obs.stage_axis.into(),
-        direction_weight_mm: opts.obs.direction_weight_mm,
-        condition_number: id.identifiability.condition_number(),
-        sigma0_mm: id.sigma0_mm,
-        rejected_poses: ident_ids(rows, &id.rejected),
-        correlation: CorrelationJson {
-            names,
-            matrix: (0..k)
-                .map(|i| (0..k).map(|j| id.correlation[(i, j)]).collect())
-                .collect(),
-        },
-        stage_axis_measured: axis.map(|c| c.measured.into()),
-        stage_axis_angle_rad: axis.map(|c| c.angle_rad),
-        quality: Quality::Ok,
-        warnings: Vec::new(),
-        before_base: Some(id.before_base),
-        setup_relative: id.setup_relative.iter().map(NotIdentifiable::of).collect(),
-    };
-    report.judge(&bounds);
-    Ok((report, id))
 }

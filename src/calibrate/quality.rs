@@ -388,7 +388,7 @@ pub fn stage_axis_check(
 mod tests {
     use super::*;
     use crate::analysis::metrics::Metrics;
-    use crate::report::identify_json::{
+    use crate::calibrate::identify_json::{
         BaseJson, BeforeAfter, CorrelationJson, MetricsJson, ParameterJson, SolverJson, ToolJson,
     };
 
@@ -417,7 +417,7 @@ mod tests {
             error: 0.0,
             std: Some(std),
             identified: true,
-            status: crate::report::identify_json::ParamStatus::Identified,
+            status: crate::calibrate::identify_json::ParamStatus::Identified,
         }
     }
 

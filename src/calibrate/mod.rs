@@ -1,0 +1,200 @@
+//! The calibration: the `cellcal identify` pipeline (rows → identification → metrics →
+//! verdict, [`calibrate`]), its JSON contract ([`identify_json`]), the verdict ([`quality`]),
+//! the typed result a campaign stores once and every view renders ([`result`]: the contract
+//! plus the per-pose residuals and the corrected model) and the cell setup it is given
+//! ([`setup`]). Below `report/` (which renders it) and `campaign/` (which stores it); knows no
+//! files, no store, no devices.
+
+pub mod identify_json;
+pub mod quality;
+pub mod result;
+pub mod setup;
+
+pub use identify_json::{IdentifyReport, ParamStatus};
+pub use quality::{Quality, QualityWarning};
+pub use result::{
+    corrected_model, BaseSource, CalibrationResult, CorrectedModel, ModelFileError, ParamValue,
+    PoseError, PoseErrors, SetErrors,
+};
+pub use setup::{BaseResult, SetupResult, ToolFrameResult};
+
+use crate::analysis::metrics::evaluate_pair;
+use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
+use crate::identify::{identify_with, Identification, IdentifyError, IdentifyOptions, JointTrig};
+use crate::model::rotation::log_so3;
+use crate::model::RobotModel;
+use identify_json::{
+    BaseJson, BeforeAfter, CorrelationJson, MetricsJson, NotIdentifiable, ParameterJson,
+    SolverJson, ToolJson,
+};
+use quality::{stage_axis_check, QualityBounds};
+
+/// Why the pipeline failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrateError {
+    /// A row is unusable for the model.
+    #[error(transparent)]
+    Convert(#[from] ConvertError),
+    /// The identification could not run.
+    #[error(transparent)]
+    Identify(#[from] IdentifyError),
+    /// No identification rows.
+    #[error("no rows with set = ident")]
+    NoIdentRows,
+    /// The measured P2 − P1 directions contradict the stage axis (or the model) in use.
+    #[error("the stage axis in use ({}) contradicts the data: the measured P2 − P1 directions in the flange frame average ({}), {:.1}° away, scattering {:.1}° (limit {:.0}°). Give the stage axis the stage is mounted along (`--stage-axis X,Y,Z`; the np model assumes +x, op +y)", show3(used), show3(measured), angle_deg, scatter_deg, limit_deg)]
+    StageAxisContradiction {
+        /// Stage axis in use (flange frame).
+        used: [f64; 3],
+        /// Mean measured direction (flange frame of the initial model).
+        measured: [f64; 3],
+        /// Angle between them (deg).
+        angle_deg: f64,
+        /// RMS scatter of the single directions (deg).
+        scatter_deg: f64,
+        /// The refusal limit (deg).
+        limit_deg: f64,
+    },
+}
+
+fn show3(v: &[f64; 3]) -> String {
+    format!("{:.3}, {:.3}, {:.3}", v[0], v[1], v[2])
+}
+
+/// The pose ids of the identification rows at `indices` (into the identification rows).
+fn ident_ids(rows: &[Observation], indices: &[usize]) -> Vec<String> {
+    if indices.is_empty() {
+        return Vec::new();
+    }
+    let ident: Vec<&Observation> = rows.iter().filter(|o| o.set == PoseSet::Ident).collect();
+    indices.iter().map(|&i| ident[i].id.clone()).collect()
+}
+
+/// Run the identify pipeline on data-set rows.
+pub fn calibrate(
+    robot: &RobotModel,
+    rows: &[Observation],
+    opts: &IdentifyOptions,
+    stage_travel_mm: f64,
+) -> Result<(IdentifyReport, Identification), CalibrateError> {
+    if !rows.iter().any(|o| o.set == PoseSet::Ident) {
+        return Err(CalibrateError::NoIdentRows);
+    }
+    let model = opts.obs.model;
+    let (ident, verify) = split_measured(rows, model, stage_travel_mm)?;
+    // one joint table for the identification and the metrics of the ident set
+    let trig = JointTrig::of(&ident);
+    let id = identify_with(robot, &ident, &trig, opts)?;
+    // the verdict judges σ by the bounds the identification kept its set within
+    let bounds = QualityBounds {
+        sigma_mm: opts.practical.max_sigma_mm,
+        sigma_rad: opts.practical.max_sigma_rad,
+        ..QualityBounds::default()
+    };
+    let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
+    if let Some(c) = axis.filter(|c| {
+        c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad
+    }) {
+        return Err(CalibrateError::StageAxisContradiction {
+            used: opts.obs.stage_axis.into(),
+            measured: c.measured.into(),
+            angle_deg: c.angle_rad.to_degrees(),
+            scatter_deg: c.scatter_rad.to_degrees(),
+            limit_deg: bounds.stage_axis_error_rad.to_degrees(),
+        });
+    }
+    let m = |set: &[_], trig| {
+        let (before, after) = evaluate_pair(&id.before, &id.corrected, set, trig, &opts.obs);
+        BeforeAfter { before, after }
+    };
+    let metrics = MetricsJson {
+        ident: m(&ident, Some(&trig)),
+        verify: (!verify.is_empty()).then(|| m(&verify, None)),
+    };
+    let names: Vec<String> = id
+        .identifiability
+        .identified
+        .iter()
+        .map(|p| p.name())
+        .collect();
+    let k = names.len();
+    let mut report = IdentifyReport {
+        model: model.name().to_owned(),
+        identified: names.clone(),
+        not_identifiable: id
+            .identifiability
+            .dropped
+            .iter()
+            .map(NotIdentifiable::of)
+            .collect(),
+        parameters: id
+            .estimates
+            .iter()
+            .map(|e| ParameterJson {
+                name: e.param.name(),
+                joint: e.param.joint_number(),
+                kind: e.param.kind_name().to_owned(),
+                unit: e.param.unit().to_owned(),
+                nominal: e.nominal,
+                error: e.error,
+                std: e.std,
+                identified: e.identified,
+                status: if !e.identified {
+                    ParamStatus::NotIdentified
+                } else if id.setup_relative.iter().any(|d| d.param == e.param) {
+                    ParamStatus::SetupRelative
+                } else {
+                    ParamStatus::Identified
+                },
+            })
+            .collect(),
+        base: BaseJson {
+            translation_mm: id.corrected.base_translation.into(),
+            rotation_vector_rad: log_so3(&id.corrected.base_rotation).into(),
+        },
+        tool: ToolJson {
+            translation_mm: id.corrected.tool.into(),
+        },
+        solver: SolverJson {
+            iterations: id.iterations,
+            converged: id.termination.converged(),
+            final_cost: id.final_cost,
+            termination: id.termination.describe().to_owned(),
+        },
+        metrics,
+        stage_axis: opts.obs.stage_axis.into(),
+        direction_weight_mm: opts.obs.direction_weight_mm,
+        condition_number: id.identifiability.condition_number(),
+        sigma0_mm: id.sigma0_mm,
+        rejected_poses: ident_ids(rows, &id.rejected),
+        correlation: CorrelationJson {
+            names,
+            matrix: (0..k)
+                .map(|i| (0..k).map(|j| id.correlation[(i, j)]).collect())
+                .collect(),
+        },
+        stage_axis_measured: axis.map(|c| c.measured.into()),
+        stage_axis_angle_rad: axis.map(|c| c.angle_rad),
+        quality: Quality::Ok,
+        warnings: Vec::new(),
+        before_base: Some(id.before_base),
+        setup_relative: id.setup_relative.iter().map(NotIdentifiable::of).collect(),
+    };
+    report.judge(&bounds);
+    Ok((report, id))
+}
+
+/// [`calibrate`] and the typed result of it, as a campaign stores it: the contract, the
+/// per-pose residuals of both sets and the corrected model with `base` as its base's source.
+pub fn calibrate_result(
+    robot: &RobotModel,
+    rows: &[Observation],
+    opts: &IdentifyOptions,
+    stage_travel_mm: f64,
+    base: BaseSource,
+) -> Result<(CalibrationResult, Identification), CalibrateError> {
+    let (report, id) = calibrate(robot, rows, opts, stage_travel_mm)?;
+    let result =
+        CalibrationResult::of(report, &id, base).with_residuals(&id, rows, stage_travel_mm)?;
+    Ok((result, id))
+}
