@@ -3,11 +3,18 @@
 //! (the REST API in [`crate::api`], later a web page) are thin clients of this.
 //!
 //! # Responsiveness
-//! The daemon owns one store writer (shared with the loaded campaign's engine) and a small
-//! pool of [`StoreReader`]s; every store call and the planning of a new campaign run on
+//! The daemon owns one store writer ([`StoreHandle`], shared with the loaded campaign's
+//! engine) and a [`ReaderPool`]; every store call and the planning of a new campaign run on
 //! blocking threads, never on the async runtime's workers. The slot of the loaded campaign is
 //! a plain mutex held only for short, non-blocking sections: a campaign being created is
 //! marked `creating` and planned outside it, so reads and commands never wait for planning.
+//!
+//! # State owners
+//! Four: the store's two handles (writer, readers: their locks live in `store/`); the slot
+//! (`Slot`: the loaded campaign, `creating`, `closing`); per loaded run one `RunWatch`
+//! (`status.rs`: the engine's state, the open technician question and the outcome, one `watch`
+//! channel: the end is never seen without its outcome); and the devices' `CellWatch`
+//! (`observe.rs`, kept across runs). The metrics registry counts, it decides nothing.
 //!
 //! # Live events
 //! Every event is journalled before it is published, with its journal sequence number
