@@ -147,7 +147,7 @@ pub enum CampaignEvent {
     Setup {
         /// The setup result (written through a JSON value, keys sorted, as it always was).
         #[serde(serialize_with = "via_value")]
-        result: SetupResult,
+        result: Box<SetupResult>,
     },
     /// A technician question waiting for its answer (front ends answer it by `seq`).
     Prompt {

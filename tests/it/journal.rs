@@ -59,7 +59,7 @@ fn every_variant() -> Vec<(CampaignEvent, &'static str)> {
                 pose: 4,
                 done: 2,
                 total: 20,
-                p1_mm: [0.1 + 0.2, -1234.567_890_123_456_7, 1e-300],
+                p1_mm: [0.1 + 0.2, -1_234.567_890_123_456_7, 1e-300],
                 deviation_mm: Some(0.123_456_789_012_345_68),
                 deviation_xyz_mm: None,
             },
@@ -92,7 +92,7 @@ fn every_variant() -> Vec<(CampaignEvent, &'static str)> {
         ),
         (
             CampaignEvent::Setup {
-                result: SetupResult {
+                result: Box::new(SetupResult {
                     tool_frame: Some(ToolFrameResult {
                         tool_mm: [1.0, 2.0, 150.25],
                         stage_axis: [0.0, 0.0, 1.0],
@@ -112,13 +112,13 @@ fn every_variant() -> Vec<(CampaignEvent, &'static str)> {
                         tracker_in_base_mm: [-2000.0, 1.0, 10.0],
                         poses: 6,
                     }),
-                },
+                }),
             },
             r#"{"event":"setup","result":{"base":{"max_mm":0.6,"poses":6,"rms_mm":0.3,"rotation_vector_rad":[0.0,0.0,0.1],"tracker_in_base_mm":[-2000.0,1.0,10.0],"translation_mm":[2000.0,0.5,-10.0]},"tool_frame":{"flange_axes_tracker":[[1.0,0.0,0.0],[0.0,1.0,0.0],[0.0,0.0,1.0]],"flange_origin_tracker_mm":[1000.5,-2.0,3.0],"jog_axes_angle_deg":90.01,"sphere_radius_mm":150.26,"sphere_rms_mm":0.004,"stage_axis":[0.0,0.0,1.0],"stage_travel_measured_mm":25.002,"targets":12,"tool_mm":[1.0,2.0,150.25]}}}"#,
         ),
         (
             CampaignEvent::Setup {
-                result: SetupResult::default(),
+                result: Box::default(),
             },
             r#"{"event":"setup","result":{"base":null,"tool_frame":null}}"#,
         ),

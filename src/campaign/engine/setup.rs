@@ -141,7 +141,7 @@ impl Run<'_> {
             .map_err(|e| Stop::Store(CampaignError::Task(e.to_string())))?;
         self.store(move |s| s.save_setup(id, &json)).await?;
         self.journal(CampaignEvent::Setup {
-            result: result.clone(),
+            result: Box::new(result.clone()),
         })
         .await?;
         Ok(result)
