@@ -3,11 +3,18 @@
 //! (the REST API in [`crate::api`], later a web page) are thin clients of this.
 //!
 //! # Responsiveness
-//! The daemon owns one store writer (shared with the loaded campaign's engine) and a small
-//! pool of [`StoreReader`]s; every store call and the planning of a new campaign run on
+//! The daemon owns one store writer ([`StoreHandle`], shared with the loaded campaign's
+//! engine) and a [`ReaderPool`]; every store call and the planning of a new campaign run on
 //! blocking threads, never on the async runtime's workers. The slot of the loaded campaign is
 //! a plain mutex held only for short, non-blocking sections: a campaign being created is
 //! marked `creating` and planned outside it, so reads and commands never wait for planning.
+//!
+//! # State owners
+//! Four: the store's two handles (writer, readers: their locks live in `store/`); the slot
+//! (`Slot`: the loaded campaign, `creating`, `closing`); per loaded run one `RunWatch`
+//! (`status.rs`: the engine's state, the open technician question and the outcome, one `watch`
+//! channel: the end is never seen without its outcome); and the devices' `CellWatch`
+//! (`observe.rs`, kept across runs). The metrics registry counts, it decides nothing.
 //!
 //! # Live events
 //! Every event is journalled before it is published, with its journal sequence number
@@ -15,14 +22,13 @@
 //! gap-free, duplicate-free sequence: it replays from the journal what the live channel lost
 //! (a lagging reader, a reconnect with a last seen sequence number).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex as StdMutex};
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
-use tokio_util::sync::CancellationToken;
 
 use crate::campaign::cell_lock::CellLockError;
 use crate::campaign::lock::{is_dead, mark_interrupted};
@@ -37,12 +43,15 @@ use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::metrics::Metrics;
 use crate::store::{
-    CampaignRow, EventRecord, JournalEntry, LockHolder, Store, StoreError, StoreReader,
+    CampaignRow, LockHolder, ReaderPool, Store, StoreError, StoreHandle, StoredState,
 };
 
 mod observe;
+mod status;
 use observe::{CellWatch, Observer};
 pub use observe::{DeviceView, DevicesView, FaultView};
+pub use status::RunOutcome;
+use status::RunWatch;
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
 #[derive(Debug, thiserror::Error)]
@@ -312,7 +321,7 @@ fn env_number(name: &str) -> Result<Option<u64>, DaemonError> {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Followed {
     /// A journal entry (replayed or live), in sequence order, each once.
-    Entry(JournalEntry),
+    Entry(Journalled),
     /// The live channel lost `count` entries; they were replayed from the journal just before.
     Replayed {
         /// Entries read back from the journal.
@@ -323,22 +332,19 @@ pub enum Followed {
 struct Loaded {
     id: i64,
     control: Control,
-    pending: Arc<StdMutex<Option<PendingPrompt>>>,
-    outcome: Arc<StdMutex<Option<String>>>,
+    /// The run's state, open question and outcome (ended: the engine has returned, its final
+    /// state journalled).
+    status: RunWatch,
     task: JoinHandle<()>,
     /// The journal's last sequence number before this run: older terminal states are history.
     run_start: i64,
-    /// Cancelled when the engine has returned (its final state is journalled by then).
-    ended: CancellationToken,
-    /// The engine's state in this run (`None` until it writes its first).
-    state: watch::Receiver<Option<String>>,
 }
 
 impl Loaded {
     /// Its engine has not returned (once it has, the campaign is let go and no longer loaded,
     /// though the task may still stop the simulated cell).
     fn running(&self) -> bool {
-        !self.ended.is_cancelled() && !self.task.is_finished()
+        !self.status.has_ended() && !self.task.is_finished()
     }
 }
 
@@ -352,40 +358,14 @@ struct Slot {
     closing: bool,
 }
 
-/// Reading connections, opened on demand and kept for reuse.
-struct Readers {
-    path: PathBuf,
-    idle: StdMutex<Vec<StoreReader>>,
-}
-
-/// Readers kept open for reuse (more may be open at once; the surplus is closed).
-const IDLE_READERS: usize = 4;
-
 /// Journal entries read per replay query.
 const REPLAY_PAGE: usize = 512;
 
-impl Readers {
-    /// Run `f` on an idle reader (or a new one). Blocking.
-    fn with<T>(&self, f: impl FnOnce(&Store) -> Result<T, StoreError>) -> Result<T, StoreError> {
-        let idle = lock(&self.idle).pop();
-        let reader = match idle {
-            Some(r) => r,
-            None => Store::open_reader(&self.path)?,
-        };
-        let out = f(&reader);
-        let mut idle = lock(&self.idle);
-        if idle.len() < IDLE_READERS {
-            idle.push(reader);
-        }
-        out
-    }
-}
-
-/// The live side of a follower: the channel, the run's first sequence number and its end.
+/// The live side of a follower: the channel, the run's first sequence number and its status.
 struct Live {
     rx: broadcast::Receiver<Journalled>,
     run_start: i64,
-    ended: CancellationToken,
+    status: RunWatch,
 }
 
 /// The campaign service.
@@ -393,8 +373,8 @@ pub struct Daemon {
     cfg: CellConfig,
     opts: DaemonOptions,
     /// The only writer; the loaded campaign's engine shares it.
-    writer: Arc<StdMutex<Store>>,
-    readers: Arc<Readers>,
+    writer: StoreHandle,
+    readers: Arc<ReaderPool>,
     slot: StdMutex<Slot>,
     metrics: Arc<Metrics>,
     cell: Arc<StdMutex<CellWatch>>,
@@ -433,29 +413,6 @@ impl Drop for CreatingMark<'_> {
     }
 }
 
-/// A journal entry for a live event (the same JSON as the stored row).
-fn entry_of(j: Journalled) -> JournalEntry {
-    JournalEntry {
-        seq: j.seq,
-        record: EventRecord {
-            at_ms: j.at_ms,
-            kind: j.event.kind().to_owned(),
-            message: serde_json::to_string(&j.event).unwrap_or_default(),
-        },
-    }
-}
-
-/// Whether a stored journal entry is the state change that ends a run.
-fn entry_ends_run(e: &JournalEntry) -> bool {
-    e.record.kind == "state"
-        && serde_json::from_str::<serde_json::Value>(&e.record.message).is_ok_and(|v| {
-            matches!(
-                v.pointer("/state/state").and_then(|s| s.as_str()),
-                Some("done" | "aborted" | "failed")
-            )
-        })
-}
-
 /// How a follower's forwarding step ended.
 enum Forward {
     /// Keep following.
@@ -481,19 +438,15 @@ impl Daemon {
         for (id, was) in mark_interrupted(&mut writer)? {
             tracing::warn!(
                 campaign = id,
-                stored = was.as_str(),
+                stored = was.name(),
                 "campaign interrupted: the process that ran it is gone"
             );
         }
-        let first = Store::open_reader(store_path)?;
         Ok(Daemon {
             cfg,
             opts,
-            writer: Arc::new(StdMutex::new(writer)),
-            readers: Arc::new(Readers {
-                path: store_path.to_owned(),
-                idle: StdMutex::new(vec![first]),
-            }),
+            writer: StoreHandle::new(writer),
+            readers: ReaderPool::open(store_path)?,
             slot: StdMutex::new(Slot::default()),
             metrics: Arc::new(Metrics::new()),
             cell: Arc::default(),
@@ -516,14 +469,11 @@ impl Daemon {
         &self,
         f: impl FnOnce(&Store) -> Result<T, StoreError> + Send + 'static,
     ) -> Result<T, DaemonError> {
-        let readers = Arc::clone(&self.readers);
-        tokio::task::spawn_blocking(move || readers.with(f))
-            .await
-            .map_err(|e| DaemonError::Task(e.to_string()))?
-            .map_err(|e| match e {
-                StoreError::NoCampaign(id) => DaemonError::NotFound(id),
-                e => DaemonError::Store(e),
-            })
+        self.readers.read(f).await.map_err(|e| match e {
+            StoreError::NoCampaign(id) => DaemonError::NotFound(id),
+            StoreError::Task(t) => DaemonError::Task(t),
+            e => DaemonError::Store(e),
+        })
     }
 
     /// Every stored campaign. Cancel-safe (reads only).
@@ -544,38 +494,38 @@ impl Daemon {
         let slot = lock(&self.slot);
         let l = slot.loaded.as_ref().filter(|l| l.id == v.row.id);
         let prompt = l.and_then(|l| {
-            let pending = lock(&l.pending);
-            pending
-                .as_ref()
-                .filter(|p| p.is_open())
-                .map(|p| PromptView {
-                    seq: p.seq,
-                    id: p.prompt.id.clone(),
-                    text: p.prompt.text.clone(),
-                    expected_mm: p.prompt.expected_mm,
-                    context: p.prompt.context.clone(),
-                })
+            l.status.read(|s| {
+                s.prompt
+                    .as_ref()
+                    .filter(|p| p.is_open())
+                    .map(|p| PromptView {
+                        seq: p.seq,
+                        id: p.prompt.id.clone(),
+                        text: p.prompt.text.clone(),
+                        expected_mm: p.prompt.expected_mm,
+                        context: p.prompt.context.clone(),
+                    })
+            })
         });
         let here = l.is_some_and(Loaded::running);
         let state = match v.holder {
             Some(h) if !is_dead(&h) => v.row.state,
             // no live process runs it: a run's state is history
-            _ if !here && crate::campaign::lock::is_run_state(&v.row.state) => {
-                crate::campaign::lock::INTERRUPTED.to_owned()
-            }
+            _ if !here && v.row.state.is_run() => StoredState::Interrupted,
             _ => v.row.state,
         };
         CampaignView {
             id: v.row.id,
             name: v.row.name,
             created_at_ms: v.row.created_at_ms,
-            state,
+            state: state.name().to_owned(),
             model: v.row.model,
             poses_done: v.done,
             poses_total: v.total,
             loaded: l.is_some_and(Loaded::running),
             armed: l.is_some_and(|l| l.running() && l.control.is_armed()),
-            last_outcome: l.and_then(|l| lock(&l.outcome).clone()),
+            last_outcome: l
+                .and_then(|l| l.status.read(|s| s.outcome.as_ref().map(|o| o.to_string()))),
             prompt,
             has_result: v.has_result,
             quality: v.quality,
@@ -662,7 +612,7 @@ impl Daemon {
         let (prompter, prompts) = ChannelPrompter::new(4);
         let session = open_session_with(
             cfg,
-            Arc::clone(&self.writer),
+            self.writer.clone(),
             id.map(Resume::strict),
             Arc::new(prompter),
             self.opts.event_capacity,
@@ -674,10 +624,8 @@ impl Daemon {
         let (run_start, (done, total)) = self
             .read(move |s| Ok((s.last_event_seq(campaign_id)?, s.pose_counts(campaign_id)?)))
             .await?;
-        let pending: Arc<StdMutex<Option<PendingPrompt>>> = Arc::default();
-        let outcome: Arc<StdMutex<Option<String>>> = Arc::default();
-        let ended = CancellationToken::new();
-        let state = self.observe_run(&session, run_start, ended.clone());
+        let status = RunWatch::new();
+        self.observe_run(&session, run_start, status.clone());
         self.metrics.progress(done as u64, total as u64);
         tracing::info!(
             campaign = campaign_id,
@@ -688,28 +636,27 @@ impl Daemon {
         );
         let pump = tokio::spawn(pump_prompts(
             prompts,
-            Arc::clone(&pending),
-            Arc::clone(&self.writer),
+            status.clone(),
+            self.writer.clone(),
             campaign_id,
             control.clone(),
         ));
-        let (text_slot, end) = (Arc::clone(&outcome), ended.clone());
+        let end = status.clone();
         let task = tokio::spawn(async move {
             let ctx = session.ctx;
             let mut devices = session.devices;
-            let text = match run_campaign(&ctx, &mut devices).await {
-                Ok(Outcome::Done(_) | Outcome::Iso(_)) => "done".to_owned(),
-                Ok(Outcome::Aborted) => "aborted".to_owned(),
-                Ok(Outcome::Failed(r)) => format!("failed: {r}"),
-                Err(e) => format!("failed: {e}"),
+            let outcome = match run_campaign(&ctx, &mut devices).await {
+                Ok(Outcome::Done(_) | Outcome::Iso(_)) => RunOutcome::Done,
+                Ok(Outcome::Aborted) => RunOutcome::Aborted,
+                Ok(Outcome::Failed(r)) => RunOutcome::Failed(r),
+                Err(e) => RunOutcome::Failed(e.to_string()),
             };
             drop(devices);
             drop(ctx);
             // let go of the campaign (a store write) and the cell before announcing the end
             let held = (session.lock, session.cell);
             let _ = tokio::task::spawn_blocking(move || drop(held)).await;
-            *lock(&text_slot) = Some(text);
-            end.cancel();
+            end.end(outcome);
             pump.abort();
             if let Some(sim) = session.sim {
                 sim.stop().await;
@@ -718,12 +665,9 @@ impl Daemon {
         lock(&self.slot).loaded = Some(Loaded {
             id: campaign_id,
             control,
-            pending,
-            outcome,
+            status,
             task,
             run_start,
-            ended,
-            state,
         });
         Ok(campaign_id)
     }
@@ -734,9 +678,8 @@ impl Daemon {
         &self,
         session: &crate::campaign::session::Session,
         run_start: i64,
-        ended: CancellationToken,
-    ) -> watch::Receiver<Option<String>> {
-        let (state_tx, state_rx) = watch::channel(None);
+        status: RunWatch,
+    ) {
         let run = lock(&self.cell).run_loaded(&session.ctx.cfg, session.sim.as_ref());
         let observer = Observer {
             id: session.ctx.campaign_id,
@@ -744,11 +687,10 @@ impl Daemon {
             readers: Arc::clone(&self.readers),
             metrics: Arc::clone(&self.metrics),
             cell: Arc::clone(&self.cell),
-            state: state_tx,
+            status,
             run,
         };
-        tokio::spawn(observer.run(session.ctx.control.events.subscribe(), ended));
-        state_rx
+        tokio::spawn(observer.run(session.ctx.control.events.subscribe()));
     }
 
     /// Apply a client command to campaign `id` and answer with the campaign once the engine
@@ -847,8 +789,7 @@ impl Daemon {
             return Ok(None);
         };
         let wait = settled_by(&cmd).map(|settled| StateWait {
-            state: l.state.clone(),
-            ended: l.ended.clone(),
+            status: l.status.clone(),
             settled,
         });
         match cmd {
@@ -856,50 +797,59 @@ impl Daemon {
                 seq,
                 value_mm,
                 abort,
-            } => {
-                let mut slot = lock(&l.pending);
-                match slot.take().filter(PendingPrompt::is_open) {
+            } => l.status.update(|status| {
+                let slot = &mut status.prompt;
+                let r = match slot.take().filter(PendingPrompt::is_open) {
                     Some(p) if p.seq == seq => {
                         let answer = match (abort, value_mm) {
                             (true, _) => Answer::Abort,
                             (false, _) if p.prompt.id == CONFIRM_CLEAR => {
                                 *slot = Some(p);
-                                return Err(DaemonError::Conflict(format!(
-                                    "question {seq} asks to confirm the cell clear: send \
-                                     {{\"command\": \"confirm_clear\", \"seq\": {seq}}}"
-                                )));
+                                return (
+                                    Err(DaemonError::Conflict(format!(
+                                        "question {seq} asks to confirm the cell clear: send \
+                                         {{\"command\": \"confirm_clear\", \"seq\": {seq}}}"
+                                    ))),
+                                    false,
+                                );
                             }
                             (false, Some(v)) if v.is_finite() => Answer::Number(v),
                             (false, Some(v)) => {
                                 *slot = Some(p);
-                                return Err(DaemonError::BadRequest(format!(
-                                    "value_mm: {v} is not a finite number"
-                                )));
+                                return (
+                                    Err(DaemonError::BadRequest(format!(
+                                        "value_mm: {v} is not a finite number"
+                                    ))),
+                                    false,
+                                );
                             }
                             (false, None) => Answer::Confirmed,
                         };
                         p.answer(answer);
+                        Ok(())
                     }
                     other => {
                         let waiting = other.as_ref().map(|p| p.seq);
                         *slot = other;
-                        return Err(DaemonError::Conflict(match waiting {
+                        Err(DaemonError::Conflict(match waiting {
                             Some(w) => format!("question {seq} is not open; {w} is"),
                             None => format!("question {seq} is not open; none is"),
-                        }));
+                        }))
                     }
-                }
-            }
-            ClientCommand::ConfirmClear { seq } => {
-                let mut slot = lock(&l.pending);
-                match slot.take().filter(PendingPrompt::is_open) {
+                };
+                (r, true)
+            })?,
+            ClientCommand::ConfirmClear { seq } => l.status.update(|status| {
+                let slot = &mut status.prompt;
+                let r = match slot.take().filter(PendingPrompt::is_open) {
                     Some(p) if p.seq == seq && p.prompt.id == CONFIRM_CLEAR => {
                         p.answer(Answer::Clear);
+                        Ok(())
                     }
                     other => {
                         let open = other.as_ref().map(|p| (p.seq, p.prompt.id.clone()));
                         *slot = other;
-                        return Err(DaemonError::Conflict(match open {
+                        Err(DaemonError::Conflict(match open {
                             Some((w, id)) if id == CONFIRM_CLEAR => {
                                 format!("question {seq} is not open; {w} is")
                             }
@@ -908,10 +858,11 @@ impl Daemon {
                                  answered with `answer`)"
                             ),
                             None => format!("question {seq} is not open; none is"),
-                        }));
+                        }))
                     }
-                }
-            }
+                };
+                (r, true)
+            })?,
             ClientCommand::Resume | ClientCommand::Reregister if !l.control.is_armed() => {
                 return Err(DaemonError::Conflict(format!(
                     "campaign {id} is not armed: arm it first (nothing is powered or moved while disarmed)"
@@ -928,7 +879,9 @@ impl Daemon {
             ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
             ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
             // a re-registration belongs to the resume it comes with: never remembered
-            ClientCommand::Reregister if l.state.borrow().as_deref() != Some("paused") => {
+            ClientCommand::Reregister
+                if l.status.read(|s| s.state) != Some(StoredState::Paused) =>
+            {
                 return Err(DaemonError::Conflict(format!(
                     "campaign {id} is not paused: reregister resumes a paused campaign (it is \
                      not remembered for a later start)"
@@ -960,7 +913,7 @@ impl Daemon {
                 .map(|l| Live {
                     rx: l.control.events.subscribe(),
                     run_start: l.run_start,
-                    ended: l.ended.clone(),
+                    status: l.status.clone(),
                 })
         };
         let last = match (after, &live) {
@@ -990,7 +943,7 @@ impl Daemon {
             let step = tokio::select! {
                 biased;
                 r = live.rx.recv() => self.forward_live(id, r, &mut last, &live, &tx).await,
-                _ = live.ended.cancelled() => {
+                _ = live.status.ended() => {
                     // the final state is journalled: deliver what is left, then end
                     let _ = self.replay(id, &mut last, None, &tx).await;
                     Forward::Stop
@@ -1018,7 +971,7 @@ impl Daemon {
             Ok(j) => {
                 *last = j.seq;
                 let ends = j.event.ends_run();
-                if tx.send(Followed::Entry(entry_of(j))).await.is_err() || ends {
+                if tx.send(Followed::Entry(j)).await.is_err() || ends {
                     return Forward::Stop;
                 }
                 if !self.opts.follow_pace.is_zero() {
@@ -1059,13 +1012,13 @@ impl Daemon {
         loop {
             let after = *last;
             let page = self
-                .read(move |s| s.events_after(id, after, REPLAY_PAGE))
+                .read(move |s| s.events_after::<CampaignEvent>(id, after, REPLAY_PAGE))
                 .await?;
             let full = page.len() == REPLAY_PAGE;
             for e in page {
                 *last = e.seq;
                 count += 1;
-                let ends = run_start.is_some_and(|r| e.seq > r) && entry_ends_run(&e);
+                let ends = run_start.is_some_and(|r| e.seq > r) && e.event.ends_run();
                 if tx.send(Followed::Entry(e)).await.is_err() || ends {
                     return Ok((count, Forward::Stop));
                 }
@@ -1079,22 +1032,21 @@ impl Daemon {
     /// The campaign's event journal (oldest first), each entry `{seq, at_ms, kind, event}`.
     /// Cancel-safe (reads only).
     pub async fn journal(&self, id: i64) -> Result<Vec<serde_json::Value>, DaemonError> {
-        let entries = self
-            .read(move |s| s.events_after(id, 0, usize::MAX))
-            .await?;
-        Ok(entries
+        let entries = self.read(move |s| s.events::<CampaignEvent>(id)).await?;
+        entries
             .into_iter()
             .map(|e| {
-                let event = serde_json::from_str(&e.record.message)
-                    .unwrap_or(serde_json::Value::String(e.record.message));
-                serde_json::json!({
+                // through a JSON value, as the journal has always been served (keys sorted)
+                let event = serde_json::to_value(&e.event)
+                    .map_err(|x| DaemonError::Task(format!("event {}: {x}", e.seq)))?;
+                Ok(serde_json::json!({
                     "seq": e.seq,
-                    "at_ms": e.record.at_ms,
-                    "kind": e.record.kind,
+                    "at_ms": e.at_ms,
+                    "kind": e.event.kind(),
                     "event": event,
-                })
+                }))
             })
-            .collect())
+            .collect()
     }
 
     /// The campaign's corrected model as robot-file TOML
@@ -1129,7 +1081,7 @@ impl Daemon {
     /// header included; the store named as this daemon was given it). A campaign that cannot
     /// be rebuilt (an imported one without its robot model) is a conflict. Cancel-safe.
     pub async fn measurements_csv(&self, id: i64) -> Result<String, DaemonError> {
-        let source = self.readers.path.display().to_string();
+        let source = self.readers.path().display().to_string();
         let csv = self
             .read(move |s| match load_stored(s, id, None) {
                 Ok(c) => Ok(Ok(c.export_csv(&source))),
@@ -1184,7 +1136,7 @@ impl Daemon {
     pub async fn report_html(&self, id: i64) -> Result<Option<String>, DaemonError> {
         let name = self
             .readers
-            .path
+            .path()
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
@@ -1209,10 +1161,10 @@ impl Daemon {
             slot.loaded.as_ref().filter(|l| l.running()).map(|l| {
                 let events = l.control.events.subscribe();
                 l.control.apply(&CampaignCommand::Abort);
-                (l.id, events, l.ended.clone())
+                (l.id, events, l.status.clone())
             })
         };
-        let Some((id, mut events, ended)) = running else {
+        let Some((id, mut events, status)) = running else {
             return Ok(CellStopView {
                 campaign: None,
                 state: None,
@@ -1232,7 +1184,7 @@ impl Daemon {
                         Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => {}
                         Err(broadcast::error::RecvError::Closed) => break,
                     },
-                    _ = ended.cancelled() => break,
+                    _ = status.ended() => break,
                 }
             }
         })
@@ -1266,15 +1218,16 @@ impl Daemon {
 pub const COMMAND_SETTLE: Duration = Duration::from_secs(5);
 
 /// The engine states in which a command has been taken (`None`: nothing to wait for).
-fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
+fn settled_by(cmd: &ClientCommand) -> Option<fn(StoredState) -> bool> {
+    use StoredState::{Armed, Idle, Paused, Running};
     Some(match cmd {
-        ClientCommand::Arm => |s| s != "idle",
+        ClientCommand::Arm => |s| s != Idle,
         // a running campaign pauses on a disarm
-        ClientCommand::Disarm => |s| !matches!(s, "armed" | "running"),
-        ClientCommand::Start => |s| !matches!(s, "idle" | "armed"),
+        ClientCommand::Disarm => |s| !matches!(s, Armed | Running),
+        ClientCommand::Start => |s| !matches!(s, Idle | Armed),
         // before a start there is nothing to pause
-        ClientCommand::Pause => |s| s != "running",
-        ClientCommand::Resume | ClientCommand::Reregister => |s| s != "paused",
+        ClientCommand::Pause => |s| s != Running,
+        ClientCommand::Resume | ClientCommand::Reregister => |s| s != Paused,
         // until the run has ended and let go of the campaign and the cell: the reply's
         // `loaded: false` is true, and a next command loads it again
         ClientCommand::Abort => |_| false,
@@ -1284,37 +1237,15 @@ fn settled_by(cmd: &ClientCommand) -> Option<fn(&str) -> bool> {
 
 /// Waiting for the engine to take a command.
 struct StateWait {
-    state: watch::Receiver<Option<String>>,
-    ended: CancellationToken,
-    settled: fn(&str) -> bool,
+    status: RunWatch,
+    settled: fn(StoredState) -> bool,
 }
 
 impl StateWait {
     /// Until the engine's state is one `settled` accepts, the run ends, or `limit` passes.
     /// Cancel-safe (it only waits).
     async fn settle(self, limit: Duration) {
-        let StateWait {
-            mut state,
-            ended,
-            settled,
-        } = self;
-        let reached = async {
-            // the observer is gone after the run's final state: the end is what is left
-            if state
-                .wait_for(|s| s.as_deref().is_some_and(settled))
-                .await
-                .is_err()
-            {
-                std::future::pending::<()>().await;
-            }
-        };
-        let _ = tokio::time::timeout(limit, async {
-            tokio::select! {
-                _ = reached => {}
-                _ = ended.cancelled() => {}
-            }
-        })
-        .await;
+        let _ = tokio::time::timeout(limit, self.status.settled(self.settled)).await;
     }
 }
 
@@ -1351,8 +1282,8 @@ fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
 /// [`journal_event`] finishes on its blocking thread even if this task is dropped.
 async fn pump_prompts(
     mut prompts: mpsc::Receiver<PendingPrompt>,
-    slot: Arc<StdMutex<Option<PendingPrompt>>>,
-    store: Arc<StdMutex<Store>>,
+    status: RunWatch,
+    store: StoreHandle,
     id: i64,
     control: Control,
 ) {
@@ -1364,7 +1295,10 @@ async fn pump_prompts(
             expected_mm: p.prompt.expected_mm,
             context: p.prompt.context.clone(),
         };
-        *lock(&slot) = Some(p);
+        status.update(|s| {
+            s.prompt = Some(p);
+            ((), true)
+        });
         // a store that cannot journal also stops the engine, which reports it
         let _ = journal_event(&store, id, &control, event).await;
     }

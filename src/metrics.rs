@@ -18,6 +18,9 @@
 
 use std::time::Duration;
 
+use crate::campaign::events::fault_kind_name;
+use crate::campaign::CampaignEvent;
+
 use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
@@ -174,8 +177,26 @@ impl Metrics {
         m
     }
 
-    /// The campaign's state is now `name` (an unknown name counts as itself).
-    pub fn set_state(&self, name: &str) {
+    /// Count a journalled event: a state change sets the state gauge, a measured pose the
+    /// poses and the progress, a fault the faults (and retries); other events count nothing.
+    pub fn event(&self, e: &CampaignEvent) {
+        match e {
+            CampaignEvent::State { state } => self.set_state(state.name()),
+            CampaignEvent::Measured { done, total, .. } => {
+                self.measured(*done as u64, *total as u64)
+            }
+            CampaignEvent::Fault {
+                device,
+                kind,
+                action,
+                ..
+            } => self.fault(device.name(), fault_kind_name(*kind), action),
+            _ => {}
+        }
+    }
+
+    /// The campaign's state is now `name` (one of [`STATES`]; any other sets none).
+    fn set_state(&self, name: &str) {
         for s in STATES {
             self.state
                 .get_or_create(&StateLabels { state: s })
@@ -184,7 +205,7 @@ impl Metrics {
     }
 
     /// A pose was measured: `done` of `total`.
-    pub fn measured(&self, done: u64, total: u64) {
+    fn measured(&self, done: u64, total: u64) {
         self.poses_measured.inc();
         self.progress(done, total);
     }
@@ -197,7 +218,7 @@ impl Metrics {
     }
 
     /// A device fault and the engine's action (a retry unless `pause`/`abort`).
-    pub fn fault(&self, device: &str, kind: &str, action: &str) {
+    fn fault(&self, device: &str, kind: &str, action: &str) {
         self.faults
             .get_or_create(&FaultLabels {
                 device: device.to_owned(),
@@ -240,14 +261,35 @@ impl Metrics {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::campaign::CampaignState;
+    use crate::cell::{DeviceKind, FaultKind};
 
     #[test]
     fn the_text_names_every_metric_and_one_state() {
         let m = Metrics::new();
-        m.set_state("running");
-        m.measured(3, 10);
-        m.fault("tracker", "BeamBroken", "relock");
-        m.fault("robot", "EmergencyStop", "pause");
+        m.event(&CampaignEvent::State {
+            state: CampaignState::Running,
+        });
+        m.event(&CampaignEvent::Measured {
+            pose: 7,
+            done: 3,
+            total: 10,
+            p1_mm: [0.0; 3],
+            deviation_mm: None,
+            deviation_xyz_mm: None,
+        });
+        m.event(&CampaignEvent::fault(
+            DeviceKind::Tracker,
+            FaultKind::BeamBroken,
+            "lost",
+            "relock",
+        ));
+        m.event(&CampaignEvent::fault(
+            DeviceKind::Robot,
+            FaultKind::EmergencyStop,
+            "e-stop",
+            "pause",
+        ));
         m.request(
             "GET",
             Some("/api/campaigns/{id}"),

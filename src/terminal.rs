@@ -7,6 +7,7 @@ use async_trait::async_trait;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::broadcast;
 
+use cellcal::campaign::events::fault_kind_name;
 use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};
 use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, CONFIRM_CLEAR};
 
@@ -149,6 +150,11 @@ pub enum Display {
     Quiet,
 }
 
+/// A value as its JSON text (as the journal has it; `null` for a non-finite number).
+fn json<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_string(v).unwrap_or_default()
+}
+
 /// Print campaign events until the channel closes.
 /// Cancel-safe: it only receives and prints.
 pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize, display: Display) {
@@ -198,7 +204,11 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
                 kind,
                 message,
                 action,
-            }) => line(format!("{device} {kind}: {message} -> {action}")),
+            }) => line(format!(
+                "{} {}: {message} -> {action}",
+                device.name(),
+                fault_kind_name(kind)
+            )),
             Ok(CampaignEvent::Drift { drift_mm, max_mm }) => {
                 let text = format!("drift {drift_mm:.4} mm (max {max_mm})");
                 if matches!(display, Display::Lines { .. }) {
@@ -227,25 +237,26 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
             }
             Ok(CampaignEvent::Prompt { .. }) => {}
             Ok(CampaignEvent::Setup { result }) => {
-                let v = |path: &str| result.pointer(path).cloned().unwrap_or_default();
-                if !v("/tool_frame").is_null() {
+                if let Some(t) = &result.tool_frame {
                     line(format!(
                         "tool frame: ball {} mm in the flange, stage axis {}, sphere fit RMS {} mm",
-                        v("/tool_frame/tool_mm"),
-                        v("/tool_frame/stage_axis"),
-                        v("/tool_frame/sphere_rms_mm")
+                        json(&t.tool_mm),
+                        json(&t.stage_axis),
+                        json(&t.sphere_rms_mm)
                     ));
                 }
-                if !v("/base").is_null() {
+                if let Some(b) = &result.base {
                     line(format!(
                         "base registration: RMS {} mm over {} poses, tracker at {} mm in the robot base frame",
-                        v("/base/rms_mm"),
-                        v("/base/poses"),
-                        v("/base/tracker_in_base_mm")
+                        json(&b.rms_mm),
+                        json(&b.poses),
+                        json(&b.tracker_in_base_mm)
                     ));
                 }
             }
             Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
+            // only a journal read back has these; the live channel carries typed events
+            Ok(CampaignEvent::Other(_)) => {}
             Err(broadcast::error::RecvError::Lagged(_)) => {}
             Err(broadcast::error::RecvError::Closed) => break,
         }

@@ -522,8 +522,8 @@ fn sse_event(item: Followed) -> Event {
     match item {
         Followed::Entry(e) => Event::default()
             .id(e.seq.to_string())
-            .event(e.record.kind)
-            .data(e.record.message),
+            .event(e.event.kind())
+            .data(serde_json::to_string(&e.event).unwrap_or_default()),
         Followed::Replayed { count } => {
             Event::default().comment(format!("replayed {count} events from the journal"))
         }

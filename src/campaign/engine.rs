@@ -22,12 +22,11 @@ mod setup;
 pub use setup::{BaseResult, SetupResult, ToolFrameResult};
 
 use std::future::Future;
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use nalgebra::Vector3;
 
-use super::events::{CampaignEvent, CampaignState, Control, Journalled};
+use super::events::{CampaignEvent, CampaignState, Control};
 use crate::calibrate::{calibrate_result, BaseSource, CalibrateError, IdentifyReport};
 use crate::cell::{
     CellError, DeviceKind, FaultKind, PromptContext, Robot, Stage, StagePosition, Tracker,
@@ -40,7 +39,9 @@ use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
 use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
-use crate::store::{identification_rows, EventRecord, PointKind, PointRecord, PoseMeasurement, Store, StoreError};
+use crate::store::{
+    identification_rows, PointKind, PointRecord, PoseMeasurement, Store, StoreError, StoreHandle,
+};
 use crate::wall_clock::{now_unix_ms, unix_ms};
 
 /// The three devices of the cell.
@@ -74,7 +75,7 @@ pub struct CampaignContext {
     /// The plan (drift reference included).
     pub plan: Plan,
     /// The store.
-    pub store: Arc<Mutex<Store>>,
+    pub store: StoreHandle,
     /// Campaign id in the store.
     pub campaign_id: i64,
     /// Commands and events.
@@ -248,47 +249,36 @@ const DISARMED: &str = "disarmed: the robot and the stage were stopped; arm, the
 /// Run `f` on the store on a blocking thread (the store's mutex is held only there).
 /// Cancel-safe in effect: a dropped call still runs `f` to completion; only its result is lost.
 async fn with_store<T: Send + 'static>(
-    store: &Arc<Mutex<Store>>,
+    store: &StoreHandle,
     f: impl FnOnce(&mut Store) -> Result<T, StoreError> + Send + 'static,
 ) -> Result<T, CampaignError> {
-    let store = Arc::clone(store);
-    tokio::task::spawn_blocking(move || {
-        let mut s = store
-            .lock()
-            .map_err(|_| CampaignError::Task("store lock poisoned".into()))?;
-        f(&mut s).map_err(CampaignError::Store)
-    })
-    .await
-    .map_err(|e| CampaignError::Task(e.to_string()))?
+    store.call(f).await.map_err(campaign_error)
+}
+
+/// A store error as the engine reports it (a failed blocking task as [`CampaignError::Task`]).
+fn campaign_error(e: StoreError) -> CampaignError {
+    match e {
+        StoreError::Task(t) => CampaignError::Task(t),
+        e => CampaignError::Store(e),
+    }
 }
 
 /// Journal `event` for campaign `id` and publish it on `control` with the sequence number the
-/// store assigned; both happen under the store lock, so live events leave in journal order and
-/// every live event is in the journal before anyone sees it. Returns the sequence number.
-/// Cancel-safe: the work runs on a blocking thread, so a dropped call still journals and
-/// publishes the event exactly once.
+/// store assigned; both happen under the store lock ([`StoreHandle::journal`]), so live events
+/// leave in journal order and every live event is in the journal before anyone sees it. Returns
+/// the sequence number. Cancel-safe: the work runs on a blocking thread, so a dropped call
+/// still journals and publishes the event exactly once.
 pub async fn journal_event(
-    store: &Arc<Mutex<Store>>,
+    store: &StoreHandle,
     id: i64,
     control: &Control,
     event: CampaignEvent,
 ) -> Result<i64, CampaignError> {
-    let rec = EventRecord {
-        at_ms: now_unix_ms(),
-        kind: event.kind().to_owned(),
-        message: serde_json::to_string(&event).map_err(|x| CampaignError::Task(x.to_string()))?,
-    };
     let control = control.clone();
-    with_store(store, move |s| {
-        let seq = s.add_event(id, &rec)?;
-        control.publish(Journalled {
-            seq,
-            at_ms: rec.at_ms,
-            event,
-        });
-        Ok(seq)
-    })
-    .await
+    store
+        .journal(id, now_unix_ms(), event, move |e| control.publish(e))
+        .await
+        .map_err(campaign_error)
 }
 
 struct Run<'a> {
@@ -397,8 +387,8 @@ impl Run<'_> {
     /// dropped.
     async fn set_state(&self, state: CampaignState) -> Result<(), CampaignError> {
         let id = self.ctx.campaign_id;
-        let name = state.name();
-        self.store(move |s| s.set_state(id, name)).await?;
+        let stored = state.stored();
+        self.store(move |s| s.set_state(id, stored)).await?;
         self.journal(CampaignEvent::State { state }).await
     }
 

@@ -3,11 +3,13 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, watch};
 use tokio_util::sync::CancellationToken;
 
+use super::engine::SetupResult;
 use crate::cell::{Answer, DeviceKind, FaultKind, PromptContext};
+use crate::store::{JournalEntry, JournalEvent, StoreError, StoredState};
 
 /// What an operator can tell the engine.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,7 +40,7 @@ pub enum CampaignCommand {
 }
 
 /// Engine state.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "state", rename_all = "snake_case")]
 pub enum CampaignState {
     /// Created, not armed.
@@ -66,23 +68,38 @@ pub enum CampaignState {
 }
 
 impl CampaignState {
+    /// The state stored in the campaign row.
+    pub fn stored(&self) -> StoredState {
+        match self {
+            CampaignState::Idle => StoredState::Idle,
+            CampaignState::Armed => StoredState::Armed,
+            CampaignState::Running => StoredState::Running,
+            CampaignState::Paused { .. } => StoredState::Paused,
+            CampaignState::Identifying => StoredState::Identifying,
+            CampaignState::Done => StoredState::Done,
+            CampaignState::Aborted => StoredState::Aborted,
+            CampaignState::Failed { .. } => StoredState::Failed,
+        }
+    }
+
     /// Short name stored in the campaign row.
     pub fn name(&self) -> &'static str {
+        self.stored().name()
+    }
+
+    /// Why it paused or failed (`None` for the other states).
+    pub fn reason(&self) -> Option<&str> {
         match self {
-            CampaignState::Idle => "idle",
-            CampaignState::Armed => "armed",
-            CampaignState::Running => "running",
-            CampaignState::Paused { .. } => "paused",
-            CampaignState::Identifying => "identifying",
-            CampaignState::Done => "done",
-            CampaignState::Aborted => "aborted",
-            CampaignState::Failed { .. } => "failed",
+            CampaignState::Paused { reason } | CampaignState::Failed { reason } => Some(reason),
+            _ => None,
         }
     }
 }
 
-/// What the engine reports.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// What the engine reports, as journalled and sent to clients: `{"event": kind, …fields}`.
+/// Serialises and deserialises; a journal row of an unknown or older shape that does not read
+/// as one of the typed variants is kept whole as [`CampaignEvent::Other`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum CampaignEvent {
     /// State change.
@@ -108,10 +125,12 @@ pub enum CampaignEvent {
     },
     /// A device fault and what the engine does about it.
     Fault {
-        /// Device.
-        device: &'static str,
-        /// Fault kind.
-        kind: String,
+        /// Device (its lower-case name).
+        #[serde(with = "device_name")]
+        device: DeviceKind,
+        /// Fault kind (its variant name, `BeamBroken`, …).
+        #[serde(with = "fault_name")]
+        kind: FaultKind,
         /// Driver message.
         message: String,
         /// Action taken (`relock`, `reconnect`, `retry`, `pause`).
@@ -124,10 +143,11 @@ pub enum CampaignEvent {
         /// Threshold (mm).
         max_mm: f64,
     },
-    /// The cell setup was measured (tool frame, base registration; `SetupResult` as JSON).
+    /// The cell setup was measured (tool frame, base registration).
     Setup {
-        /// The setup result.
-        result: serde_json::Value,
+        /// The setup result (written through a JSON value, keys sorted, as it always was).
+        #[serde(serialize_with = "via_value")]
+        result: Box<SetupResult>,
     },
     /// A technician question waiting for its answer (front ends answer it by `seq`).
     Prompt {
@@ -175,6 +195,128 @@ pub enum CampaignEvent {
         /// The JSON document.
         json: serde_json::Value,
     },
+    /// A journal row that reads as none of the above (an older or unknown kind, a damaged
+    /// text): kept whole, written back as it was read.
+    #[serde(untagged)]
+    Other(UnknownEvent),
+}
+
+/// A journal row of no known shape: its kind and its JSON (a text that is not JSON: that text
+/// as a JSON string).
+#[derive(Debug, Clone, PartialEq)]
+pub struct UnknownEvent {
+    /// The stored kind (the JSON's `event` field when read without its row).
+    pub kind: String,
+    /// The stored JSON.
+    pub body: serde_json::Value,
+}
+
+impl Serialize for UnknownEvent {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.body.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for UnknownEvent {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let body = serde_json::Value::deserialize(d)?;
+        let kind = body
+            .get("event")
+            .and_then(serde_json::Value::as_str)
+            .unwrap_or_default()
+            .to_owned();
+        Ok(UnknownEvent { kind, body })
+    }
+}
+
+/// Serialise through a [`serde_json::Value`] (object keys sorted): the setup result's journal
+/// form since it was first journalled.
+fn via_value<T: Serialize, S: serde::Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+    serde_json::to_value(v)
+        .map_err(serde::ser::Error::custom)?
+        .serialize(s)
+}
+
+/// [`DeviceKind`] as its lower-case name.
+mod device_name {
+    use super::DeviceKind;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    const ALL: [DeviceKind; 4] = [
+        DeviceKind::Tracker,
+        DeviceKind::Robot,
+        DeviceKind::Stage,
+        DeviceKind::Operator,
+    ];
+
+    pub(super) fn serialize<S: Serializer>(d: &DeviceKind, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(d.name())
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<DeviceKind, D::Error> {
+        let name = String::deserialize(d)?;
+        ALL.into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| serde::de::Error::custom(format!("unknown device `{name}`")))
+    }
+}
+
+/// A fault kind's journalled name, its variant name (`BeamBroken`, …): the `kind` of a `fault`
+/// event, a metric label, the devices view's `last_fault.kind`.
+pub fn fault_kind_name(kind: FaultKind) -> &'static str {
+    fault_name::name(kind)
+}
+
+/// [`FaultKind`] as its variant name (`BeamBroken`, …).
+mod fault_name {
+    use super::FaultKind;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    const ALL: [FaultKind; 9] = [
+        FaultKind::BeamBroken,
+        FaultKind::Timeout,
+        FaultKind::Disconnected,
+        FaultKind::Rejected,
+        FaultKind::EmergencyStop,
+        FaultKind::NotReady,
+        FaultKind::Protocol,
+        FaultKind::Aborted,
+        FaultKind::Device,
+    ];
+
+    /// The name journalled and counted (`BeamBroken`, …).
+    pub(super) fn name(k: FaultKind) -> &'static str {
+        match k {
+            FaultKind::BeamBroken => "BeamBroken",
+            FaultKind::Timeout => "Timeout",
+            FaultKind::Disconnected => "Disconnected",
+            FaultKind::Rejected => "Rejected",
+            FaultKind::EmergencyStop => "EmergencyStop",
+            FaultKind::NotReady => "NotReady",
+            FaultKind::Protocol => "Protocol",
+            FaultKind::Aborted => "Aborted",
+            FaultKind::Device => "Device",
+        }
+    }
+
+    pub(super) fn serialize<S: Serializer>(k: &FaultKind, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(name(*k))
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<FaultKind, D::Error> {
+        let text = String::deserialize(d)?;
+        ALL.into_iter()
+            .find(|k| name(*k) == text)
+            .ok_or_else(|| serde::de::Error::custom(format!("unknown fault kind `{text}`")))
+    }
+
+    #[cfg(test)]
+    #[test]
+    fn names_are_the_debug_names() {
+        for k in ALL {
+            assert_eq!(name(k), format!("{k:?}"));
+        }
+    }
 }
 
 impl CampaignEvent {
@@ -189,8 +331,8 @@ impl CampaignEvent {
     }
 
     /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `devices`,
-    /// `stopped`, `note`, `result`).
-    pub fn kind(&self) -> &'static str {
+    /// `stopped`, `note`, `result`; an unknown row's stored kind).
+    pub fn kind(&self) -> &str {
         match self {
             CampaignEvent::State { .. } => "state",
             CampaignEvent::Measured { .. } => "measured",
@@ -202,31 +344,48 @@ impl CampaignEvent {
             CampaignEvent::Stopped { .. } => "stopped",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",
+            CampaignEvent::Other(u) => &u.kind,
         }
     }
 
     /// A fault event.
     pub fn fault(device: DeviceKind, kind: FaultKind, message: &str, action: &str) -> Self {
         CampaignEvent::Fault {
-            device: device.name(),
-            kind: format!("{kind:?}"),
+            device,
+            kind,
             message: message.to_owned(),
             action: action.to_owned(),
         }
     }
 }
 
-/// A live event as its campaign's journal stored it: every event on [`Control::events`] is
-/// journalled first, so a client that missed some can read them back by sequence number.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Journalled {
-    /// The journal's sequence number (the store's row id): increasing in emission order.
-    pub seq: i64,
-    /// When it was journalled (ms since the Unix epoch).
-    pub at_ms: i64,
-    /// The event.
-    pub event: CampaignEvent,
+impl JournalEvent for CampaignEvent {
+    fn kind(&self) -> &str {
+        CampaignEvent::kind(self)
+    }
+
+    fn to_text(&self) -> Result<String, StoreError> {
+        serde_json::to_string(self).map_err(|e| StoreError::Invalid(format!("event: {e}")))
+    }
+
+    /// The typed event when the text reads as the kind its row names, else
+    /// [`CampaignEvent::Other`] with the row's kind and JSON (a text that is not JSON as a
+    /// JSON string).
+    fn from_stored(kind: String, text: String) -> CampaignEvent {
+        match serde_json::from_str::<CampaignEvent>(&text) {
+            Ok(e) if !matches!(e, CampaignEvent::Other(_)) && e.kind() == kind => e,
+            _ => CampaignEvent::Other(UnknownEvent {
+                body: serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
+                kind,
+            }),
+        }
+    }
 }
+
+/// A live event as its campaign's journal stored it: every event on [`Control::events`] is
+/// journalled first, so a client that missed some can read them back by sequence number
+/// (`seq`: the store's row id, increasing in emission order).
+pub type Journalled = JournalEntry<CampaignEvent>;
 
 /// Shared control state between the command listener and the engine.
 #[derive(Debug, Clone)]

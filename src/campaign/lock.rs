@@ -1,17 +1,15 @@
 //! This process as the one runner of a campaign: the guard over the store's lock row
 //! ([`Store::lock_campaign`]), and whether a recorded holder is still alive (Linux `/proc`).
 
-use std::sync::{Arc, Mutex};
-
 use super::events::CampaignEvent;
-use crate::store::{Acquired, EventRecord, LockHolder, Store, StoreError};
+use crate::store::{Acquired, LockHolder, Store, StoreError, StoreHandle, StoredState};
 use crate::wall_clock::now_unix_ms;
 
 /// Holds a campaign for this process until dropped (one short SQLite write on the store the
 /// session shares with the engine).
 #[derive(Debug)]
 pub struct CampaignLock {
-    store: Arc<Mutex<Store>>,
+    store: StoreHandle,
     campaign_id: i64,
     me: LockHolder,
 }
@@ -20,16 +18,13 @@ impl CampaignLock {
     /// Take campaign `id`. Returns the guard and, when a dead process's lock was taken over,
     /// that holder (the caller journals it). Blocking.
     pub fn acquire(
-        store: &Arc<Mutex<Store>>,
+        store: &StoreHandle,
         id: i64,
     ) -> Result<(CampaignLock, Option<LockHolder>), StoreError> {
         let me = this_process();
-        let how = store
-            .lock()
-            .map_err(|_| StoreError::Invalid("store lock poisoned".into()))?
-            .lock_campaign(id, &me, is_dead)?;
+        let how = store.blocking(|s| s.lock_campaign(id, &me, is_dead))?;
         let guard = CampaignLock {
-            store: Arc::clone(store),
+            store: store.clone(),
             campaign_id: id,
             me,
         };
@@ -45,31 +40,21 @@ impl CampaignLock {
 
 impl Drop for CampaignLock {
     fn drop(&mut self) {
-        let mut s = self.store.lock().unwrap_or_else(|p| p.into_inner());
-        let _ = s.unlock_campaign(self.campaign_id, &self.me);
+        let _ = self
+            .store
+            .blocking(|s| s.unlock_campaign(self.campaign_id, &self.me));
     }
 }
 
-/// The state shown for a campaign stored in a run's state whose process is gone.
-pub const INTERRUPTED: &str = "interrupted";
-
-/// The stored states only a running engine is in (a campaign left in one by a process that is
-/// gone is [`INTERRUPTED`]).
-pub const RUN_STATES: [&str; 5] = ["idle", "armed", "running", "paused", "identifying"];
-
-/// Whether `state` is one of [`RUN_STATES`].
-pub fn is_run_state(state: &str) -> bool {
-    RUN_STATES.contains(&state)
-}
-
-/// Mark every campaign stored in a run's state that no live process holds [`INTERRUPTED`]
+/// Mark every campaign stored in a run's state ([`StoredState::RUN`]) that no live process
+/// holds [`StoredState::Interrupted`]
 /// (nothing of it moves; it stays resumable) and journal why; returns each one's id and the
 /// state it had. Blocking (store writes).
-pub fn mark_interrupted(store: &mut Store) -> Result<Vec<(i64, String)>, StoreError> {
+pub fn mark_interrupted(store: &mut Store) -> Result<Vec<(i64, StoredState)>, StoreError> {
     let mut out = Vec::new();
     for row in store.list_campaigns()? {
         let Some((was, holder)) =
-            store.interrupt_unheld(row.id, &RUN_STATES, INTERRUPTED, is_dead)?
+            store.interrupt_unheld(row.id, &StoredState::RUN, StoredState::Interrupted, is_dead)?
         else {
             continue;
         };
@@ -89,16 +74,7 @@ pub fn mark_interrupted(store: &mut Store) -> Result<Vec<(i64, String)>, StoreEr
 
 /// Journal a note in campaign `id`'s events (outside a run: nothing publishes it live).
 pub(crate) fn journal_note(store: &mut Store, id: i64, text: String) -> Result<(), StoreError> {
-    let event = CampaignEvent::Note { text };
-    store.add_event(
-        id,
-        &EventRecord {
-            at_ms: now_unix_ms(),
-            kind: event.kind().to_owned(),
-            message: serde_json::to_string(&event)
-                .map_err(|e| StoreError::Invalid(e.to_string()))?,
-        },
-    )?;
+    store.add_event(id, now_unix_ms(), &CampaignEvent::Note { text })?;
     Ok(())
 }
 
@@ -173,28 +149,26 @@ mod tests {
     fn a_second_holder_is_refused_and_a_dead_one_taken_over() {
         let mut s = Store::open_in_memory().expect("store");
         let id = crate::store::tests::setup(&mut s);
-        let store = Arc::new(Mutex::new(s));
+        let store = StoreHandle::new(s);
         let (guard, took) = CampaignLock::acquire(&store, id).expect("first");
         assert!(took.is_none());
         let other = LockHolder {
             pid: 1,
             ..this_process()
         };
-        match store.lock().unwrap().lock_campaign(id, &other, is_dead) {
+        match store.blocking(|s| s.lock_campaign(id, &other, is_dead)) {
             Err(StoreError::Locked { holder, .. }) => assert_eq!(holder.pid, std::process::id()),
             r => panic!("expected Locked, got {r:?}"),
         }
         drop(guard);
-        let holder = store.lock().unwrap().campaign_holder(id).expect("holder");
+        let holder = store.blocking(|s| s.campaign_holder(id)).expect("holder");
         assert_eq!(holder, None, "released on drop");
         let dead = LockHolder {
             pid: u32::MAX - 1,
             ..this_process()
         };
         store
-            .lock()
-            .unwrap()
-            .lock_campaign(id, &dead, |_| false)
+            .blocking(|s| s.lock_campaign(id, &dead, |_| false))
             .expect("dead holder");
         let (_g, took) = CampaignLock::acquire(&store, id).expect("take over");
         assert_eq!(took.map(|h| h.pid), Some(u32::MAX - 1));

@@ -7,18 +7,17 @@
 
 use std::path::Path;
 
-use serde_json::Value;
-
 use super::stored::{load_stored, StoredError};
 use crate::analysis::significance::significance;
 use crate::calibrate::{CalibrationResult, SetupResult};
+use crate::campaign::events::{fault_kind_name, CampaignEvent, Journalled};
 use crate::config::cell::{CellConfig, DeviceMode, StageMode};
 use crate::config::parse_cell_config;
 use crate::report::html::{
     CampaignFacts, DeviceEntry, DriftCheck, FaultEntry, InputDigest, Provenance, ReportInput,
     SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED,
 };
-use crate::store::{EventRecord, Store, StoreError};
+use crate::store::{Store, StoreError};
 
 /// Why a stored campaign has no calibration report.
 #[derive(Debug, thiserror::Error)]
@@ -105,7 +104,7 @@ pub fn campaign_facts(
 ) -> Result<(CampaignFacts, Vec<InputDigest>), StoreError> {
     let row = store.campaign(id)?;
     let (done, total) = store.pose_counts(id)?;
-    let events = store.events(id)?;
+    let events = store.events::<CampaignEvent>(id)?;
     let cfg = parse_cell_config(&row.config_toml, Path::new("stored configuration"));
     let inputs = vec![
         stored_digest("cell configuration (as stored)", &row.config_toml),
@@ -114,7 +113,7 @@ pub fn campaign_facts(
     let facts = CampaignFacts {
         id,
         name: row.name,
-        state: row.state,
+        state: row.state.name().to_owned(),
         created_at_ms: row.created_at_ms,
         seed: row.seed,
         poses_done: done,
@@ -143,32 +142,33 @@ fn stored_digest(what: &str, text: &str) -> InputDigest {
     InputDigest::of(what, "the campaign row's verbatim copy", text.as_bytes())
 }
 
-/// The journal's event JSON, when it is of `kind`.
-fn event_of(e: &EventRecord, kind: &str) -> Option<Value> {
-    (e.kind == kind)
-        .then(|| serde_json::from_str(&e.message).ok())
-        .flatten()
+fn drift_check(e: &Journalled) -> Option<DriftCheck> {
+    match e.event {
+        CampaignEvent::Drift { drift_mm, max_mm } => Some(DriftCheck {
+            at_ms: e.at_ms,
+            drift_mm,
+            max_mm,
+        }),
+        _ => None,
+    }
 }
 
-fn drift_check(e: &EventRecord) -> Option<DriftCheck> {
-    let v = event_of(e, "drift")?;
-    Some(DriftCheck {
-        at_ms: e.at_ms,
-        drift_mm: v["drift_mm"].as_f64()?,
-        max_mm: v["max_mm"].as_f64()?,
-    })
-}
-
-fn fault(e: &EventRecord) -> Option<FaultEntry> {
-    let v = event_of(e, "fault")?;
-    let text = |k: &str| v[k].as_str().unwrap_or("").to_owned();
-    Some(FaultEntry {
-        at_ms: e.at_ms,
-        device: text("device"),
-        kind: text("kind"),
-        message: text("message"),
-        action: text("action"),
-    })
+fn fault(e: &Journalled) -> Option<FaultEntry> {
+    match &e.event {
+        CampaignEvent::Fault {
+            device,
+            kind,
+            message,
+            action,
+        } => Some(FaultEntry {
+            at_ms: e.at_ms,
+            device: device.name().to_owned(),
+            kind: fault_kind_name(*kind).to_owned(),
+            message: message.clone(),
+            action: action.clone(),
+        }),
+        _ => None,
+    }
 }
 
 /// `what` and, for a real device, its address.
@@ -181,12 +181,24 @@ fn at(what: &str, address: &str, m: DeviceMode) -> String {
 
 /// `entries` with the identities of the journal's last `devices` event (the devices of the
 /// campaign's last session).
-fn with_identities(mut entries: Vec<DeviceEntry>, events: &[EventRecord]) -> Vec<DeviceEntry> {
-    let Some(said) = events.iter().rev().find_map(|e| event_of(e, "devices")) else {
+fn with_identities(mut entries: Vec<DeviceEntry>, events: &[Journalled]) -> Vec<DeviceEntry> {
+    let Some((tracker, robot, stage)) = events.iter().rev().find_map(|e| match &e.event {
+        CampaignEvent::Devices {
+            tracker,
+            robot,
+            stage,
+        } => Some((tracker, robot, stage)),
+        _ => None,
+    }) else {
         return entries;
     };
     for entry in &mut entries {
-        entry.identity = said[entry.device.as_str()].as_str().map(str::to_owned);
+        entry.identity = match entry.device.as_str() {
+            "tracker" => tracker.clone(),
+            "robot" => robot.clone(),
+            "stage" => stage.clone(),
+            _ => None,
+        };
     }
     entries
 }

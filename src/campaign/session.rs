@@ -3,7 +3,7 @@
 //! stored one to resume.
 
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use nalgebra::Vector3;
 use robotlink::SharedSecret;
@@ -30,7 +30,10 @@ use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
 use crate::sim::{start_cell_with, RunningSimCell, SimTechnician};
-use crate::store::{CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, ISO9283_KIND};
+use crate::store::{
+    CampaignKind, CampaignRow, NewCampaign, PlannedPose, Store, StoreHandle, StoredState,
+    ISO9283_KIND,
+};
 use crate::wall_clock::now_unix_ms;
 
 /// Why a session could not be set up.
@@ -174,8 +177,14 @@ pub async fn open_session(
     })
     .await
     .map_err(|e| SessionError::Invalid(format!("store task failed: {e}")))??;
-    let store = Arc::new(Mutex::new(store));
-    open_session_with(cfg, store, campaign, prompter, EVENT_CAPACITY).await
+    open_session_with(
+        cfg,
+        StoreHandle::new(store),
+        campaign,
+        prompter,
+        EVENT_CAPACITY,
+    )
+    .await
 }
 
 /// [`open_session`] on an open store (the caller's writer, shared with the engine) with a live
@@ -183,7 +192,7 @@ pub async fn open_session(
 /// on the async runtime's workers. Not cancel-safe (see [`open_session`]).
 pub async fn open_session_with(
     cfg: CellConfig,
-    store: Arc<Mutex<Store>>,
+    store: StoreHandle,
     campaign: Option<Resume>,
     prompter: Arc<dyn Prompter>,
     capacity: usize,
@@ -195,12 +204,7 @@ pub async fn open_session_with(
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
     let req = plan_request(&cfg);
     let prepared = {
-        let (store, nominal, req, cfg) = (
-            Arc::clone(&store),
-            nominal.clone(),
-            req.clone(),
-            cfg.clone(),
-        );
+        let (store, nominal, req, cfg) = (store.clone(), nominal.clone(), req.clone(), cfg.clone());
         tokio::task::spawn_blocking(move || {
             let cell = take_cell(&store, &cfg, campaign.map(|r| r.id))?;
             let mut prepared = plan_and_store(&store, &nominal, &req, &cfg, campaign, robot_text)?;
@@ -211,7 +215,7 @@ pub async fn open_session_with(
                         "took over the cell ({}) from {h}, which died holding it",
                         h.cell
                     );
-                    note(&mut *lock_store(&store)?, prepared.campaign_id, text)?;
+                    store.blocking(|s| note(s, prepared.campaign_id, text))?;
                 }
                 prepared.cell = Some(cell);
             }
@@ -264,11 +268,11 @@ pub async fn open_session_with(
 /// Take the cell for this process ([`CellKey::of`] the configuration and the store's file),
 /// before anything is planned or stored. Blocking.
 fn take_cell(
-    store: &Mutex<Store>,
+    store: &StoreHandle,
     cfg: &CellConfig,
     campaign: Option<i64>,
 ) -> Result<Option<(CellLock, Option<super::cell_lock::CellHolder>)>, SessionError> {
-    let path = lock_store(store)?.path().map(Path::to_owned);
+    let path = store.blocking(|s| s.path().map(Path::to_owned));
     let Some(key) = CellKey::of(cfg, path.as_deref()) else {
         return Ok(None);
     };
@@ -300,23 +304,22 @@ struct Prepared {
 /// and journal what the operator should know (a lock taken over, accepted changes).
 /// Blocking: planning may take seconds.
 fn plan_and_store(
-    store: &Arc<Mutex<Store>>,
+    store: &StoreHandle,
     nominal: &RobotModel,
     req: &PlanRequest,
     cfg: &CellConfig,
     campaign: Option<Resume>,
     robot_text: String,
 ) -> Result<Prepared, SessionError> {
-    let resumed = {
-        let s = lock_store(store)?;
+    let resumed = store.blocking(|s| {
         match campaign {
             None => feasibility::check_new(cfg, nominal)?,
-            Some(r) => feasibility::check_resumed(cfg, nominal, &s, r.id)?,
+            Some(r) => feasibility::check_resumed(cfg, nominal, s, r.id)?,
         }
         campaign
-            .map(|r| stored_campaign(&s, r, &cfg.text, &robot_text))
-            .transpose()?
-    };
+            .map(|r| stored_campaign(s, r, &cfg.text, &robot_text))
+            .transpose()
+    })?;
     // a resumed calibration's hub is planned from its own request (its seed and pose counts,
     // which a creation's overrides may have set), as when it was created
     let own_req = match &resumed {
@@ -344,8 +347,8 @@ fn plan_and_store(
         None if cfg.iso9283.is_some() => {
             let iso = plan_new_iso(cfg, nominal, req, &fresh.drift_reference)?;
             let plan = iso_engine_plan(nominal, req, &iso)?;
-            let mut s = lock_store(store)?;
-            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &plan, Some(&iso))?;
+            let id = store
+                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &plan, Some(&iso)))?;
             (id, plan, Some(iso), None, Vec::new())
         }
         Some(s) => {
@@ -368,8 +371,8 @@ fn plan_and_store(
             (s.id, plan, None, Some(s.model), s.accepted_changes)
         }
         None => {
-            let mut s = lock_store(store)?;
-            let id = store_new_campaign(&mut s, cfg, nominal, robot_text, &fresh, None)?;
+            let id = store
+                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &fresh, None))?;
             (id, fresh, None, None, Vec::new())
         }
     };
@@ -379,18 +382,20 @@ fn plan_and_store(
         )));
     }
     let (lock, took_over) = CampaignLock::acquire(store, campaign_id)?;
-    let mut s = lock_store(store)?;
-    if let Some(h) = took_over {
-        let text = format!("took over the campaign from {h}, which no longer runs");
-        note(&mut s, campaign_id, text)?;
-    }
-    for (what, keys) in accepted_changes {
-        let text = format!(
-            "resumed with a changed {what} (accepted): {}",
-            keys.join(", ")
-        );
-        note(&mut s, campaign_id, text)?;
-    }
+    store.blocking(|s| {
+        if let Some(h) = took_over {
+            let text = format!("took over the campaign from {h}, which no longer runs");
+            note(s, campaign_id, text)?;
+        }
+        for (what, keys) in accepted_changes {
+            let text = format!(
+                "resumed with a changed {what} (accepted): {}",
+                keys.join(", ")
+            );
+            note(s, campaign_id, text)?;
+        }
+        Ok::<_, SessionError>(())
+    })?;
     Ok(Prepared {
         campaign_id,
         plan,
@@ -411,12 +416,6 @@ fn own_request(req: &PlanRequest, s: &StoredCampaign) -> PlanRequest {
         ident: s.poses.iter().filter(|p| p.set == PoseSet::Ident).count(),
         ..req.clone()
     }
-}
-
-fn lock_store(store: &Mutex<Store>) -> Result<std::sync::MutexGuard<'_, Store>, SessionError> {
-    store
-        .lock()
-        .map_err(|_| SessionError::Invalid("store lock poisoned".into()))
 }
 
 /// A stored campaign that may be resumed.
@@ -440,7 +439,7 @@ fn stored_campaign(
     robot_text: &str,
 ) -> Result<StoredCampaign, SessionError> {
     let row = store.campaign(r.id)?;
-    if row.state == "done" {
+    if row.state == StoredState::Done {
         return Err(SessionError::Done(r.id));
     }
     let changes = config_changes(&row, config_text, robot_text);

@@ -237,7 +237,9 @@ pub trait Stage: Send + Sync {
 }
 
 /// The two stage positions a pose is measured at.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, utoipa::ToSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
+)]
 pub enum StagePosition {
     /// The first stage position (`stage.p1_mm`).
     P1,
@@ -247,7 +249,9 @@ pub enum StagePosition {
 
 /// What the engine is doing when a question is asked, for the technician; null (or false) when
 /// not known (a front end must not claim what is not stated here).
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, utoipa::ToSchema)]
+#[derive(
+    Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
+)]
 pub struct PromptContext {
     /// What the stage move is for: `pose`, `drift` (drift check at the reference pose),
     /// `setup` (tool frame, base registration) or `reregister`; null when not known.

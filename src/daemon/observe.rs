@@ -16,16 +16,17 @@
 use std::sync::{Arc, Mutex as StdMutex};
 
 use serde::Serialize;
-use serde_json::Value;
-use tokio::sync::{broadcast, watch};
-use tokio_util::sync::CancellationToken;
+use tokio::sync::broadcast;
 
-use super::{entry_ends_run, entry_of, lock, Readers};
-use crate::campaign::Journalled;
+use super::lock;
+use super::status::RunWatch;
+use crate::campaign::events::fault_kind_name;
+use crate::campaign::{CampaignEvent, Journalled};
+use crate::cell::{DeviceKind, FaultKind};
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::metrics::Metrics;
 use crate::sim::RunningSimCell;
-use crate::store::JournalEntry;
+use crate::store::ReaderPool;
 
 /// A device's last fault, as clients see it.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
@@ -93,19 +94,22 @@ pub(super) struct CellWatch {
     run: u64,
 }
 
-/// The index of a device name in [`CellWatch::devices`].
-fn device_index(name: &str) -> Option<usize> {
-    match name {
-        "tracker" => Some(0),
-        "robot" => Some(1),
-        "stage" => Some(2),
-        _ => None,
+/// The index of a device in [`CellWatch::devices`] (the operator has none).
+fn device_index(device: DeviceKind) -> Option<usize> {
+    match device {
+        DeviceKind::Tracker => Some(0),
+        DeviceKind::Robot => Some(1),
+        DeviceKind::Stage => Some(2),
+        DeviceKind::Operator => None,
     }
 }
 
 /// Whether a fault kind means the device's connection is gone or broken.
-fn is_connection_fault(kind: &str) -> bool {
-    matches!(kind, "Disconnected" | "Timeout" | "Protocol")
+fn is_connection_fault(kind: FaultKind) -> bool {
+    matches!(
+        kind,
+        FaultKind::Disconnected | FaultKind::Timeout | FaultKind::Protocol
+    )
 }
 
 /// Whether the configured stage has a connection at all (a plain manual micrometer has none).
@@ -164,12 +168,12 @@ impl CellWatch {
         }
     }
 
-    /// A journalled fault of `device`.
-    fn fault(&mut self, device: &str, f: FaultView) {
+    /// A journalled fault of `kind` of `device`.
+    fn fault(&mut self, device: DeviceKind, kind: FaultKind, f: FaultView) {
         let Some(d) = device_index(device).map(|i| &mut self.devices[i]) else {
             return;
         };
-        if is_connection_fault(&f.kind) && d.connected.is_some() {
+        if is_connection_fault(kind) && d.connected.is_some() {
             d.connected = Some(false);
         }
         d.last_fault = Some(f);
@@ -228,24 +232,21 @@ pub(super) struct Observer {
     pub(super) id: i64,
     /// The journal's last sequence number before this run.
     pub(super) run_start: i64,
-    pub(super) readers: Arc<Readers>,
+    pub(super) readers: Arc<ReaderPool>,
     pub(super) metrics: Arc<Metrics>,
     pub(super) cell: Arc<StdMutex<CellWatch>>,
-    /// The engine's state name in this run (`None` until it writes its first).
-    pub(super) state: watch::Sender<Option<String>>,
+    /// The run's status: the observer writes the engine's state into it; its end ends the
+    /// observer.
+    pub(super) status: RunWatch,
     /// The run's number ([`CellWatch::run_loaded`]).
     pub(super) run: u64,
 }
 
 impl Observer {
     /// Follow the run's events from `rx` (subscribed before the engine started) until its final
-    /// state or `ended`; a lag is replayed from the journal. Then mark the run ended.
+    /// state or the run's end; a lag is replayed from the journal. Then mark the run ended.
     /// Cancel-safe: it only reads and updates in-memory status.
-    pub(super) async fn run(
-        self,
-        mut rx: broadcast::Receiver<Journalled>,
-        ended: CancellationToken,
-    ) {
+    pub(super) async fn run(self, mut rx: broadcast::Receiver<Journalled>) {
         let mut last = self.run_start;
         loop {
             let more = tokio::select! {
@@ -254,7 +255,7 @@ impl Observer {
                     Ok(j) if j.seq <= last => true,
                     Ok(j) => {
                         last = j.seq;
-                        self.note(&entry_of(j))
+                        self.note(&j)
                     }
                     Err(broadcast::error::RecvError::Lagged(_)) => self.replay(&mut last).await,
                     Err(broadcast::error::RecvError::Closed) => {
@@ -262,7 +263,7 @@ impl Observer {
                         false
                     }
                 },
-                _ = ended.cancelled() => {
+                _ = self.status.ended() => {
                     self.replay(&mut last).await;
                     false
                 }
@@ -279,25 +280,20 @@ impl Observer {
     /// noted without an await.
     async fn replay(&self, last: &mut i64) -> bool {
         let (id, after) = (self.id, *last);
-        let readers = Arc::clone(&self.readers);
-        let page = tokio::task::spawn_blocking(move || {
-            readers.with(|s| s.events_after(id, after, usize::MAX))
-        })
-        .await;
+        let page = self
+            .readers
+            .read(move |s| s.events_after::<CampaignEvent>(id, after, usize::MAX))
+            .await;
         let entries = match page {
-            Ok(Ok(e)) => e,
-            Ok(Err(e)) => {
-                tracing::error!(campaign = id, error = %e, "cannot read the journal back after a lag");
-                return true;
-            }
+            Ok(e) => e,
             Err(e) => {
-                tracing::error!(campaign = id, error = %e, "journal replay task failed");
+                tracing::error!(campaign = id, error = %e, "cannot read the journal back after a lag");
                 return true;
             }
         };
         for e in entries {
             *last = e.seq;
-            let ends = entry_ends_run(&e);
+            let ends = e.event.ends_run();
             self.note(&e);
             if ends {
                 return false;
@@ -308,53 +304,62 @@ impl Observer {
 
     /// Take one journal entry into the state, devices, metrics and log; `false` when it ends
     /// the run.
-    fn note(&self, e: &JournalEntry) -> bool {
-        let v: Value = serde_json::from_str(&e.record.message).unwrap_or(Value::Null);
-        let text = |p: &str| v.pointer(p).and_then(Value::as_str).unwrap_or("");
-        let number = |p: &str| v.pointer(p).and_then(Value::as_u64).unwrap_or(0);
-        match e.record.kind.as_str() {
-            "state" => {
-                let name = text("/state/state").to_owned();
-                let reason = text("/state/reason");
-                if reason.is_empty() {
-                    tracing::info!(campaign = self.id, seq = e.seq, state = %name, "campaign state");
-                } else {
-                    tracing::warn!(campaign = self.id, seq = e.seq, state = %name, reason, "campaign state");
+    fn note(&self, e: &Journalled) -> bool {
+        match &e.event {
+            CampaignEvent::State { state } => {
+                let name = state.name();
+                match state.reason() {
+                    None => {
+                        tracing::info!(campaign = self.id, seq = e.seq, state = %name, "campaign state")
+                    }
+                    Some(reason) => {
+                        tracing::warn!(campaign = self.id, seq = e.seq, state = %name, reason, "campaign state")
+                    }
                 }
-                self.metrics.set_state(&name);
-                self.state.send_replace(Some(name));
-                return !entry_ends_run(e);
+                self.metrics.event(&e.event);
+                self.status.set_state(state.stored());
+                return !e.event.ends_run();
             }
-            "fault" => {
-                let (device, kind, action) = (text("/device"), text("/kind"), text("/action"));
-                let message = text("/message");
+            CampaignEvent::Fault {
+                device,
+                kind,
+                message,
+                action,
+            } => {
+                let (device_name, kind_name) = (device.name(), fault_kind_name(*kind));
                 tracing::warn!(
                     campaign = self.id,
                     seq = e.seq,
-                    device,
-                    kind,
-                    action,
-                    detail = message,
+                    device = device_name,
+                    kind = kind_name,
+                    action = action.as_str(),
+                    detail = message.as_str(),
                     "device fault"
                 );
-                self.metrics.fault(device, kind, action);
+                self.metrics.event(&e.event);
                 let f = FaultView {
-                    kind: kind.to_owned(),
-                    message: message.to_owned(),
-                    at_ms: e.record.at_ms,
-                    action: action.to_owned(),
+                    kind: kind_name.to_owned(),
+                    message: message.clone(),
+                    at_ms: e.at_ms,
+                    action: action.clone(),
                     campaign: self.id,
                 };
-                lock(&self.cell).fault(device, f);
+                lock(&self.cell).fault(*device, *kind, f);
             }
-            "measured" => {
-                self.metrics.measured(number("/done"), number("/total"));
+            CampaignEvent::Measured { .. } => {
+                self.metrics.event(&e.event);
                 lock(&self.cell).step_done();
             }
-            "setup" | "drift" => lock(&self.cell).step_done(),
-            "devices" => {
-                let said = |k: &str| Some(text(k)).filter(|s| !s.is_empty()).map(str::to_owned);
-                lock(&self.cell).prepared([said("/tracker"), said("/robot"), said("/stage")]);
+            CampaignEvent::Setup { .. } | CampaignEvent::Drift { .. } => {
+                lock(&self.cell).step_done()
+            }
+            CampaignEvent::Devices {
+                tracker,
+                robot,
+                stage,
+            } => {
+                let said = |s: &Option<String>| s.clone().filter(|s| !s.is_empty());
+                lock(&self.cell).prepared([said(tracker), said(robot), said(stage)]);
             }
             _ => {}
         }
@@ -397,9 +402,13 @@ mod tests {
         w.step_done();
         assert_eq!(connected(&w, &c), [Some(true); 3]);
         // a beam break is no connection fault; a timeout is
-        w.fault("tracker", fault("BeamBroken"));
+        w.fault(
+            DeviceKind::Tracker,
+            FaultKind::BeamBroken,
+            fault("BeamBroken"),
+        );
         assert_eq!(connected(&w, &c), [Some(true); 3]);
-        w.fault("robot", fault("Timeout"));
+        w.fault(DeviceKind::Robot, FaultKind::Timeout, fault("Timeout"));
         assert_eq!(connected(&w, &c), [Some(true), Some(false), Some(true)]);
         assert_eq!(w.view(&c).robot.last_fault, Some(fault("Timeout")));
         w.step_done();

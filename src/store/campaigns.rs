@@ -8,12 +8,12 @@ use super::error::{Ctx, StoreError};
 use super::kinds::{insert_kind, CampaignKind};
 use super::records::{
     decode_joints, encode_joints, from_sql_index, parse_set, to_sql_index, CampaignRow,
-    EventRecord, JournalEntry, NewCampaign, PlannedPose,
+    JournalEntry, JournalEvent, NewCampaign, PlannedPose, StoredState,
 };
 use super::Store;
 
 /// State of a freshly created campaign.
-pub const INITIAL_STATE: &str = "created";
+pub const INITIAL_STATE: StoredState = StoredState::Created;
 
 const CAMPAIGN_COLUMNS: &str =
     "id, name, created_at_ms, state, model, seed, config_toml, robot_toml";
@@ -171,8 +171,8 @@ impl Store {
             .collect()
     }
 
-    /// Record the campaign's state (free text chosen by the campaign engine).
-    pub fn set_state(&mut self, id: i64, state: &str) -> Result<(), StoreError> {
+    /// Record the campaign's state.
+    pub fn set_state(&mut self, id: i64, state: StoredState) -> Result<(), StoreError> {
         let n = self
             .conn
             .execute(
@@ -186,9 +186,15 @@ impl Store {
         Ok(())
     }
 
-    /// Append an event to the campaign's journal; returns its sequence number (the row id,
-    /// increasing in insertion order).
-    pub fn add_event(&mut self, id: i64, event: &EventRecord) -> Result<i64, StoreError> {
+    /// Append `event` (journalled at `at_ms`, ms since the Unix epoch) to the campaign's
+    /// journal; returns its sequence number (the row id, increasing in insertion order).
+    pub fn add_event<E: JournalEvent>(
+        &mut self,
+        id: i64,
+        at_ms: i64,
+        event: &E,
+    ) -> Result<i64, StoreError> {
+        let text = event.to_text()?;
         let tx = self
             .conn
             .transaction_with_behavior(TransactionBehavior::Immediate)
@@ -196,7 +202,7 @@ impl Store {
         Store::ensure_campaign(&tx, id)?;
         tx.execute(
             "INSERT INTO events (campaign_id, at_ms, kind, message) VALUES (?1, ?2, ?3, ?4)",
-            params![id, event.at_ms, event.kind, event.message],
+            params![id, at_ms, event.kind(), text],
         )
         .ctx("add an event")?;
         let seq = tx.last_insert_rowid();
@@ -205,13 +211,14 @@ impl Store {
     }
 
     /// At most `limit` journal entries of the campaign with a sequence number above `after`,
-    /// oldest first (`after = 0`: from the start).
-    pub fn events_after(
+    /// oldest first (`after = 0`: from the start), typed ([`JournalEvent::from_stored`]: a
+    /// row the type cannot read is its fallback, never an error).
+    pub fn events_after<E: JournalEvent>(
         &self,
         id: i64,
         after: i64,
         limit: usize,
-    ) -> Result<Vec<JournalEntry>, StoreError> {
+    ) -> Result<Vec<JournalEntry<E>>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         let limit = i64::try_from(limit).unwrap_or(i64::MAX);
         let mut st = self
@@ -225,11 +232,8 @@ impl Store {
             .query_map(params![id, after, limit], |r| {
                 Ok(JournalEntry {
                     seq: r.get(0)?,
-                    record: EventRecord {
-                        at_ms: r.get(1)?,
-                        kind: r.get(2)?,
-                        message: r.get(3)?,
-                    },
+                    at_ms: r.get(1)?,
+                    event: E::from_stored(r.get(2)?, r.get(3)?),
                 })
             })
             .ctx("read events")?
@@ -280,10 +284,10 @@ impl Store {
             .ctx("look up a result")
     }
 
-    /// The campaign's events in the order they were added.
-    pub fn events(&self, id: i64) -> Result<Vec<EventRecord>, StoreError> {
-        let all = self.events_after(id, 0, usize::MAX)?;
-        Ok(all.into_iter().map(|e| e.record).collect())
+    /// The campaign's whole journal in the order it was written, typed as
+    /// [`Store::events_after`].
+    pub fn events<E: JournalEvent>(&self, id: i64) -> Result<Vec<JournalEntry<E>>, StoreError> {
+        self.events_after(id, 0, usize::MAX)
     }
 
     /// Store a cell setup result (`json` must be valid JSON).

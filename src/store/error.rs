@@ -76,6 +76,9 @@ pub enum StoreError {
     /// A stored value cannot be parsed back (edited or damaged database).
     #[error("corrupt value in the campaign database: {0}")]
     Corrupt(String),
+    /// A store call on a blocking thread panicked or was cancelled ([`super::StoreHandle`]).
+    #[error("store task failed: {0}")]
+    Task(String),
     /// The caller passed a value the store refuses (e.g. a non-finite coordinate, a joint
     /// vector of the wrong length, duplicated pose indices); nothing was written.
     #[error("refused by the campaign store: {0}")]

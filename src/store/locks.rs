@@ -4,6 +4,7 @@
 use rusqlite::{params, OptionalExtension, TransactionBehavior};
 
 use super::error::{Ctx, StoreError};
+use super::records::StoredState;
 use super::Store;
 
 /// The process holding a campaign: the only one that may drive its robot.
@@ -104,15 +105,15 @@ impl Store {
     pub fn interrupt_unheld(
         &mut self,
         id: i64,
-        from: &[&str],
-        to: &str,
+        from: &[StoredState],
+        to: StoredState,
         is_dead: impl Fn(&LockHolder) -> bool,
-    ) -> Result<Option<(String, Option<LockHolder>)>, StoreError> {
+    ) -> Result<Option<(StoredState, Option<LockHolder>)>, StoreError> {
         let tx = self
             .conn
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .ctx("begin interrupt campaign")?;
-        let state: String = tx
+        let state: StoredState = tx
             .query_row("SELECT state FROM campaigns WHERE id = ?1", [id], |r| {
                 r.get(0)
             })
@@ -120,7 +121,7 @@ impl Store {
             .ctx("read a campaign state")?
             .ok_or(StoreError::NoCampaign(id))?;
         let held = holder(&tx, id)?;
-        if !from.contains(&state.as_str()) || held.as_ref().is_some_and(|h| !is_dead(h)) {
+        if !from.contains(&state) || held.as_ref().is_some_and(|h| !is_dead(h)) {
             return Ok(None);
         }
         tx.execute(

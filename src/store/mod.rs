@@ -18,7 +18,9 @@
 //! - Every table is `STRICT`; schema versions follow `PRAGMA user_version` (see [`schema`]);
 //!   a file from a newer cellcal is refused ([`StoreError::SchemaTooNew`]).
 //!
-//! A `Store` is one connection: `Send`, not `Sync`. Use it from one writer thread.
+//! A `Store` is one connection: `Send`, not `Sync`. A shared writer is owned by a
+//! [`StoreHandle`] (the only lock over a `Store`; nothing outside this module reaches it), the
+//! readers of a file by a [`ReaderPool`].
 //!
 //! # Readers
 //! [`StoreReader`] is a second kind of connection for readers (the daemon's GETs and event
@@ -29,6 +31,7 @@
 mod campaigns;
 mod error;
 mod frames;
+mod handle;
 mod kinds;
 mod locks;
 mod measurements;
@@ -49,12 +52,13 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension};
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
 pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint};
+pub use handle::{ReaderPool, StoreHandle};
 pub use kinds::{CampaignKind, ISO9283_KIND};
 pub use locks::{Acquired, LockHolder};
 pub use measurements::{identification_rows, MeasuredPoint, MeasuredPose, IMPORTED_STATE};
 pub use records::{
-    CampaignRow, EventRecord, JournalEntry, NewCampaign, PlannedPose, PointKind, PointRecord,
-    PoseMeasurement,
+    CampaignRow, JournalEntry, JournalEvent, NewCampaign, PlannedPose, PointKind, PointRecord,
+    PoseMeasurement, StoredState,
 };
 
 use error::Ctx;

@@ -142,7 +142,7 @@ pub struct CampaignRow {
     pub created_at_ms: i64,
     /// Campaign state as last set by [`Store::set_state`](super::Store::set_state)
     /// (`created` initially).
-    pub state: String,
+    pub state: StoredState,
     /// Observation model name.
     pub model: String,
     /// Seed.
@@ -153,24 +153,140 @@ pub struct CampaignRow {
     pub robot_toml: String,
 }
 
-/// One entry of a campaign's event journal.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct EventRecord {
-    /// When (ms since the Unix epoch).
-    pub at_ms: i64,
-    /// Short machine-readable kind (e.g. `pose_done`, `fault`).
-    pub kind: String,
-    /// Human-readable text.
-    pub message: String,
+/// An event type the journal keeps: the store writes its kind and JSON text and gives it back
+/// typed. The store knows nothing else of it (the campaign's events implement it).
+pub trait JournalEvent: Sized {
+    /// The `kind` column (the event's tag).
+    fn kind(&self) -> &str;
+    /// The stored text (JSON).
+    fn to_text(&self) -> Result<String, StoreError>;
+    /// The event of a stored row. Never fails: a row the type cannot read (an old or unknown
+    /// kind, a damaged text) becomes the type's own fallback, so an old journal stays readable.
+    fn from_stored(kind: String, text: String) -> Self;
 }
 
 /// A stored journal entry: the event and the sequence number the store gave it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct JournalEntry {
+#[derive(Debug, Clone, PartialEq)]
+pub struct JournalEntry<E> {
     /// The `events` row id: increasing in insertion order across the whole database.
     pub seq: i64,
+    /// When it was journalled (ms since the Unix epoch).
+    pub at_ms: i64,
     /// The event.
-    pub record: EventRecord,
+    pub event: E,
+}
+
+/// A campaign's state as its row stores it: the engine's states plus the three set outside a
+/// run. The serde and stored names are the snake-case variant names (`created`, `paused`, …).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StoredState {
+    /// Created with its plan; no engine has run it yet.
+    Created,
+    /// Imported from a data set (nothing to run).
+    Imported,
+    /// Stored in a run's state by a process that is gone (shown, and stored by a starting
+    /// daemon; resumable).
+    Interrupted,
+    /// An engine holds it, not armed.
+    Idle,
+    /// Armed, waiting for start.
+    Armed,
+    /// Measuring.
+    Running,
+    /// Paused (operator or fault).
+    Paused,
+    /// Identifying the parameters.
+    Identifying,
+    /// Finished with a result.
+    Done,
+    /// Aborted by the operator (resumable).
+    Aborted,
+    /// Stopped by a fault (resumable).
+    Failed,
+}
+
+impl StoredState {
+    /// Every state, in the order above.
+    pub const ALL: [StoredState; 11] = [
+        StoredState::Created,
+        StoredState::Imported,
+        StoredState::Interrupted,
+        StoredState::Idle,
+        StoredState::Armed,
+        StoredState::Running,
+        StoredState::Paused,
+        StoredState::Identifying,
+        StoredState::Done,
+        StoredState::Aborted,
+        StoredState::Failed,
+    ];
+
+    /// The states only a running engine is in (a campaign left in one by a process that is
+    /// gone is [`StoredState::Interrupted`]).
+    pub const RUN: [StoredState; 5] = [
+        StoredState::Idle,
+        StoredState::Armed,
+        StoredState::Running,
+        StoredState::Paused,
+        StoredState::Identifying,
+    ];
+
+    /// The stored (and serde) name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            StoredState::Created => "created",
+            StoredState::Imported => "imported",
+            StoredState::Interrupted => "interrupted",
+            StoredState::Idle => "idle",
+            StoredState::Armed => "armed",
+            StoredState::Running => "running",
+            StoredState::Paused => "paused",
+            StoredState::Identifying => "identifying",
+            StoredState::Done => "done",
+            StoredState::Aborted => "aborted",
+            StoredState::Failed => "failed",
+        }
+    }
+
+    /// The state stored as `name`, if it is one.
+    pub fn from_name(name: &str) -> Option<StoredState> {
+        StoredState::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// Whether this is one of [`StoredState::RUN`].
+    pub fn is_run(self) -> bool {
+        StoredState::RUN.contains(&self)
+    }
+}
+
+impl std::fmt::Display for StoredState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl PartialEq<&str> for StoredState {
+    fn eq(&self, name: &&str) -> bool {
+        self.name() == *name
+    }
+}
+
+impl rusqlite::types::FromSql for StoredState {
+    fn column_result(v: rusqlite::types::ValueRef<'_>) -> rusqlite::types::FromSqlResult<Self> {
+        let text = v.as_str()?;
+        StoredState::from_name(text).ok_or_else(|| {
+            rusqlite::types::FromSqlError::Other(
+                StoreError::Corrupt(format!("campaign state `{text}`")).into(),
+            )
+        })
+    }
+}
+
+impl rusqlite::types::ToSql for StoredState {
+    fn to_sql(&self) -> rusqlite::Result<rusqlite::types::ToSqlOutput<'_>> {
+        Ok(self.name().into())
+    }
 }
 
 /// Kind of a tracker point added outside a pose commit by

@@ -122,11 +122,10 @@ pub(crate) async fn run_in_process(text: &str) -> Finished {
         (w.true_model().clone(), w.stage_axis_actual())
     };
     // the noise floor: the true robot against the stored verification measurements
+    let id = ctx.campaign_id;
     let rows = ctx
         .store
-        .lock()
-        .expect("store")
-        .measured(ctx.campaign_id)
+        .blocking(|s| s.measured(id))
         .map(identification_rows)
         .expect("rows");
     let opts = identify_options(&ctx.cfg);
@@ -225,9 +224,7 @@ async fn nothing_moves_unless_armed_and_abort_is_accepted() {
     assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
     assert_eq!(
         ctx.store
-            .lock()
-            .expect("store")
-            .done_poses(ctx.campaign_id)
+            .blocking(|s| s.done_poses(ctx.campaign_id))
             .expect("done")
             .len(),
         0
@@ -378,14 +375,11 @@ pub(crate) async fn run_steered(
 pub(crate) fn journal_states(store: &Path, id: i64) -> Vec<serde_json::Value> {
     Store::open(store)
         .expect("store")
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .filter(|e| e.kind == "state")
-        .map(|e| {
-            serde_json::from_str::<serde_json::Value>(&e.message).expect("event JSON")["state"]
-                .clone()
-        })
+        .filter(|e| e.event.kind() == "state")
+        .map(|e| serde_json::to_value(&e.event).expect("event JSON")["state"].clone())
         .collect()
 }
 
@@ -603,14 +597,12 @@ async fn manual_questions_carry_their_context_and_poses_their_deviation() {
     assert_eq!(poses, (1..=20).collect(), "pose n of N, from 1 to 20");
     let events = ctx
         .store
-        .lock()
-        .expect("store")
-        .events(ctx.campaign_id)
+        .blocking(|s| s.events::<CampaignEvent>(ctx.campaign_id))
         .expect("events");
     let measured: Vec<serde_json::Value> = events
         .iter()
-        .filter(|e| e.kind == "measured")
-        .map(|e| serde_json::from_str(&e.message).expect("JSON"))
+        .filter(|e| e.event.kind() == "measured")
+        .map(|e| serde_json::to_value(&e.event).expect("JSON"))
         .collect();
     assert_eq!(measured.len(), 20);
     for m in &measured {

@@ -20,6 +20,7 @@ mod house;
 mod http_limits;
 mod identifiability;
 mod iso9283;
+mod journal;
 mod model_out;
 mod paper;
 mod paths;

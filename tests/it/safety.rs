@@ -32,10 +32,10 @@ fn no_setup_config(poses: usize, ident: usize) -> String {
 fn journal_messages(store: &Path, id: i64) -> Vec<String> {
     Store::open(store)
         .expect("store")
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .map(|e| e.message)
+        .map(|e| serde_json::to_string(&e.event).expect("JSON"))
         .collect()
 }
 
@@ -72,7 +72,7 @@ fn spawn_run(cfg: &Path, store: &Path, extra: &[&str]) -> Child {
 fn state_of(store: &Path, id: i64) -> String {
     Store::open(store)
         .and_then(|s| s.campaign(id))
-        .map(|r| r.state)
+        .map(|r| r.state.name().to_owned())
         .unwrap_or_default()
 }
 
@@ -212,7 +212,7 @@ fn a_done_campaign_moves_nothing_and_prints_its_stored_result() {
     assert_eq!(code, done_exit, "{err}");
     let snapshot = |s: &Store| {
         (
-            s.events(1).expect("events").len(),
+            s.events::<CampaignEvent>(1).expect("events").len(),
             s.done_poses(1).expect("done"),
             s.latest_result(1).expect("result"),
         )
@@ -422,11 +422,17 @@ async fn a_stage_slip_is_caught_by_the_travel_check_and_the_pose_measured_again(
     check_complete(&store, id, 40);
     let s = Store::open(&store).expect("store");
     let faults: Vec<String> = s
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .filter(|e| e.kind == "fault" && e.message.contains("measure again"))
-        .map(|e| e.message)
+        .map(|e| {
+            (
+                e.event.kind().to_owned(),
+                serde_json::to_string(&e.event).expect("JSON"),
+            )
+        })
+        .filter(|(kind, message)| kind == "fault" && message.contains("measure again"))
+        .map(|(_, message)| message)
         .collect();
     assert_eq!(faults.len(), 2, "{faults:?}");
     assert!(faults[0].contains("|P2 − P1|"), "{faults:?}");
@@ -475,10 +481,14 @@ async fn joints_settled_off_target_repeat_the_move_then_pause() {
         "no pose committed off target"
     );
     let repeats = s
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .filter(|e| e.message.contains("repeat move"))
+        .filter(|e| {
+            serde_json::to_string(&e.event)
+                .expect("JSON")
+                .contains("repeat move")
+        })
         .count();
     assert_eq!(repeats, 3, "max_attempts moves, each refused");
     assert!(journal_states(&store, id)
@@ -635,10 +645,15 @@ async fn a_relock_that_finds_no_reflector_searches_before_measuring_again() {
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     let breaks = Store::open(&store)
         .expect("store")
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .filter(|e| e.kind == "fault" && e.message.contains("BeamBroken"))
+        .filter(|e| {
+            e.event.kind() == "fault"
+                && serde_json::to_string(&e.event)
+                    .expect("JSON")
+                    .contains("BeamBroken")
+        })
         .count();
     // one break, one relock (GoLast, not locked → FindReflector): no second failed measurement
     assert_eq!(breaks, 1, "the relock was not checked");
@@ -703,11 +718,11 @@ async fn a_relock_looks_first_where_the_ball_should_be() {
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     let faults: Vec<String> = Store::open(&store)
         .expect("store")
-        .events(id)
+        .events::<CampaignEvent>(id)
         .expect("events")
         .into_iter()
-        .filter(|e| e.kind == "fault")
-        .map(|e| e.message)
+        .filter(|e| e.event.kind() == "fault")
+        .map(|e| serde_json::to_string(&e.event).expect("JSON"))
         .collect();
     // one break, relocked at the predicted position: no failed search, no second attempt
     assert_eq!(faults.len(), 1, "{faults:?}");

@@ -101,11 +101,11 @@ async fn readme_campaign_marks_what_the_setup_absorbs_and_names_one_before() {
         .map(|o| o.id)
         .collect();
     let live: Vec<f64> = store
-        .events(f.id)
+        .events::<cellcal::campaign::CampaignEvent>(f.id)
         .expect("events")
         .iter()
-        .filter(|e| e.kind == "measured")
-        .map(|e| serde_json::from_str::<serde_json::Value>(&e.message).expect("JSON"))
+        .filter(|e| e.event.kind() == "measured")
+        .map(|e| serde_json::to_value(&e.event).expect("JSON"))
         .filter(|m| ident.contains(&m["pose"].to_string()))
         .map(|m| m["deviation_mm"].as_f64().expect("deviation_mm"))
         .collect();

@@ -1,11 +1,12 @@
 //! The campaign store through its public API (crash and STRICT tests live in
 //! `src/store/tests.rs`, which needs the raw connection).
 
+use cellcal::campaign::CampaignEvent;
 use cellcal::dataset::{parse_csv, write_csv, Observation, PoseSet, Required};
 use cellcal::store::identification_rows;
 use cellcal::store::{
-    schema_version, EventRecord, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement,
-    Store, StoreError, IMPORTED_STATE, INITIAL_STATE,
+    schema_version, NewCampaign, PlannedPose, PointKind, PointRecord, PoseMeasurement, Store,
+    StoreError, StoredState, IMPORTED_STATE, INITIAL_STATE,
 };
 use nalgebra::Vector3;
 
@@ -246,13 +247,15 @@ fn reopen_finds_everything() {
             s.add_point(id, PointKind::Setup, Some(9), None, &point(1.0, 0), ""),
             Err(StoreError::NotInPlan { pose: 9, .. })
         ));
-        let ev = EventRecord {
-            at_ms: 42,
-            kind: "pose_done".into(),
-            message: "pose 0".into(),
-        };
-        s.add_event(id, &ev).unwrap();
-        s.set_state(id, "measuring").unwrap();
+        s.add_event(
+            id,
+            42,
+            &CampaignEvent::Note {
+                text: "pose 0".into(),
+            },
+        )
+        .unwrap();
+        s.set_state(id, StoredState::Running).unwrap();
         assert!(s.latest_result(id).unwrap().is_none());
         s.save_result(id, "np", "{\"rms\": 1}").unwrap();
         s.save_result(id, "np", "{\"rms\": 0.5}").unwrap();
@@ -265,10 +268,15 @@ fn reopen_finds_everything() {
     let s = Store::open(&path).unwrap();
     assert_eq!(s.user_version().unwrap(), schema_version());
     assert_eq!(s.latest_campaign().unwrap(), Some(id));
-    assert_eq!(s.campaign(id).unwrap().state, "measuring");
+    assert_eq!(s.campaign(id).unwrap().state, StoredState::Running);
     assert_eq!(s.done_poses(id).unwrap(), vec![0, 4]);
     assert_eq!(s.measured(id).map(identification_rows).unwrap(), obs);
-    assert_eq!(s.events(id).unwrap()[0].message, "pose 0");
+    assert_eq!(
+        s.events::<CampaignEvent>(id).unwrap()[0].event,
+        CampaignEvent::Note {
+            text: "pose 0".into()
+        }
+    );
     assert_eq!(
         s.latest_result(id).unwrap().as_deref(),
         Some("{\"rms\": 0.5}")

@@ -92,7 +92,7 @@ impl Run<'_> {
             .map_err(|e| Stop::Store(CampaignError::Task(e.to_string())))?;
         self.store(move |s| s.save_setup(id, &json)).await?;
         self.journal(CampaignEvent::Setup {
-            result: serde_json::to_value(&result).unwrap_or_default(),
+            result: Box::new(result.clone()),
         })
         .await?;
         Ok(result)
