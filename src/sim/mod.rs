@@ -6,6 +6,8 @@
 
 pub mod backends;
 pub mod config;
+#[cfg(test)]
+pub mod fake;
 pub mod technician;
 pub mod world;
 
