@@ -467,6 +467,11 @@ async fn under_the_pause_policy_an_operator_fault_pauses_and_resume_re_prepares_
     let p = pauses(&events);
     assert_eq!(p.len(), 1, "{p:?}");
     assert!(p[0].contains("no acceptable point"), "{p:?}");
+    // the devices are stopped before the pause (nothing moves while the operator looks)
+    assert_eq!(
+        stops(&events),
+        [("fault".into(), "stopped".into(), "stopped".into())]
+    );
     assert_eq!(
         b.cell.count(Op::RobotPrepare),
         2,
@@ -653,6 +658,10 @@ async fn a_stage_move_that_fails_once_pauses_keeps_p1_discarded_and_measures_the
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     assert_eq!(faults(&events), [fault("stage", "Device", "pause")]);
     assert_eq!(pauses(&events).len(), 1);
+    assert_eq!(
+        stops(&events),
+        [("fault".into(), "stopped".into(), "stopped".into())]
+    );
     assert_eq!(b.discarded(), 1, "pose 3's P1 is kept as discarded");
     assert_eq!(b.moves_to(3), 2);
     b.assert_complete();
@@ -827,8 +836,16 @@ async fn nothing_is_prepared_or_moved_unless_armed_and_a_start_while_disarmed_is
                     CampaignState::Idle => {
                         // start while disarmed: forgotten once the engine saw it
                         control.apply(&CampaignCommand::Start);
-                        while *control.start.borrow() {
-                            tokio::time::sleep(Duration::from_millis(1)).await;
+                        let forgotten = async {
+                            while *control.start.borrow() {
+                                tokio::time::sleep(Duration::from_millis(1)).await;
+                            }
+                        };
+                        if tokio::time::timeout(Duration::from_secs(2), forgotten)
+                            .await
+                            .is_err()
+                        {
+                            return seen;
                         }
                         control.apply(&CampaignCommand::Arm);
                     }
@@ -842,12 +859,17 @@ async fn nothing_is_prepared_or_moved_unless_armed_and_a_start_while_disarmed_is
         }
         seen
     });
-    let outcome = run_campaign(&b.ctx, &mut b.devices).await.expect("runs");
+    let run = run_campaign(&b.ctx, &mut b.devices);
+    let outcome = tokio::time::timeout(Duration::from_secs(10), run)
+        .await
+        .expect("the run ends")
+        .expect("runs");
     assert!(matches!(outcome, Outcome::Aborted), "{outcome:?}");
-    assert_eq!(
-        operator.await.expect("operator"),
-        ["idle", "armed", "aborted"]
-    );
+    let seen = tokio::time::timeout(Duration::from_secs(10), operator)
+        .await
+        .expect("the operator saw the run end")
+        .expect("operator");
+    assert_eq!(seen, ["idle", "armed", "aborted"]);
     assert_eq!(b.cell.calls(), [Call::RobotStop, Call::StageStop]);
     assert_eq!(
         crate::sim::lock_world(&b.cell.world()).power_on_requests(),
