@@ -16,6 +16,8 @@ pub mod serve;
 pub mod significance;
 pub mod sim;
 pub mod simulate_data;
+#[cfg(test)]
+mod tests;
 pub mod token;
 
 /// A failure and its exit code (2 = bad input, 1 = anything else, 3 = a poor result).

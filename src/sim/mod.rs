@@ -9,6 +9,8 @@ pub mod config;
 #[cfg(test)]
 pub mod fake;
 pub mod technician;
+#[cfg(test)]
+mod tests;
 pub mod world;
 
 use std::future::Future;
