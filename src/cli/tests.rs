@@ -43,12 +43,6 @@ fn identify_takes_a_csv_or_a_store_never_both() {
         parse(&["identify", "--robot", "r.toml", "--model", "op"]),
         Err(ErrorKind::MissingRequiredArgument)
     );
-    let mut with_campaign = csv.to_vec();
-    with_campaign.extend(["--campaign", "2"]);
-    assert_eq!(
-        parse(&with_campaign),
-        Err(ErrorKind::MissingRequiredArgument)
-    );
 }
 
 #[test]
