@@ -3,7 +3,7 @@
 //! UR5 data the parameters the narrow grid does not determine are held at nominal with their
 //! reason, at no cost in rms.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use cellcal::campaign::engine::identify_options;
 use cellcal::dataset::{parse_csv, split, to_measured, Required};
@@ -145,7 +145,7 @@ async fn readme_campaign_parameters_are_plausible_with_sigma_within_bounds() {
 
 /// The UR5 files copied into the repository (with their licence and provenance).
 fn ur5_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/realdata/ur5")
+    super::common::realdata_dir("ur5")
 }
 
 #[test]
