@@ -135,11 +135,11 @@ fn bad_input_exits_2_and_anything_else_1() {
 fn start_degrees_are_checked_and_converted_to_radians() {
     let q = start(None, 6).ok().expect("the default for six joints");
     assert_eq!(q[1], 30f64.to_radians());
-    assert_eq!(start(None, 7).err().expect("no default").0, 2);
+    assert_eq!(start(None, 7).expect_err("no default").0, 2);
     let q = start(Some(" 90, -45 "), 2).ok().expect("two joints");
     assert_eq!(q, vec![90f64.to_radians(), (-45f64).to_radians()]);
     for bad in ["90,inf", "90,x", "90"] {
-        let e = start(Some(bad), 2).err().expect("refused");
+        let e = start(Some(bad), 2).expect_err("refused");
         assert_eq!(e.0, 2, "{bad}");
     }
 }
@@ -153,9 +153,7 @@ fn serve_is_exposed_beyond_loopback_only_with_configured_tokens() {
     let open = ApiSection::default();
     assert!(check_exposure(addr("127.0.0.1:8080"), &open).is_ok());
     assert!(check_exposure(addr("[::1]:8080"), &open).is_ok());
-    let e = check_exposure(addr("0.0.0.0:8080"), &open)
-        .err()
-        .expect("refused");
+    let e = check_exposure(addr("0.0.0.0:8080"), &open).expect_err("refused");
     assert_eq!(e.0, 2);
     assert!(e.1.to_string().contains("--listen 0.0.0.0:8080"), "{}", e.1);
     let with_token = ApiSection {
