@@ -1,24 +1,14 @@
-//! Unit tests of the simulated cell's pieces that need no server: the `[sim]` helpers (stage
-//! axis tokens, VAL3 angles, error tables, the true model, effective timings) and the
+//! Unit tests of the simulated cell's pieces that need no server: the `[sim]` helpers (VAL3
+//! angles, error tables, the true model, effective timings) and the
 //! [`World`]'s physics and faults.
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use robotlink::ErrorCode;
 
-use super::world::{parse_axis, val3_angles_deg, StageSource, World};
+use super::world::{val3_angles_deg, StageSource, World};
 use super::{load_error_table, true_model, SimError, SimWorldConfig};
 use crate::model::kinematics::forward;
 use crate::simulate::truth::{paper_errors, random_errors};
-
-#[test]
-fn stage_axis_tokens_are_signed_unit_axes_and_nothing_else() {
-    assert_eq!(parse_axis("+x"), Some(Vector3::x()));
-    assert_eq!(parse_axis(" y "), Some(Vector3::y()));
-    assert_eq!(parse_axis("-z"), Some(-Vector3::z()));
-    for bad in ["", "x+", "+w", "1,0,0", "--y"] {
-        assert_eq!(parse_axis(bad), None, "{bad}");
-    }
-}
 
 #[test]
 fn val3_angles_are_x_then_y_then_z() {
@@ -128,10 +118,12 @@ fn still_world(cfg: SimWorldConfig) -> World {
 }
 
 #[test]
-fn a_bad_stage_axis_or_joint_count_is_a_config_error() {
-    let nominal = crate::model::tx60().bare();
+fn initial_joints_for_another_robot_are_a_config_error() {
+    let mut nominal = crate::model::tx60().bare();
+    nominal.joints.pop();
+    nominal.limits.pop();
     let cfg = SimWorldConfig {
-        stage_axis: "up".into(),
+        errors: "none".into(),
         ..SimWorldConfig::default()
     };
     let truth = true_model(&nominal, &cfg).expect("truth");
@@ -141,8 +133,12 @@ fn a_bad_stage_axis_or_joint_count_is_a_config_error() {
         &cfg,
         StageSource::Manual { position_mm: 0.0 },
     )
-    .expect_err("bad axis");
-    assert!(e.to_string().contains("stage_axis `up`"), "{e}");
+    .expect_err("six initial joints, five-joint robot");
+    assert!(
+        e.to_string()
+            .contains("initial_joints_deg has 6 values, the robot 5 joints"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -109,7 +109,7 @@ impl Bench {
                 let new = NewCampaign {
                     name: "fake".into(),
                     created_at_ms: 0,
-                    model: cfg.campaign.model.clone(),
+                    model: cfg.campaign.model.to_string(),
                     seed: cfg.campaign.seed,
                     config_toml: cfg.text.clone(),
                     robot_toml: String::new(),
@@ -976,7 +976,7 @@ async fn an_operator_pause_waits_for_the_pose_to_be_committed_and_resume_goes_on
 async fn a_failed_identification_ends_failed_with_the_reason_as_the_last_event() {
     let mut b = Bench::new(config(POSES, IDENT, false, &[]), false);
     // the 1D stage gives no full orientation: the stored data cannot serve this model
-    b.ctx.cfg.campaign.model = "full".into();
+    b.ctx.cfg.campaign.model = "full".parse().expect("a model name");
     let (outcome, events) = b.run(nobody).await;
     let Outcome::Failed(reason) = outcome else {
         panic!("{outcome:?}");
