@@ -18,6 +18,8 @@
 
 mod frame;
 mod setup;
+#[cfg(test)]
+mod tests_fake;
 
 pub use setup::{BaseResult, SetupResult, ToolFrameResult};
 

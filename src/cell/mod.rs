@@ -12,6 +12,8 @@ pub mod prompt;
 pub mod robot_link;
 pub mod stage_manual;
 pub mod stage_zaber;
+#[cfg(test)]
+mod tests;
 pub mod tracker_emscon;
 
 pub use prompt::{ChannelPrompter, PendingPrompt, ScriptedPrompter};

@@ -54,7 +54,7 @@ fn read(path: &Path) -> Result<String, Failure> {
 }
 
 /// The start joints (rad) from `--start-deg`, or the default for six joints.
-fn start(given: Option<&str>, dof: usize) -> Result<Vec<f64>, Failure> {
+pub(super) fn start(given: Option<&str>, dof: usize) -> Result<Vec<f64>, Failure> {
     let deg: Vec<f64> = match given {
         None if dof == DEFAULT_START_DEG.len() => DEFAULT_START_DEG.to_vec(),
         None => {

@@ -17,6 +17,8 @@ pub mod significance;
 pub mod sim;
 pub mod simulate_data;
 pub mod stored;
+#[cfg(test)]
+mod tests;
 pub mod token;
 
 /// A failure and its exit code (2 = bad input, 1 = anything else, 3 = a poor result).

@@ -22,6 +22,8 @@
 //! the joints on a limit.
 
 pub mod table;
+#[cfg(test)]
+mod tests;
 
 use nalgebra::{Matrix3, Vector3};
 

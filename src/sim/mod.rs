@@ -6,7 +6,11 @@
 
 pub mod backends;
 pub mod config;
+#[cfg(test)]
+pub mod fake;
 pub mod technician;
+#[cfg(test)]
+mod tests;
 pub mod world;
 
 use std::future::Future;

@@ -9,6 +9,8 @@
 //! σ = (a + b·range)/k (AT960: a = 15 µm, b = 6 µm/m, k = 2: the MPE read as 2σ). A fraction of
 //! poses can be made gross outliers (P1 and P2 displaced together).
 
+#[cfg(test)]
+mod tests;
 pub mod truth;
 
 use nalgebra::Vector3;

@@ -1,6 +1,7 @@
 //! Shared helpers: the TX60, simulated campaigns and the noise floor.
 
-use std::path::Path;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
 
 use cellcal::analysis::evaluate;
 use cellcal::dataset::{split, to_measured, Observation};
@@ -130,4 +131,25 @@ pub fn real_controller(dir: &Path, address: impl std::fmt::Display) -> String {
         "[robot_controller]\nmode = \"real\"\naddress = \"{address}\"\nsecret_file = {:?}",
         key.to_string_lossy()
     )
+}
+
+/// The `cellcal` binary as a plain process (`spawn`, signals, pipes); `cli::cellcal` is the
+/// assert_cmd form.
+pub fn cellcal_process() -> std::process::Command {
+    std::process::Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
+}
+
+/// A loopback port nobody listens on now.
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("free port")
+        .port()
+}
+
+/// The real-robot data set of `robot` (`ur5`, `wam`) under `tests/data/realdata`.
+pub fn realdata_dir(robot: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/realdata")
+        .join(robot)
 }

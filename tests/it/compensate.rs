@@ -20,6 +20,7 @@ use nalgebra::Vector3;
 
 use crate::cli::{cellcal, robot};
 use crate::common::{options, paper_truth, sim, tx60};
+use crate::serve::get_text;
 
 /// The calibration's accuracy: compensated targets reach the true robot's pose this close
 /// (mean, mm).
@@ -356,23 +357,6 @@ fn compensate_command_writes_the_joint_file() {
     assert!(j.lines().nth(1).unwrap().contains(",false,"), "{j}");
 }
 
-/// GET a path as text: status, content type and body.
-fn get_text(s: &crate::serve::Server, path: &str) -> (u16, String, String) {
-    let mut r = crate::serve::agent()
-        .get(&format!("{}{path}", s.base))
-        .header("authorization", &format!("Bearer {}", s.token))
-        .call()
-        .expect("GET");
-    let status = r.status().as_u16();
-    let kind = r
-        .headers()
-        .get("content-type")
-        .and_then(|v| v.to_str().ok())
-        .unwrap_or("")
-        .to_owned();
-    (status, kind, r.body_mut().read_to_string().expect("body"))
-}
-
 /// A whole campaign on the simulated cell (the real protocols, the world's hidden truth); its
 /// corrected model fetched from the daemon (`GET /api/campaigns/{id}/model`, the bytes `run
 /// --model-out` writes) compensates targets and a program onto the world's true robot.
@@ -388,7 +372,11 @@ fn a_campaign_on_the_simulated_cell_compensates_the_true_robot() {
     drop(rt);
     let dir = f.store.parent().expect("store dir").to_owned();
     let server = crate::serve::start(&dir.join("cell.toml"), &f.store);
-    let (status, kind, model) = get_text(&server, &format!("/api/campaigns/{}/model", f.id));
+    let (status, kind, model) = get_text(
+        &server,
+        &format!("/api/campaigns/{}/model", f.id),
+        Some(&server.token),
+    );
     assert_eq!(
         (status, kind.as_str()),
         (200, "text/plain; charset=utf-8"),
@@ -398,7 +386,7 @@ fn a_campaign_on_the_simulated_cell_compensates_the_true_robot() {
         model.contains("model's frame is the measurement (laser tracker) frame"),
         "{model}"
     );
-    let (status, _, body) = get_text(&server, "/api/campaigns/999/model");
+    let (status, _, body) = get_text(&server, "/api/campaigns/999/model", Some(&server.token));
     assert_eq!(
         (status, body.as_str()),
         (404, "{\"error\":\"no campaign 999\"}")
@@ -407,7 +395,11 @@ fn a_campaign_on_the_simulated_cell_compensates_the_true_robot() {
         crate::serve::post(&server, "/api/campaigns", "{\"poses\": 40, \"ident\": 30}");
     assert_eq!(status, 201, "{created}");
     let fresh = created["id"].as_i64().expect("id");
-    let (status, _, body) = get_text(&server, &format!("/api/campaigns/{fresh}/model"));
+    let (status, _, body) = get_text(
+        &server,
+        &format!("/api/campaigns/{fresh}/model"),
+        Some(&server.token),
+    );
     assert_eq!(status, 404);
     assert_eq!(
         body,

@@ -87,13 +87,7 @@ fn replaced(text: &str, from: &str, to: &str) -> String {
     text.replace(from, to)
 }
 
-/// A free loopback port (bound and released).
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("free port")
-        .port()
-}
+use super::common::free_port;
 
 /// The resident set size of process `pid` (kB), from `/proc`.
 fn rss_kb(pid: u32) -> u64 {

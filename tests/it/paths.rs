@@ -18,9 +18,11 @@ fn example() -> (RobotModel, PlanRequest) {
     (model, plan_request(&cfg))
 }
 
-/// The simulated robot's initial joints (`config/cell.sim.toml`), rad.
+/// The simulated robot's initial joints (the `[sim]` default, as `config/cell.sim.toml`
+/// documents it), rad.
 fn sim_start() -> Vec<f64> {
-    [0.0f64, 0.0, 90.0, 0.0, 45.0, 0.0]
+    cellcal::sim::SimWorldConfig::default()
+        .initial_joints_deg
         .iter()
         .map(|d| d.to_radians())
         .collect()

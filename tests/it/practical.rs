@@ -4,7 +4,7 @@
 //! reason, at no cost in rms.
 
 use cellcal::store::identification_rows;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use cellcal::calibrate::{calibrate, IdentifyReport};
 use cellcal::campaign::engine::identify_options;
@@ -147,7 +147,7 @@ async fn readme_campaign_parameters_are_plausible_with_sigma_within_bounds() {
 
 /// The UR5 files copied into the repository (with their licence and provenance).
 fn ur5_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/realdata/ur5")
+    super::common::realdata_dir("ur5")
 }
 
 #[test]

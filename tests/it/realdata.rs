@@ -17,11 +17,7 @@ use cellcal::identify::{
 };
 use cellcal::model::{load_robot, RobotModel};
 
-fn data_dir(robot: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/realdata")
-        .join(robot)
-}
+use super::common::realdata_dir as data_dir;
 
 fn ur5_dir() -> PathBuf {
     data_dir("ur5")

@@ -4,7 +4,7 @@
 //! robot reconnect never powers the arm on behind the operator's back.
 
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -39,9 +39,7 @@ fn journal_messages(store: &Path, id: i64) -> Vec<String> {
         .collect()
 }
 
-fn cellcal() -> Command {
-    Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
-}
+use super::common::cellcal_process as cellcal;
 
 /// A 120-pose campaign at the simulator's default (not accelerated) speed: ~80 ms a pose.
 fn slow_config(dir: &Path) -> std::path::PathBuf {

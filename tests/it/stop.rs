@@ -123,13 +123,7 @@ fn twenty_poses_no_setup(text: String) -> String {
         .replace("base_registration = true", "base_registration = false")
 }
 
-/// A loopback port nobody listens on now (for the simulated controller behind the proxy).
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("free port")
-        .port()
-}
+use super::common::free_port;
 
 /// The simulated cell of config/cell.sim.toml with slow joints (10 deg/s: a move takes
 /// seconds), no setup steps, 20 poses, the robot controller reached through `proxy` (a "real"

@@ -4,13 +4,11 @@
 //! moves).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use crate::campaign::{config_text, write_config};
 
-fn cellcal() -> Command {
-    Command::new(assert_cmd::cargo::cargo_bin("cellcal"))
-}
+use super::common::cellcal_process as cellcal;
 
 /// A test cell folder: `cell.toml` (from `text`) and `robots/staubli_tx60.toml` with `from`
 /// replaced by `to` once.
