@@ -237,7 +237,7 @@ impl Default for CampaignSection {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SetupSection {
-    /// Run the tool-frame procedure of METHOD §4 (jogs along flange x/y, rotations about them,
+    /// Run the tool-frame procedure of docs/method.md §4 (jogs along flange x/y, rotations about them,
     /// sphere fit): the measured ball position and stage axis replace `campaign.tool_mm` and
     /// `stage.axis` in the identification.
     pub tool_frame: bool,

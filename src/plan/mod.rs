@@ -1,4 +1,4 @@
-//! Planning: pose sampling in the workspace box (METHOD.md §7), campaign plans, path checks of
+//! Planning: pose sampling in the workspace box (docs/method.md §7), campaign plans, path checks of
 //! joint moves and their routing, the ISO 9283 test poses and cycles.
 
 pub mod campaign;
