@@ -1,31 +1,9 @@
 //! cellcal: industrial-robot calibration from partial-pose laser-tracker measurements.
 //!
-//! Module map (see ARCHITECTURE.md):
-//! - [`model`]: robot model files, MDH chain, forward and inverse kinematics, parameter screws
-//!   (Jacobians).
-//! - [`campaign`]: the campaign engine (commands in, events out; measure, store, identify).
-//! - [`cell`]: device traits (Tracker, Robot, Stage, Prompter) and their adapters.
-//! - [`identify`]: observation models, identifiability, Levenberg–Marquardt, robust refit.
-//! - [`analysis`]: accuracy metrics and significance indices.
-//! - [`measure`]: measurement geometry (rigid registration, sphere fit, tool-frame setup,
-//!   base registration).
-//! - [`plan`]: pose sampling in the workspace box.
-//! - [`simulate`]: seeded data simulator (true robot, tracker noise, stage, outliers).
-//! - [`sim`]: the simulated cell (world + emScon, robotlink, Zaber servers) behind the adapters.
-//! - [`dataset`]: the identify CSV format and its conversion to observations.
-//! - [`report`]: the identify JSON contract, the printed summary, the corrected model file and the HTML report.
-//! - [`build_info`]: the version, git commit and build date of this binary.
-//! - [`compensate`]: joints that put the identified (real) robot where a target or a nominal
-//!   program says, and the compensate CSV files.
-//! - [`iso9283`]: ISO 9283 pose accuracy and repeatability (AP, RP) from measured cycles.
-//! - [`auth`]: REST API roles, actions and token digests (constant-time checks).
-//! - [`metrics`]: the daemon's Prometheus metrics (`GET /metrics`).
-//! - [`wall_clock`]: wall-clock time as stored (ms since the Unix epoch).
-//! - [`store`]: the SQLite campaign store (campaigns, plans, raw points, done poses, events,
-//!   results); the only module that knows SQL.
-//!
-//! Everything here is pure (no printing, no clock, no global RNG) except reading a robot file,
-//! [`store`] (file I/O by design) and the device code: [`cell`] adapters and the [`sim`] cell (clock, sockets, ptys; no printing).
+//! The library behind the `cellcal` binary: the robot model and identification maths, the
+//! campaign engine over device traits, the SQLite store, the daemon and its REST API. Where
+//! each part lives, what it may know and the invariants with their tests: `ARCHITECTURE.md`;
+//! the method and its conventions: `docs/method.md`.
 
 pub mod analysis;
 pub mod api;

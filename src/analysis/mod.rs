@@ -1,4 +1,4 @@
-//! Analysis: accuracy metrics (METHOD.md §6) and significance indices (METHOD.md §3).
+//! Analysis: accuracy metrics (docs/method.md §6) and significance indices (docs/method.md §3).
 
 pub mod metrics;
 pub mod significance;

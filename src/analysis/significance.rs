@@ -1,4 +1,4 @@
-//! Significance indices of the MDH parameters (paper §2.2, eq. 8–10; METHOD.md §3).
+//! Significance indices of the MDH parameters (paper §2.2, eq. 8–10; docs/method.md §3).
 //!
 //! For parameter k: perturb the nominal model by `dq_k` (0.1 mm for lengths, 0.1 rad for
 //! angles), evaluate the pose error it causes (`dP`, `dn`, `do`, `da`) at N random joint

@@ -20,7 +20,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::quality::{assess, Quality, QualityBounds, QualityWarning};
 use crate::analysis::metrics::Metrics;
 use crate::identify::{BeforeBase, DropKind, Dropped};
 
@@ -215,40 +214,37 @@ pub struct IdentifyReport {
     pub setup_relative: Vec<NotIdentifiable>,
 }
 
-impl IdentifyReport {
-    /// A stored report; one stored before the verdict existed is assessed now.
-    pub fn from_json(text: &str) -> Result<IdentifyReport, serde_json::Error> {
-        IdentifyReport::from_value(serde_json::from_str(text)?)
-    }
+/// The verdict's three levels, ordered by severity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    /// Nothing found that argues against using the result.
+    #[default]
+    Ok,
+    /// Usable, with a caveat the user must read.
+    Warning,
+    /// Do not load these parameters without fixing the cause (`identify` and `run` exit 3).
+    Poor,
+}
 
-    /// [`IdentifyReport::from_json`] of a parsed document.
-    pub fn from_value(value: serde_json::Value) -> Result<IdentifyReport, serde_json::Error> {
-        let assessed = value.get("quality").is_some();
-        let has_status = value
-            .pointer("/parameters/0")
-            .is_none_or(|p| p.get("status").is_some());
-        let mut report: IdentifyReport = serde_json::from_value(value)?;
-        if !has_status {
-            for p in &mut report.parameters {
-                p.status = if !p.identified {
-                    ParamStatus::NotIdentified
-                } else if report.setup_relative.iter().any(|d| d.name == p.name) {
-                    ParamStatus::SetupRelative
-                } else {
-                    ParamStatus::Identified
-                };
-            }
+impl Quality {
+    /// Contract spelling (`ok`, `warning`, `poor`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Quality::Ok => "ok",
+            Quality::Warning => "warning",
+            Quality::Poor => "poor",
         }
-        if !assessed {
-            report.judge(&QualityBounds::default());
-        }
-        Ok(report)
     }
+}
 
-    /// Set `quality` and `warnings` from the rest of the report.
-    pub fn judge(&mut self, bounds: &QualityBounds) {
-        let v = assess(self, bounds);
-        self.quality = v.quality;
-        self.warnings = v.warnings;
-    }
+/// One finding of the verdict.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QualityWarning {
+    /// Stable code (`not_converged`, `condition_number`, …; see the module table).
+    pub code: String,
+    /// What this finding alone makes of the result (`warning` or `poor`).
+    pub severity: Quality,
+    /// Human explanation with the figures.
+    pub message: String,
 }

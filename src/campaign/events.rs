@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, watch};
 use tokio_util::sync::CancellationToken;
 
-use super::engine::SetupResult;
+use crate::calibrate::SetupResult;
 use crate::cell::{Answer, DeviceKind, FaultKind, PromptContext};
 use crate::store::{JournalEntry, JournalEvent, StoreError, StoredState};
 

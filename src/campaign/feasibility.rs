@@ -2,9 +2,9 @@
 //! on the nominal model from the configuration alone (no device, no store write):
 //!
 //! - the observation model is one this cell's 1D stage can measure: a 1D stage gives the
-//!   ball position P1 and one flange axis per pose, `L = R·u` (METHOD §4). `position` uses P1
+//!   ball position P1 and one flange axis per pose, `L = R·u` (docs/method.md §4). `position` uses P1
 //!   only; `np` measures n (flange x), so `stage.axis` must be ±x; `op` measures o (flange y),
-//!   so ±y; `full` needs n, o and a (a 6-DOF measurement, METHOD §5), which no 1D stage gives,
+//!   so ±y; `full` needs n, o and a (a 6-DOF measurement, docs/method.md §5), which no 1D stage gives,
 //!   so it is refused;
 //! - enough identification poses: equations (rows per pose × poses) ≥ 3 × the parameters the
 //!   model identifies, counted by the structural identifiability of the nominal model with

@@ -35,7 +35,7 @@ pub struct SimArgs {
     /// RNG seed.
     #[arg(long, default_value_t = 4802)]
     seed: u64,
-    /// True errors: `paper` (METHOD.md §7), `random`, or a JSON/TOML file of name = value.
+    /// True errors: `paper` (docs/method.md §7), `random`, or a JSON/TOML file of name = value.
     #[arg(long, default_value = "paper")]
     errors: String,
     /// Seed of `--errors random`.

@@ -11,6 +11,8 @@ use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
 use crate::model::SignedAxis;
 
+pub use super::rules::InvalidKey;
+use super::rules::{positive, rule};
 use super::sim::SimWorldConfig;
 
 /// Why a configuration could not be loaded (names the file and the key).
@@ -302,7 +304,7 @@ impl Default for CampaignSection {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SetupSection {
-    /// Run the tool-frame procedure of METHOD §4 (jogs along flange x/y, rotations about them,
+    /// Run the tool-frame procedure of docs/method.md §4 (jogs along flange x/y, rotations about them,
     /// sphere fit): the measured ball position and stage axis replace `campaign.tool_mm` and
     /// `stage.axis` in the identification.
     pub tool_frame: bool,
@@ -753,35 +755,6 @@ fn simulated_world(
         sim.stage_mode = super::sim::StageMode::Manual;
     }
     Ok(sim)
-}
-
-/// A value outside its key's rule (the key is dotted from the file's top, e.g.
-/// `campaign.ident`).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{key}: {message}")]
-pub struct InvalidKey {
-    /// Dotted key.
-    pub key: String,
-    /// The rule it breaks.
-    pub message: String,
-}
-
-/// `Err` naming `key` and `rule` unless `ok`.
-pub(super) fn rule(ok: bool, key: &str, rule: impl Into<String>) -> Result<(), InvalidKey> {
-    if ok {
-        Ok(())
-    } else {
-        Err(InvalidKey {
-            key: key.to_owned(),
-            message: rule.into(),
-        })
-    }
-}
-
-/// A length, time or tolerance that must be above zero (a zero or negative one would switch
-/// its check off).
-pub(super) fn positive(key: &str, v: f64) -> Result<(), InvalidKey> {
-    rule(v > 0.0, key, format!("must be positive, got {v}"))
 }
 
 /// Longest device timeout or time a key may give (ms): one day.

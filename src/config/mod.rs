@@ -5,6 +5,7 @@
 
 pub mod cell;
 pub mod diff;
+mod rules;
 pub mod sim;
 
 pub use cell::{

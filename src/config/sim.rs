@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::cell::{positive, rule, InvalidKey};
+use super::rules::{positive, rule, InvalidKey};
 use crate::model::SignedAxis;
 
 /// How the target-ball stage is simulated.

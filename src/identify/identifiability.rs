@@ -1,7 +1,7 @@
 //! Automatic, deterministic selection of the identified parameter set: structural, then
 //! practical.
 //!
-//! **Structural.** The stacked Jacobian over the actual poses is scaled as METHOD.md §2 fixes
+//! **Structural.** The stacked Jacobian over the actual poses is scaled as docs/method.md §2 fixes
 //! (direction rows ×1000 mm, angle columns ÷1000 so every column is in mm per mm-at-one-metre),
 //! reduced to its column-normalised Gram matrix (accumulated block by block, so 10 000 poses cost
 //! no big matrix), and the columns are taken greedily in a fixed priority order by an

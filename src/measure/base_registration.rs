@@ -3,7 +3,7 @@
 //! tool frame, and the choice of well-spread registration poses.
 //!
 //! The registration is only as good as the nominal model: with MDH errors of the size of
-//! METHOD.md Table 3 the residuals are of the order of the nominal model's position error
+//! docs/method.md §7 (paper Table 3) the residuals are of the order of the nominal model's position error
 //! (~0.5–1 mm), and the transform absorbs part of it. That is expected; the identification
 //! refines the base afterwards.
 

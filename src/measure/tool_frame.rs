@@ -1,4 +1,4 @@
-//! The tool-frame setup procedure (METHOD.md §4, paper Fig. 6) as pure functions: plan the joint
+//! The tool-frame setup procedure (docs/method.md §4, paper Fig. 6) as pure functions: plan the joint
 //! targets from a home pose, then turn the labelled tracker measurements into the flange frame,
 //! the ball position in the flange frame (tool) and the stage axis.
 //!

@@ -6,7 +6,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::kinematics::Pose;
+use super::pose::Pose;
 
 /// One joint's MDH parameters (θ offset and angles in rad, lengths in mm).
 #[derive(Debug, Clone, Copy, PartialEq)]

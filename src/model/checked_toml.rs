@@ -5,13 +5,44 @@
 //! array and drops the rest). Errors name the file and the dotted key, e.g.
 //! `cell.toml: campaign.box_center_mm[0]: nan is not a finite number`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 use toml::Value;
 
-use super::file::FileError;
+/// Why a TOML file (robot model, cell configuration) could not be loaded; always names the
+/// file and, where known, the key (`campaign.box_center_mm[0]`: number arrays are indexed from
+/// 0, arrays of tables such as `[[joints]]` from 1, so `joints[1]` is joint 1).
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    /// The file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        /// File path.
+        path: PathBuf,
+        /// Underlying I/O error.
+        source: std::io::Error,
+    },
+    /// TOML syntax or schema error (unknown key, wrong type, missing key).
+    #[error("{path}: {message}")]
+    Parse {
+        /// File path.
+        path: PathBuf,
+        /// Parser message, naming the key and line.
+        message: String,
+    },
+    /// A value is invalid.
+    #[error("{path}: {key}: {message}")]
+    Invalid {
+        /// File path.
+        path: PathBuf,
+        /// Dotted key path.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
 
 /// Parse `text` into `T`: a finite-float check over the whole document, then the typed
 /// deserialisation (errors name the key), then an array-length check against what `T` kept.

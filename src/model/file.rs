@@ -16,47 +16,15 @@
 //! translation_mm = [0, 0, 0]
 //! ```
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::chain::{JointLimit, Mdh, RobotModel};
 use super::checked_toml::parse_checked;
+pub use super::checked_toml::FileError;
 use super::rotation::{from_rotation_vector, log_so3};
-
-/// Why a TOML file (robot model, cell configuration) could not be loaded; always names the
-/// file and, where known, the key (`campaign.box_center_mm[0]`: number arrays are indexed from
-/// 0, arrays of tables such as `[[joints]]` from 1, so `joints[1]` is joint 1).
-#[derive(Debug, thiserror::Error)]
-pub enum FileError {
-    /// The file could not be read.
-    #[error("{path}: cannot read: {source}")]
-    Read {
-        /// File path.
-        path: PathBuf,
-        /// Underlying I/O error.
-        source: std::io::Error,
-    },
-    /// TOML syntax or schema error (unknown key, wrong type, missing key).
-    #[error("{path}: {message}")]
-    Parse {
-        /// File path.
-        path: PathBuf,
-        /// Parser message, naming the key and line.
-        message: String,
-    },
-    /// A value is invalid.
-    #[error("{path}: {key}: {message}")]
-    Invalid {
-        /// File path.
-        path: PathBuf,
-        /// Dotted key path.
-        key: String,
-        /// What is wrong.
-        message: String,
-    },
-}
 
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]

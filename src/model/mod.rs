@@ -9,6 +9,7 @@ pub mod checked_toml;
 pub mod file;
 pub mod ik;
 pub mod kinematics;
+pub mod pose;
 pub mod rotation;
 
 pub use axis::{AxisError, SignedAxis};

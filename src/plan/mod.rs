@@ -1,4 +1,4 @@
-//! Planning: pose sampling in the workspace box (METHOD.md §7), campaign plans, path checks of
+//! Planning: pose sampling in the workspace box (docs/method.md §7), campaign plans, path checks of
 //! joint moves and their routing, the ISO 9283 test poses and cycles.
 
 pub mod campaign;
@@ -7,8 +7,10 @@ pub mod order;
 pub mod path;
 pub mod route;
 pub mod sampling;
+pub mod workspace;
 
 pub use campaign::{count_via_points, plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};
 pub use path::{BoxFace, CheckedPoint, PathCheck, PathChecker, PathFault, PATH_STEP_MM};
 pub use route::{RouteError, Router};
-pub use sampling::{sample_poses, PlanError, Workspace};
+pub use sampling::{sample_poses, PlanError};
+pub use workspace::Workspace;

@@ -18,7 +18,7 @@
 
 use nalgebra::Vector3;
 
-use super::sampling::Workspace;
+use super::workspace::{wrist_angle_rad, Workspace};
 use crate::model::kinematics::{forward_into, Frames};
 use crate::model::{JointLimit, Mdh, RobotModel};
 
@@ -419,17 +419,6 @@ fn lever_arms_mm(joints: &[Mdh], tool_mm: f64) -> Vec<f64> {
         out[i] = sum;
     }
     out
-}
-
-/// Angle between the axes of joints 4 and 6 of a 6-axis arm (rad, in [0, π/2]; 0 = singular
-/// wrist); `None` for other arms. The same measure as [`Workspace::accepts`].
-pub fn wrist_angle_rad(f: &Frames) -> Option<f64> {
-    if f.frames.len() != 7 {
-        return None;
-    }
-    let z4 = f.frames[3].r.column(2);
-    let z6 = f.frames[5].r.column(2);
-    Some(z4.dot(&z6).abs().min(1.0).acos())
 }
 
 /// Which side of its singular configuration the wrist of a 6-axis arm is bent to: the sign of

@@ -11,7 +11,7 @@
 use nalgebra::Vector3;
 
 use super::path::{PathCheck, PathChecker, PathFault};
-use super::sampling::Workspace;
+use super::workspace::Workspace;
 use crate::model::RobotModel;
 
 /// Why no route was found.

@@ -59,7 +59,7 @@ pub struct SimConfig {
 }
 
 impl Default for SimConfig {
-    /// METHOD.md §7: 300 poses (100 ident), seed 4802, paper cube, AT960 at (2550, 0, 0) mm.
+    /// docs/method.md §7: 300 poses (100 ident), seed 4802, paper cube, AT960 at (2550, 0, 0) mm.
     fn default() -> Self {
         SimConfig {
             poses: 300,

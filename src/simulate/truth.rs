@@ -12,7 +12,7 @@ use crate::model::RobotModel;
 /// Parameter errors by name (`theta1` … `beta6`; rad or mm).
 pub type ErrorTable = BTreeMap<String, f64>;
 
-/// The TX60 errors of METHOD.md §7 (paper Table 3), rows `[θ, d, a, α, β]` per joint.
+/// The TX60 errors of docs/method.md §7 (paper Table 3), rows `[θ, d, a, α, β]` per joint.
 pub const PAPER_ERRORS: [[f64; 5]; 6] = [
     [-0.00015, -0.19537, -0.24464, 7.36e-5, 0.0],
     [0.000797, 0.0, 0.299495, -3.42e-5, 1.79e-5],

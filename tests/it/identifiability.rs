@@ -1,4 +1,4 @@
-//! The identifiable sets of METHOD.md §2, with and without base and tool, and the errors for
+//! The identifiable sets of docs/method.md §2, with and without base and tool, and the errors for
 //! too few or too similar poses.
 
 use cellcal::identify::identifiability::analyze;

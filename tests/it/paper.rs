@@ -1,4 +1,4 @@
-//! The paper experiment in simulation (METHOD.md §7): 300 poses, 100 ident / 200 verify,
+//! The paper experiment in simulation (docs/method.md §7): 300 poses, 100 ident / 200 verify,
 //! the four models; verification error after ≤ 1.06 × the noise floor, every identified
 //! parameter within 4σ of the truth, and the practical test holds none of them back.
 //!

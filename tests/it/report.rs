@@ -209,7 +209,7 @@ fn run_small_campaign(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, Va
 /// A stored campaign's page: the campaign sections are filled from the store.
 fn check_campaign_sections(html: &str) {
     for what in [
-        "Tool frame (METHOD §4",
+        "Tool frame (docs/method.md §4",
         "sphere fit rms (mm)",
         "Base registration",
         "drift checks at the reference pose",

@@ -1,5 +1,5 @@
 //! The cell setup math end to end: the tool-frame procedure planned on the nominal TX60 and
-//! run on a true robot (METHOD.md Table 3 errors, base, tool, misaligned stage axis, AT960
+//! run on a true robot (docs/method.md §7 (paper Table 3) errors, base, tool, misaligned stage axis, AT960
 //! noise, joint jitter), then base registration on well-spread campaign poses.
 //!
 //! Noise-free runs on an error-free robot must recover everything exactly; with the MDH errors

@@ -20,7 +20,7 @@ const REREGISTER_SPREAD: usize = 8;
 const REREGISTER_MIN: usize = 4;
 
 /// Where the ball should be in the current tracker frame: the nominal model with the registered
-/// base and the measured tool (METHOD §4), in the frame of the segment being measured. The
+/// base and the measured tool (docs/method.md §4), in the frame of the segment being measured. The
 /// `measured` events' deviation from it is the result's "before" (`before_base:
 /// setup_registration`): the same model.
 #[derive(Debug, Clone)]

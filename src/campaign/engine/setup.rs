@@ -1,5 +1,5 @@
 //! The cell setup steps, run once per campaign before the drift baseline: the tool-frame
-//! procedure of METHOD §4 and the base registration. Every point is stored (`setup` rows, with
+//! procedure of docs/method.md §4 and the base registration. Every point is stored (`setup` rows, with
 //! the mark in the note) before the robot moves on; the result is stored as JSON and reused on
 //! resume.
 
@@ -98,7 +98,7 @@ impl Run<'_> {
         Ok(result)
     }
 
-    /// METHOD §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
+    /// docs/method.md §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
     /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
     /// `guarded`), never by dropping it.
     async fn tool_frame(&mut self) -> Result<ToolFrameResult, Stop> {

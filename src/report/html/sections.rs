@@ -152,7 +152,7 @@ fn accuracy(r: &IdentifyReport) -> String {
         None => "a base the result does not name (stored before it was named)".to_owned(),
     };
     let mut s = format!(
-        "<p>Position error <i>e</i> = measured P1 − model (mm, measurement frame), METHOD §6; \
+        "<p>Position error <i>e</i> = measured P1 − model (mm, measurement frame), docs/method.md §6; \
          before = nominal model with the setup's tool and <span id=\"before-base\">{base}</span>, \
          after = identified model. Attitude: the angle between the measured and the modelled \
          stage axis (NP/OP), or of the rotation error (full).</p>\n<table>\n<tr><th></th>",
@@ -663,7 +663,7 @@ fn kv_table(rows: &[(&str, String)]) -> String {
 
 fn tool_frame(t: &ToolFrameResult) -> String {
     let mut s = String::from(
-        "<h3>Tool frame (METHOD §4: jogs along flange x and y, sphere fit of rotations)</h3>\n",
+        "<h3>Tool frame (docs/method.md §4: jogs along flange x and y, sphere fit of rotations)</h3>\n",
     );
     s.push_str(&kv_table(&[
         ("ball in the flange frame (mm)", plain3(&t.tool_mm, 4)),
