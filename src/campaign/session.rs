@@ -547,16 +547,9 @@ fn iso_engine_plan(
 
 /// Store a freshly planned campaign (plan, split, the verbatim files and, for an ISO campaign,
 /// its ISO plan); returns its id.
-fn store_new_campaign(
-    store: &mut Store,
-    cfg: &CellConfig,
-    nominal: &RobotModel,
-    robot_text: String,
-    plan: &Plan,
-    iso: Option<&IsoPlan>,
-) -> Result<i64, SessionError> {
-    let planned: Vec<PlannedPose> = plan
-        .poses
+/// The plan's poses as the store keeps them, in move order.
+pub(crate) fn planned_poses(plan: &Plan) -> Vec<PlannedPose> {
+    plan.poses
         .iter()
         .enumerate()
         .map(|(order, e)| PlannedPose {
@@ -565,7 +558,18 @@ fn store_new_campaign(
             order,
             q_rad: e.q_rad.clone(),
         })
-        .collect();
+        .collect()
+}
+
+fn store_new_campaign(
+    store: &mut Store,
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+    robot_text: String,
+    plan: &Plan,
+    iso: Option<&IsoPlan>,
+) -> Result<i64, SessionError> {
+    let planned = planned_poses(plan);
     let new = NewCampaign {
         name: match iso {
             None => format!("{} {}", nominal.name, cfg.campaign.model),

@@ -20,7 +20,7 @@ use crate::cell::FaultKind;
 use crate::config::{parse_cell_config, CellConfig};
 use crate::plan::plan_campaign;
 use crate::sim::fake::{Call, FakeCell, Fault, Op};
-use crate::store::{NewCampaign, PlannedPose, PointKind, PointRecord, Store, StoreHandle};
+use crate::store::{NewCampaign, PointKind, PointRecord, Store, StoreHandle};
 
 /// config/cell.sim.toml, the configuration of the TCP/pty tests this module mirrors.
 const CONFIG: &str = include_str!("../../../config/cell.sim.toml");
@@ -96,17 +96,7 @@ impl Bench {
         let campaign_id = match campaign {
             Some(id) => id,
             None => {
-                let planned: Vec<PlannedPose> = plan
-                    .poses
-                    .iter()
-                    .enumerate()
-                    .map(|(order, e)| PlannedPose {
-                        index: e.index,
-                        set: e.set,
-                        order,
-                        q_rad: e.q_rad.clone(),
-                    })
-                    .collect();
+                let planned = crate::campaign::session::planned_poses(&plan);
                 let new = NewCampaign {
                     name: "fake".into(),
                     created_at_ms: 0,
