@@ -71,6 +71,26 @@ pub fn schema_version() -> i64 {
     schema::known_version()
 }
 
+/// Switch to WAL. Only the writer sets the journal mode: changing it needs the write lock, and
+/// SQLite answers BUSY at once (without the busy handler, to avoid a deadlock) while another
+/// connection opens the same new file, so the switch is retried for up to [`BUSY_TIMEOUT`].
+/// The resulting mode is "wal", or "memory" for an in-memory database.
+fn set_wal(conn: &Connection) -> Result<(), StoreError> {
+    let deadline = std::time::Instant::now() + BUSY_TIMEOUT;
+    loop {
+        match conn.pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get::<_, String>(0)) {
+            Ok(_) => return Ok(()),
+            Err(rusqlite::Error::SqliteFailure(e, _))
+                if e.code == rusqlite::ErrorCode::DatabaseBusy
+                    && std::time::Instant::now() < deadline =>
+            {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => return Err(e).ctx("set journal_mode=WAL"),
+        }
+    }
+}
+
 /// An open campaign database.
 #[derive(Debug)]
 pub struct Store {
@@ -97,11 +117,7 @@ impl Store {
     fn init(mut conn: Connection) -> Result<Store, StoreError> {
         conn.busy_timeout(BUSY_TIMEOUT)
             .ctx("set the busy timeout")?;
-        // Only the writer sets the journal mode: changing it needs the write lock.
-        // Returns the resulting mode ("wal", or "memory" for in-memory databases).
-        let _mode: String = conn
-            .pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get(0))
-            .ctx("set journal_mode=WAL")?;
+        set_wal(&conn)?;
         conn.pragma_update(None, "synchronous", "FULL")
             .ctx("set synchronous=FULL")?;
         conn.pragma_update(None, "foreign_keys", "ON")

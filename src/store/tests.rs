@@ -314,3 +314,33 @@ fn observations_of_a_re_registered_segment_are_mapped_into_the_first_frame() {
     assert!(pts.iter().any(|p| p.row == d0));
     assert!(pts.iter().all(|p| p.row < d1 && p.kind != "p2"));
 }
+
+/// Two commanders started together open one new store at the same instant: both get it open
+/// (one is then refused by the cell lock, naming the other), neither fails on the journal-mode
+/// switch, for which SQLite returns BUSY at once instead of calling the busy handler.
+#[test]
+fn processes_opening_one_new_store_at_once_all_open_it() {
+    for round in 0..20 {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("c.db");
+        let start = std::sync::Arc::new(std::sync::Barrier::new(6));
+        let opened: Vec<Result<(), String>> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..6)
+                .map(|_| {
+                    let (path, start) = (path.clone(), start.clone());
+                    s.spawn(move || {
+                        start.wait();
+                        Store::open(&path).map(|_| ()).map_err(|e| e.to_string())
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("thread"))
+                .collect()
+        });
+        for r in opened {
+            assert!(r.is_ok(), "round {round}: {r:?}");
+        }
+    }
+}
