@@ -27,4 +27,5 @@ pub mod report;
 pub mod sim;
 pub mod simulate;
 pub mod store;
+pub mod units;
 pub mod wall_clock;

@@ -248,7 +248,10 @@ use std::collections::{BTreeMap, BTreeSet};
 /// least-squares core) and `calibrate` (the typed calibration result) arrive with issue 18's
 /// lsq and result branches.
 const LAYERS: &[(&str, &[&str])] = &[
-    ("leaf helpers", &["wall_clock", "build_info", "auth"]),
+    (
+        "leaf helpers",
+        &["wall_clock", "build_info", "auth", "units"],
+    ),
     ("numerics", &["lsq"]),
     ("robot model", &["model"]),
     ("measurement geometry", &["measure"]),
