@@ -10,6 +10,7 @@ use tokio::sync::broadcast;
 use cellcal::campaign::events::fault_kind_name;
 use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};
 use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, CONFIRM_CLEAR};
+use cellcal::report::setup_summary_lines;
 
 /// Asks the technician on the terminal; `a` (or end of input) aborts. The question that
 /// releases the robot after a manual stage answer ([`CONFIRM_CLEAR`]) takes only its own key,
@@ -150,11 +151,6 @@ pub enum Display {
     Quiet,
 }
 
-/// A value as its JSON text (as the journal has it; `null` for a non-finite number).
-fn json<T: serde::Serialize>(v: &T) -> String {
-    serde_json::to_string(v).unwrap_or_default()
-}
-
 /// Print campaign events until the channel closes.
 /// Cancel-safe: it only receives and prints.
 pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize, display: Display) {
@@ -237,21 +233,8 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
             }
             Ok(CampaignEvent::Prompt { .. }) => {}
             Ok(CampaignEvent::Setup { result }) => {
-                if let Some(t) = &result.tool_frame {
-                    line(format!(
-                        "tool frame: ball {} mm in the flange, stage axis {}, sphere fit RMS {} mm",
-                        json(&t.tool_mm),
-                        json(&t.stage_axis),
-                        json(&t.sphere_rms_mm)
-                    ));
-                }
-                if let Some(b) = &result.base {
-                    line(format!(
-                        "base registration: RMS {} mm over {} poses, tracker at {} mm in the robot base frame",
-                        json(&b.rms_mm),
-                        json(&b.poses),
-                        json(&b.tracker_in_base_mm)
-                    ));
+                for text in setup_summary_lines(&result) {
+                    line(text);
                 }
             }
             Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),

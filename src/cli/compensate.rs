@@ -10,6 +10,7 @@ use anyhow::{anyhow, Context};
 use cellcal::compensate::table::{parse_joints, parse_targets, write_joints, Row};
 use cellcal::compensate::{Compensated, Compensator};
 use cellcal::model::{load_robot, RobotModel};
+use cellcal::units::human::{fmt_deg, fmt_mm, fmt_mrad};
 
 use super::identify::write_file;
 use super::{input, Failure};
@@ -36,7 +37,7 @@ pub struct CompensateArgs {
     /// A program's joints computed on the nominal model: `q1`…`qn` (rad) or `q1_deg`…`qn_deg`.
     #[arg(long)]
     joints: Option<PathBuf>,
-    /// Output CSV: `id,q1…qn,reachable,residual_mm,residual_deg,at_limit`.
+    /// Output CSV: `id,q1…qn,reachable,residual_mm,residual_deg,at_limit,q1_deg…qn_deg`.
     #[arg(long)]
     out: PathBuf,
     /// Joints (deg, comma-separated) the first target's nominal solution starts from; its
@@ -150,18 +151,19 @@ fn summary(ids: &[String], rows: &[Compensated], out: &Path) -> String {
         .flat_map(|r| r.q.iter().zip(&r.nominal_q).map(|(a, b)| (a - b).abs()))
         .fold(0.0, f64::max);
     let mut s = format!(
-        "compensated {} rows into {}: {} reachable, largest joint correction {:.4}°\n",
+        "compensated {} rows into {}: {} reachable, largest joint correction {} mrad ({}°)\n",
         rows.len(),
         out.display(),
         reachable.len(),
-        largest.to_degrees()
+        fmt_mrad(largest),
+        fmt_deg(largest)
     );
     for (id, r) in ids.iter().zip(rows).filter(|(_, r)| !r.reachable) {
         let limits: Vec<String> = r.at_limit.iter().map(|j| format!("q{j}")).collect();
         s.push_str(&format!(
-            "  {id}: not reachable, {:.3} mm and {:.3}° left{}\n",
-            r.residual_mm,
-            r.residual_rad.to_degrees(),
+            "  {id}: not reachable, {} mm and {} mrad left{}\n",
+            fmt_mm(r.residual_mm),
+            fmt_mrad(r.residual_rad),
             if limits.is_empty() {
                 String::new()
             } else {

@@ -8,10 +8,12 @@
 //! Program points: `q1`…`qn` (rad) or `q1_deg`…`qn_deg`. Every value must be a finite number:
 //! a bad cell is refused naming its line and column ([`CsvError`]).
 //!
-//! Output (`J.csv`): `id,q1,…,qn,reachable,residual_mm,residual_deg,at_limit`: joints in rad in
-//! shortest round-trip form, `reachable` `true`/`false`, the identified model's remaining tool
-//! position and orientation error, and the joints on a limit (`q5`, space-separated; empty
-//! when none) — the limits that bind when the row is not reachable.
+//! Output (`J.csv`): `id,q1,…,qn,reachable,residual_mm,residual_deg,at_limit,q1_deg,…,qn_deg`:
+//! joints in rad in shortest round-trip form, `reachable` `true`/`false`, the identified
+//! model's remaining tool position and orientation error, the joints on a limit (`q5`,
+//! space-separated; empty when none) — the limits that bind when the row is not reachable —
+//! and the same joints in degrees with 6 decimals (for a controller programmed in degrees;
+//! added after the columns that were there first, so readers by position keep working).
 
 use nalgebra::Vector3;
 
@@ -220,25 +222,38 @@ pub fn parse_joints(text: &str, dof: usize) -> Result<Vec<Row<Vec<f64>>>, CsvErr
 pub fn write_joints(ids: &[String], rows: &[Compensated], dof: usize) -> String {
     use std::fmt::Write;
     let q: Vec<String> = (1..=dof).map(|i| format!("q{i}")).collect();
+    let q_deg: Vec<String> = (1..=dof).map(|i| format!("q{i}_deg")).collect();
     let mut out = format!(
-        "id,{},reachable,residual_mm,residual_deg,at_limit\n",
-        q.join(",")
+        "id,{},reachable,residual_mm,residual_deg,at_limit,{}\n",
+        q.join(","),
+        q_deg.join(",")
     );
     for (id, c) in ids.iter().zip(rows) {
         let joints: Vec<String> = c.q.iter().map(|v| format!("{v:?}")).collect();
+        let degrees: Vec<String> = c.q.iter().map(|v| decimals6(v.to_degrees())).collect();
         let limits: Vec<String> = c.at_limit.iter().map(|j| format!("q{j}")).collect();
         let _ = writeln!(
             out,
-            "{},{},{},{:.6},{:.6},{}",
+            "{},{},{},{:.6},{:.6},{},{}",
             csv_cell(id),
             joints.join(","),
             c.reachable,
             c.residual_mm,
             c.residual_rad.to_degrees(),
-            limits.join(" ")
+            limits.join(" "),
+            degrees.join(",")
         );
     }
     out
+}
+
+/// `v` with 6 decimals, `0.000000` (not `-0.000000`) for a value that rounds to zero.
+fn decimals6(v: f64) -> String {
+    let s = format!("{v:.6}");
+    match s.strip_prefix('-') {
+        Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_owned(),
+        _ => s,
+    }
 }
 
 /// An id as a CSV cell (quoted when it holds a comma or a quote).

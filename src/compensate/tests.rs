@@ -105,12 +105,15 @@ fn the_joint_file_has_round_trip_joints_quoted_ids_and_the_binding_limits() {
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(
         lines[0],
-        "id,q1,q2,reachable,residual_mm,residual_deg,at_limit"
+        "id,q1,q2,reachable,residual_mm,residual_deg,at_limit,q1_deg,q2_deg"
     );
-    assert_eq!(lines[1], "a,0.1,-0.25,true,0.000000,0.000000,");
+    assert_eq!(
+        lines[1],
+        "a,0.1,-0.25,true,0.000000,0.000000,,5.729578,-14.323945"
+    );
     assert_eq!(
         lines[2],
-        "\"b,\"\"c\"\"\",0.3333333333333333,2.0,false,1.250000,1.000000,q1 q2"
+        "\"b,\"\"c\"\"\",0.3333333333333333,2.0,false,1.250000,1.000000,q1 q2,19.098593,114.591559"
     );
     // the joints read back bit for bit
     let q: f64 = lines[2]

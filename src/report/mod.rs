@@ -6,4 +6,4 @@ pub mod model_file;
 pub mod summary;
 
 pub use model_file::corrected_model_toml;
-pub use summary::summary_text;
+pub use summary::{setup_summary_lines, summary_text};

@@ -4,31 +4,84 @@
 use std::fmt::Write;
 
 use crate::analysis::metrics::Metrics;
-use crate::calibrate::{IdentifyReport, ParamStatus, Quality};
+use crate::calibrate::identify_json::ParameterJson;
+use crate::calibrate::{IdentifyReport, ParamStatus, Quality, SetupResult};
 use crate::identify::DropKind;
+use crate::units::human::{fmt_deg, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, NO_NUMBER};
 
-fn cell(r: &IdentifyReport, name: &str) -> String {
-    match r.parameters.iter().find(|p| p.name == name) {
-        Some(p) if p.status == ParamStatus::SetupRelative => format!("{:+.6e}*", p.error),
-        Some(p) if p.identified => format!("{:+.6e}", p.error),
-        Some(_) => "—".to_owned(),
-        None => String::new(),
+/// A parameter's value in its unit for people: mm, or mrad for an angle error.
+fn shown(p: &ParameterJson, v: f64) -> String {
+    if p.unit == "rad" {
+        fmt_mrad(v)
+    } else {
+        fmt_mm(v)
     }
 }
 
+/// The unit [`shown`] writes for `p`.
+fn shown_unit(p: &ParameterJson) -> &'static str {
+    if p.unit == "rad" {
+        "mrad"
+    } else {
+        "mm"
+    }
+}
+
+/// `value ± σ` of a parameter (`*` when relative to the setup), or why it has none: `not
+/// identifiable` (structural), `held` (not determined by these poses, held at nominal).
+fn value_sigma(r: &IdentifyReport, p: &ParameterJson) -> String {
+    if !p.identified {
+        let structural = r
+            .not_identifiable
+            .iter()
+            .any(|d| d.name == p.name && d.kind == DropKind::Structural.name());
+        return if structural {
+            "not identifiable"
+        } else {
+            "held"
+        }
+        .to_owned();
+    }
+    let sigma = p.std.map_or_else(|| NO_NUMBER.to_owned(), |s| shown(p, s));
+    let mark = if p.status == ParamStatus::SetupRelative {
+        "*"
+    } else {
+        ""
+    };
+    format!("{} ± {sigma}{mark}", shown(p, p.error))
+}
+
+fn cell(r: &IdentifyReport, name: &str) -> String {
+    r.parameters
+        .iter()
+        .find(|p| p.name == name)
+        .map_or_else(String::new, |p| {
+            // the `*` of a value relative to the setup stands in its own column
+            let v = value_sigma(r, p);
+            if v.ends_with('*') {
+                v
+            } else {
+                v + " "
+            }
+        })
+}
+
 fn metric_line(out: &mut String, set: &str, state: &str, m: &Metrics) {
-    let att = |v: Option<f64>| v.map_or("—".to_owned(), |x| format!("{x:.6}"));
+    let att = |v: Option<f64>| v.map_or_else(|| NO_NUMBER.to_owned(), fmt_mrad);
     let _ = writeln!(
         out,
-        "{set:<7} {state:<7} {:>5} {:>10.4} {:>10.4} {:>10.4} {:>10.4}  {:>7.4}/{:>7.4}/{:>7.4} {:>12} {:>12}",
+        "{set:<7} {state:<7} {:>5} {:>9} {:>9} {:>9} {:>9}  {:>23} {:>9} {:>9}",
         m.poses,
-        m.position_mean_mm,
-        m.position_max_mm,
-        m.position_rms_mm,
-        m.position_p95_mm,
-        m.position_axial_mean_mm[0],
-        m.position_axial_mean_mm[1],
-        m.position_axial_mean_mm[2],
+        fmt_mm(m.position_mean_mm),
+        fmt_mm(m.position_max_mm),
+        fmt_mm(m.position_rms_mm),
+        fmt_mm(m.position_p95_mm),
+        format!(
+            "{}/{}/{}",
+            fmt_mm(m.position_axial_mean_mm[0]),
+            fmt_mm(m.position_axial_mean_mm[1]),
+            fmt_mm(m.position_axial_mean_mm[2])
+        ),
         att(m.attitude_mean_rad),
         att(m.attitude_max_rad),
     );
@@ -92,7 +145,7 @@ fn setup_relative_lines(out: &mut String, r: &IdentifyReport) {
             .find(|p| p.name == d.name)
             .and_then(|p| {
                 p.std
-                    .map(|s| format!(" (σ {s:.2e} {} given the setup)", p.unit))
+                    .map(|s| format!(" (σ {} {} given the setup)", shown(p, s), shown_unit(p)))
             })
             .unwrap_or_default();
         let _ = writeln!(out, "  {:<10} {}{std}", d.name, d.reason);
@@ -117,15 +170,15 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     verdict_lines(&mut out, r);
     let _ = writeln!(
         out,
-        "model {}: {} parameters identified, condition number {:.1}, σ0 = {:.4} mm",
+        "model {}: {} parameters identified, condition number {:.1}, σ0 = {} mm",
         r.model,
         r.identified.len(),
         r.condition_number,
-        r.sigma0_mm
+        fmt_mm(r.sigma0_mm)
     );
     let _ = writeln!(
         out,
-        "solver: {} iterations, {} ({}), final cost {:.6e} mm²",
+        "solver: {} iterations, {} ({}), final cost {} mm²",
         r.solver.iterations,
         if r.solver.converged {
             "converged"
@@ -133,16 +186,17 @@ pub fn summary_text(r: &IdentifyReport) -> String {
             "NOT converged"
         },
         r.solver.termination,
-        r.solver.final_cost
+        fmt_sig(r.solver.final_cost, 4)
     );
     let _ = writeln!(
         out,
-        "\nParameter errors (identified − nominal; — = not identifiable; * = relative to the setup)"
+        "\nParameter errors: identified − nominal ± σ (lengths mm, angles mrad; held = not \
+         determined by these poses, kept at nominal; * = relative to the setup)"
     );
     let _ = writeln!(
         out,
-        "{:<5} {:>14} {:>14} {:>14} {:>14} {:>14}",
-        "joint", "Δθ (rad)", "Δd (mm)", "Δa (mm)", "Δα (rad)", "Δβ (rad)"
+        "{:<5} {:>19} {:>19} {:>19} {:>19} {:>19}",
+        "joint", "Δθ (mrad)", "Δd (mm)", "Δa (mm)", "Δα (mrad)", "Δβ (mrad)"
     );
     let dof = r
         .parameters
@@ -153,7 +207,7 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     for j in 1..=dof {
         let _ = writeln!(
             out,
-            "{:<5} {:>14} {:>14} {:>14} {:>14} {:>14}",
+            "{:<5} {:>19} {:>19} {:>19} {:>19} {:>19}",
             j,
             cell(r, &format!("theta{j}")),
             cell(r, &format!("d{j}")),
@@ -169,11 +223,10 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     {
         let _ = writeln!(
             out,
-            "{:<12} {:+.6e} {} (± {:.2e})",
+            "{:<12} {} {}",
             p.name,
-            p.error,
-            p.unit,
-            p.std.unwrap_or(f64::NAN)
+            value_sigma(r, p),
+            shown_unit(p)
         );
     }
     setup_relative_lines(&mut out, r);
@@ -181,8 +234,8 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     if let (Some(m), Some(a)) = (r.stage_axis_measured, r.stage_axis_angle_rad) {
         let _ = writeln!(
             out,
-            "stage axis in use ({:.4}, {:.4}, {:.4}); measured P2 − P1 in the flange frame ({:.4}, {:.4}, {:.4}), {:.2}° apart",
-            r.stage_axis[0], r.stage_axis[1], r.stage_axis[2], m[0], m[1], m[2], a.to_degrees()
+            "stage axis in use ({:.4}, {:.4}, {:.4}); measured P2 − P1 in the flange frame ({:.4}, {:.4}, {:.4}), {}° apart",
+            r.stage_axis[0], r.stage_axis[1], r.stage_axis[2], m[0], m[1], m[2], fmt_deg(a)
         );
     }
     if !r.rejected_poses.is_empty() {
@@ -192,11 +245,11 @@ pub fn summary_text(r: &IdentifyReport) -> String {
             r.rejected_poses.join(", ")
         );
     }
-    let _ = writeln!(out, "\nAccuracy (position mm, attitude rad)");
+    let _ = writeln!(out, "\nAccuracy (position mm, attitude mrad)");
     before_line(&mut out, r);
     let _ = writeln!(
         out,
-        "{:<7} {:<7} {:>5} {:>10} {:>10} {:>10} {:>10}  {:>23} {:>12} {:>12}",
+        "{:<7} {:<7} {:>5} {:>9} {:>9} {:>9} {:>9}  {:>23} {:>9} {:>9}",
         "set",
         "state",
         "poses",
@@ -215,4 +268,29 @@ pub fn summary_text(r: &IdentifyReport) -> String {
         metric_line(&mut out, "verify", "after", &v.after);
     }
     out
+}
+
+/// The cell setup's result for people: the tool frame (ball in the flange, stage axis, sphere
+/// fit) and the base registration, one line each (`run` prints them when the setup ends).
+pub fn setup_summary_lines(r: &SetupResult) -> Vec<String> {
+    let mut lines = Vec::new();
+    if let Some(t) = &r.tool_frame {
+        lines.push(format!(
+            "tool frame: ball {} mm in the flange, stage axis ({:.4}, {:.4}, {:.4}), sphere fit RMS {} mm",
+            fmt_mm3(&t.tool_mm),
+            t.stage_axis[0],
+            t.stage_axis[1],
+            t.stage_axis[2],
+            fmt_mm(t.sphere_rms_mm)
+        ));
+    }
+    if let Some(b) = &r.base {
+        lines.push(format!(
+            "base registration: RMS {} mm over {} poses, tracker at {} mm in the robot base frame",
+            fmt_mm(b.rms_mm),
+            b.poses,
+            fmt_mm3(&b.tracker_in_base_mm)
+        ));
+    }
+    lines
 }

@@ -47,6 +47,20 @@ pub fn fmt_mm3(mm: &[f64; 3]) -> String {
     format!("({}, {}, {})", fmt_mm(mm[0]), fmt_mm(mm[1]), fmt_mm(mm[2]))
 }
 
+/// `v` with `digits` significant digits and no exponent, for a figure without a fixed
+/// resolution (a solver cost): `0.02288` for 2.288e-2 and 4 digits; `—` when not finite.
+pub fn fmt_sig(v: f64, digits: u32) -> String {
+    if !v.is_finite() {
+        return NO_NUMBER.to_owned();
+    }
+    if v == 0.0 {
+        return "0".to_owned();
+    }
+    let magnitude = v.abs().log10().floor() as i64;
+    let decimals = (i64::from(digits) - 1 - magnitude).max(0) as usize;
+    format!("{v:.decimals$}")
+}
+
 /// A value and its σ in one format: `fmt_pm(fmt_mm, -0.122, 0.0021)` is `-0.122 ± 0.002`.
 pub fn fmt_pm(format: fn(f64) -> String, value: f64, sigma: f64) -> String {
     format!("{} ± {}", format(value), format(sigma))
@@ -135,6 +149,15 @@ mod tests {
             fmt_mm3(&[0.3195619813344486, -12.0, 95.49951]),
             "(0.320, -12.000, 95.500)"
         );
+    }
+
+    #[test]
+    fn significant_digits_never_use_an_exponent() {
+        assert_eq!(fmt_sig(2.288143e-2, 4), "0.02288");
+        assert_eq!(fmt_sig(1.5e-9, 2), "0.0000000015");
+        assert_eq!(fmt_sig(123456.7, 4), "123457");
+        assert_eq!(fmt_sig(0.0, 4), "0");
+        assert_eq!(fmt_sig(f64::NAN, 4), "—");
     }
 
     #[test]

@@ -45,6 +45,92 @@ pub(crate) fn identify_json(data: &Path, model: &str, json: &Path) -> Command {
     c
 }
 
+/// `text` holds a number in e-notation (`-1.222478e-1`, `2E5`).
+fn has_e_notation(text: &str) -> bool {
+    let b = text.as_bytes();
+    (1..b.len().saturating_sub(1)).any(|i| {
+        let digit_after = match b[i + 1] {
+            b'+' | b'-' => b.get(i + 2).is_some_and(u8::is_ascii_digit),
+            c => c.is_ascii_digit(),
+        };
+        matches!(b[i], b'e' | b'E') && b[i - 1].is_ascii_digit() && digit_after
+    })
+}
+
+#[test]
+fn identify_prints_every_value_with_its_sigma_in_mm_and_mrad_without_e_notation() {
+    use cellcal::units::human::{fmt_mm, fmt_mrad};
+    assert!(has_e_notation("x -1.222478e-1 mm") && has_e_notation("2E5"));
+    assert!(!has_e_notation("theta1 0.150 ± 0.008 held e-mail 2 e3"));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = simulate(dir.path(), &[]);
+    let json = dir.path().join("r.json");
+    let out = identify_json(&data, "op", &json).output().expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).expect("UTF-8");
+    assert!(!has_e_notation(&text), "e-notation in:\n{text}");
+    let header = text
+        .lines()
+        .find(|l| l.starts_with("joint "))
+        .unwrap_or_else(|| panic!("no table header in:\n{text}"));
+    let columns: Vec<&str> = header
+        .split("  ")
+        .map(str::trim)
+        .filter(|c| !c.is_empty())
+        .collect();
+    assert_eq!(
+        columns,
+        [
+            "joint",
+            "Δθ (mrad)",
+            "Δd (mm)",
+            "Δa (mm)",
+            "Δα (mrad)",
+            "Δβ (mrad)"
+        ],
+        "{header}"
+    );
+    assert!(
+        text.contains("Accuracy (position mm, attitude mrad)"),
+        "{text}"
+    );
+    let v: Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid json");
+    let mut checked = 0;
+    for p in v["parameters"].as_array().expect("parameters") {
+        let name = p["name"].as_str().expect("name");
+        let Some(joint) = p["joint"].as_u64() else {
+            continue;
+        };
+        let row = text
+            .lines()
+            .find(|l| l.split_whitespace().next() == Some(joint.to_string().as_str()))
+            .unwrap_or_else(|| panic!("no row of joint {joint}"));
+        let shown = |x: f64| match p["unit"].as_str() {
+            Some("rad") => fmt_mrad(x),
+            Some("mm") => fmt_mm(x),
+            u => panic!("{name}: unit {u:?}"),
+        };
+        if p["identified"] == true {
+            let value = p["error"].as_f64().expect("error");
+            let sigma = p["std"].as_f64().expect("an identified value has its σ");
+            let want = format!("{} ± {}", shown(value), shown(sigma));
+            assert!(row.contains(&want), "{name}: `{want}` not in `{row}`");
+            checked += 1;
+        } else {
+            assert!(
+                row.contains("not identifiable") || row.contains("held"),
+                "{name}: `{row}` does not say it is held"
+            );
+        }
+    }
+    assert_eq!(checked, 24, "every identified MDH parameter with its σ");
+}
+
 fn identify_err(data: &str, model: &str) -> (i32, String) {
     let dir = tempfile::tempdir().expect("tempdir");
     let f = dir.path().join("bad.csv");
@@ -84,7 +170,7 @@ fn identify_writes_the_json_contract() {
     );
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        text.contains("Δθ (rad)") && text.contains("verify  after"),
+        text.contains("Δθ (mrad)") && text.contains("verify  after"),
         "{text}"
     );
     let v: Value =

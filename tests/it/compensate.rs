@@ -317,13 +317,37 @@ fn compensate_command_writes_the_joint_file() {
     let mut lines = j.lines();
     assert_eq!(
         lines.next(),
-        Some("id,q1,q2,q3,q4,q5,q6,reachable,residual_mm,residual_deg,at_limit")
+        Some(
+            "id,q1,q2,q3,q4,q5,q6,reachable,residual_mm,residual_deg,at_limit,\
+             q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg"
+        ),
+        "the degrees come after the columns that were there first"
     );
     for (k, line) in lines.enumerate() {
         let cells: Vec<&str> = line.split(',').collect();
         assert_eq!(cells[0], format!("t{k}"));
-        assert_eq!(&cells[7..], ["true", "0.000000", "0.000000", ""], "{line}");
+        assert_eq!(
+            &cells[7..11],
+            ["true", "0.000000", "0.000000", ""],
+            "{line}"
+        );
         let q: Vec<f64> = cells[1..7].iter().map(|c| c.parse().unwrap()).collect();
+        // q*_deg: the same joints in degrees, 6 decimals
+        for (i, (deg, rad)) in cells[11..].iter().zip(&q).enumerate() {
+            let (whole, decimals) = deg.split_once('.').expect("decimals");
+            assert!(
+                !whole.is_empty() && decimals.len() == 6,
+                "q{}_deg {deg}",
+                i + 1
+            );
+            let deg: f64 = deg.parse().expect("a number");
+            assert!(
+                (deg - rad.to_degrees()).abs() <= 5e-7,
+                "q{}: {deg}° vs {rad} rad",
+                i + 1
+            );
+        }
+        assert_eq!(cells.len(), 17, "{line}");
         let want: Vec<f64> = start
             .iter()
             .enumerate()
