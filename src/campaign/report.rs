@@ -18,6 +18,7 @@ use crate::report::html::{
     SIGNIFICANCE_SAMPLES, SIGNIFICANCE_SEED,
 };
 use crate::store::{Store, StoreError};
+use crate::units::human::local_time_zone;
 
 /// Why a stored campaign has no calibration report.
 #[derive(Debug, thiserror::Error)]
@@ -52,7 +53,8 @@ pub fn campaign_report(
     };
     let (facts, inputs) = campaign_facts(store, id)?;
     let title = format!("Calibration report: campaign {id} \"{}\"", facts.name);
-    let provenance = Provenance::of_this_build(generated_at_ms, inputs);
+    let provenance =
+        Provenance::of_this_build(generated_at_ms, inputs).in_time_zone(local_time_zone());
     let mut input = ReportInput::of_result(
         &title,
         &format!("campaign {id} in {store_name}"),

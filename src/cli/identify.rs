@@ -24,6 +24,7 @@ use cellcal::report::html::{CampaignFacts, InputDigest, Provenance, ReportInput}
 use cellcal::report::model_file::sha256_hex;
 use cellcal::report::{corrected_model_toml, summary_text};
 use cellcal::simulate::TrackerNoise;
+use cellcal::units::human::local_time_zone;
 use cellcal::wall_clock::now_unix_ms;
 
 use super::stored::{campaign_id, open_store};
@@ -188,7 +189,8 @@ pub fn run(a: IdentifyArgs) -> Result<(), Failure> {
         write_file(path, &text)?;
     }
     if let Some(path) = &a.report {
-        let provenance = Provenance::of_this_build(now_unix_ms(), context.inputs);
+        let provenance = Provenance::of_this_build(now_unix_ms(), context.inputs)
+            .in_time_zone(local_time_zone());
         let title = format!("Calibration report: {label}");
         let mut html =
             ReportInput::of_result(&title, &label, &result, provenance).with_significance(&robot);

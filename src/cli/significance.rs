@@ -6,6 +6,7 @@ use anyhow::{anyhow, Context};
 
 use cellcal::analysis::significance;
 use cellcal::model::load_robot;
+use cellcal::units::human::fmt_mm;
 
 use super::{input, other, Failure};
 
@@ -41,8 +42,12 @@ pub fn run(a: SignificanceArgs) -> Result<(), Failure> {
     );
     for r in &rows {
         println!(
-            "{:<8} {:>12.5} {:>12.5} {:>12.5} {:>12.5}",
-            r.name, r.e_p_mm, r.e_n, r.e_o, r.e_a
+            "{:<8} {:>12} {:>12.5} {:>12.5} {:>12.5}",
+            r.name,
+            fmt_mm(r.e_p_mm),
+            r.e_n,
+            r.e_o,
+            r.e_a
         );
     }
     let doc = serde_json::json!({ "samples": samples, "seed": seed, "parameters": rows });

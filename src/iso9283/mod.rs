@@ -17,6 +17,8 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
+use crate::units::human::{fmt_mm, fmt_mrad};
+
 /// The order in which each ISO 9283 cycle visits the five poses (§7.2.1: "P1, P5, P4, P3, P2");
 /// the next cycle starts again at P1.
 pub const CYCLE_ORDER: [usize; 5] = [1, 5, 4, 3, 2];
@@ -327,21 +329,22 @@ pub fn format_table(r: &IsoReport) -> String {
         if r.compensated { "; compensated" } else { "" },
     );
     s.push_str(
-        "pose   n   AP_P mm   AP_x mm   AP_y mm   AP_z mm   RP_l mm  AP_dir deg  RP_dir deg\n",
+        "pose   n   AP_P mm   AP_x mm   AP_y mm   AP_z mm   RP_l mm AP_dir mrad RP_dir mrad\n",
     );
-    let deg = |v: Option<f64>| v.map_or_else(|| "-".to_owned(), |d| format!("{d:.4}"));
+    // the JSON keeps degrees; people read orientation deviations in mrad
+    let mrad = |v: Option<f64>| v.map_or_else(|| "-".to_owned(), |d| fmt_mrad(d.to_radians()));
     for p in &r.poses {
         s.push_str(&format!(
-            "P{:<3} {:>3} {:>9.4} {:>9.4} {:>9.4} {:>9.4} {:>9.4} {:>11} {:>11}\n",
+            "P{:<3} {:>3} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {:>11}\n",
             p.pose,
             p.n,
-            p.ap_p_mm,
-            p.ap_x_mm,
-            p.ap_y_mm,
-            p.ap_z_mm,
-            p.rp_l_mm,
-            deg(p.ap_dir_deg),
-            deg(p.rp_dir_deg)
+            fmt_mm(p.ap_p_mm),
+            fmt_mm(p.ap_x_mm),
+            fmt_mm(p.ap_y_mm),
+            fmt_mm(p.ap_z_mm),
+            fmt_mm(p.rp_l_mm),
+            mrad(p.ap_dir_deg),
+            mrad(p.rp_dir_deg)
         ));
     }
     s

@@ -294,3 +294,44 @@ pub fn setup_summary_lines(r: &SetupResult) -> Vec<String> {
     }
     lines
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibrate::{BaseResult, ToolFrameResult};
+
+    #[test]
+    fn the_setup_summary_shows_millimetres_with_three_decimals() {
+        let r = SetupResult {
+            tool_frame: Some(ToolFrameResult {
+                tool_mm: [0.3195619813344486, -0.0000001, 95.49951],
+                stage_axis: [0.0, 1.0, 0.0],
+                flange_origin_tracker_mm: [0.0; 3],
+                flange_axes_tracker: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                sphere_radius_mm: 95.5,
+                sphere_rms_mm: 0.00123,
+                jog_axes_angle_deg: 90.0,
+                stage_travel_measured_mm: 10.0,
+                targets: 12,
+            }),
+            base: Some(BaseResult {
+                translation_mm: [1.0, 2.0, 3.0],
+                rotation_vector_rad: [0.0; 3],
+                rms_mm: 0.0214,
+                max_mm: 0.05,
+                tracker_in_base_mm: [2500.04, -12.0, 300.0],
+                poses: 8,
+            }),
+        };
+        let lines = setup_summary_lines(&r);
+        assert_eq!(
+            lines,
+            [
+                "tool frame: ball (0.320, 0.000, 95.500) mm in the flange, stage axis (0.0000, \
+                 1.0000, 0.0000), sphere fit RMS 0.001 mm",
+                "base registration: RMS 0.021 mm over 8 poses, tracker at (2500.040, -12.000, \
+                 300.000) mm in the robot base frame",
+            ]
+        );
+    }
+}

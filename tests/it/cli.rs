@@ -46,7 +46,7 @@ pub(crate) fn identify_json(data: &Path, model: &str, json: &Path) -> Command {
 }
 
 /// `text` holds a number in e-notation (`-1.222478e-1`, `2E5`).
-fn has_e_notation(text: &str) -> bool {
+pub(crate) fn has_e_notation(text: &str) -> bool {
     let b = text.as_bytes();
     (1..b.len().saturating_sub(1)).any(|i| {
         let digit_after = match b[i + 1] {

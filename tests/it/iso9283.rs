@@ -92,6 +92,11 @@ fn iso_campaigns_on_the_simulated_cell_uncompensated_and_compensated() {
     assert!(out.status.success(), "{out:?}");
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("AP_P mm") && text.contains("P5"), "{text}");
+    // people's units: mm and mrad with 3 decimals (the JSON keeps mm and deg)
+    assert!(text.contains("AP_dir mrad RP_dir mrad"), "{text}");
+    let p1 = text.lines().find(|l| l.starts_with("P1 ")).expect("P1 row");
+    let ap_p = p1.split_whitespace().nth(2).expect("AP_P");
+    assert_eq!(ap_p.split_once('.').map(|(_, d)| d.len()), Some(3), "{p1}");
     assert_eq!(std::fs::read_to_string(&json).unwrap(), stored);
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();

@@ -136,7 +136,11 @@ fn check_named_numbers(doc: &Html, json: &Value, seen: &[String]) {
         "header [data-json=\"/metrics/verify/after/position_mean_mm\"]",
     );
     let text: String = headline.first().expect("headline").text().collect();
-    assert_eq!(text, format!("{after:.4}"));
+    assert_eq!(
+        text,
+        cellcal::units::human::fmt_mm(after),
+        "mm with 3 decimals"
+    );
     let badge = select(doc, "header .badge");
     let q = json["quality"].as_str().expect("quality");
     assert_eq!(badge[0].value().attr("data-value"), Some(q));
@@ -202,6 +206,10 @@ fn run_small_campaign(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf, Va
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // README command 1's summary: values ± σ in mm and mrad, no e-notation
+    let text = String::from_utf8(out.stdout).expect("UTF-8");
+    assert!(text.contains("Δθ (mrad)") && text.contains(" ± "), "{text}");
+    assert!(!super::cli::has_e_notation(&text), "e-notation in:\n{text}");
     let v = serde_json::from_str(&std::fs::read_to_string(&json).expect("JSON written"));
     (cfg, store, v.expect("JSON"))
 }

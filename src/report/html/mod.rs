@@ -18,6 +18,7 @@ use crate::analysis::significance::{significance, Significance};
 use crate::calibrate::{CalibrationResult, IdentifyReport, SetupResult};
 pub use crate::calibrate::{PoseError, PoseErrors, SetErrors};
 use crate::model::RobotModel;
+use crate::units::human::TimeZone;
 
 pub use page::render;
 
@@ -166,6 +167,9 @@ pub struct Provenance {
     pub generated_at_ms: i64,
     /// The inputs and their SHA-256 digests.
     pub inputs: Vec<InputDigest>,
+    /// The zone the page shows its times in (ISO 8601 with the offset); UTC unless the caller
+    /// gives one ([`Provenance::in_time_zone`]: the page is pure and reads no system zone).
+    pub time_zone: TimeZone,
 }
 
 impl Provenance {
@@ -177,7 +181,14 @@ impl Provenance {
             git_hash: (GIT_HASH != "unknown").then(|| GIT_HASH.to_owned()),
             generated_at_ms,
             inputs,
+            time_zone: TimeZone::UTC,
         }
+    }
+
+    /// With the page's times shown in `tz` (the caller's local zone, `units::human::local_time_zone`).
+    pub fn in_time_zone(mut self, tz: TimeZone) -> Provenance {
+        self.time_zone = tz;
+        self
     }
 }
 

@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use super::sections;
 use super::ReportInput;
-use crate::wall_clock::utc_text;
+use crate::units::human::{fmt_mm, fmt_time_in};
 
 /// The report as one HTML document.
 pub fn render(input: &ReportInput) -> String {
@@ -26,9 +26,15 @@ pub fn render(input: &ReportInput) -> String {
         out,
         "<footer>cellcal {} · generated {}</footer>\n</body>\n</html>\n",
         esc(&input.provenance.software_version),
-        esc(&utc_text(input.provenance.generated_at_ms))
+        esc(&generated(input))
     );
     out
+}
+
+/// When the report was generated, in the provenance's time zone.
+fn generated(input: &ReportInput) -> String {
+    let p = &input.provenance;
+    fmt_time_in(p.generated_at_ms, &p.time_zone)
 }
 
 /// Title, verdict badge and the headline numbers.
@@ -41,7 +47,7 @@ fn header(input: &ReportInput) -> String {
         esc(&input.title),
         esc(&input.source),
         esc(&r.model),
-        esc(&utc_text(input.provenance.generated_at_ms)),
+        esc(&generated(input)),
         q.to_uppercase()
     );
     let (set, ba) = match &r.metrics.verify {
@@ -52,8 +58,16 @@ fn header(input: &ReportInput) -> String {
     let _ = write!(
         h,
         " <span class=\"kpi\">{set} mean position error {} mm → <b>{} mm</b> ({} poses)</span></p>\n</header>\n",
-        json_num(&format!("{p}/before/position_mean_mm"), ba.before.position_mean_mm, 3),
-        json_num(&format!("{p}/after/position_mean_mm"), ba.after.position_mean_mm, 4),
+        json_shown(
+            &format!("{p}/before/position_mean_mm"),
+            ba.before.position_mean_mm,
+            &fmt_mm(ba.before.position_mean_mm)
+        ),
+        json_shown(
+            &format!("{p}/after/position_mean_mm"),
+            ba.after.position_mean_mm,
+            &fmt_mm(ba.after.position_mean_mm)
+        ),
         ba.after.poses
     );
     h
@@ -79,15 +93,6 @@ pub fn esc(s: &str) -> String {
 pub fn fixed(v: f64, decimals: usize) -> String {
     if v.is_finite() {
         format!("{v:.decimals$}")
-    } else {
-        "—".to_owned()
-    }
-}
-
-/// `v` in scientific notation with `digits` significant digits, or `—`.
-pub fn sci(v: f64, digits: usize) -> String {
-    if v.is_finite() {
-        format!("{v:.prec$e}", prec = digits.saturating_sub(1))
     } else {
         "—".to_owned()
     }

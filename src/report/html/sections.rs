@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use super::page::{
     cell, esc, figure, fixed, header_row, json_attrs, json_cell, json_num, json_shown, json_text,
-    missing, num_cell, sci, section,
+    missing, num_cell, section,
 };
 use super::plots::{self, BeforeAfter};
 use super::{CampaignFacts, ReportInput, SetErrors, SIGNIFICANCE_SAMPLES};
@@ -15,7 +15,7 @@ use crate::calibrate::identify_json::{
     BeforeAfter as MetricsPair, IdentifyReport, NotIdentifiable, ParamStatus, ParameterJson,
 };
 use crate::calibrate::{BaseResult, ToolFrameResult};
-use crate::wall_clock::utc_text;
+use crate::units::human::{fmt_deg, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, fmt_time_in, TimeZone};
 
 /// `(id, heading)` of every section, in order (the table of contents).
 const SECTIONS: [(&str, &str); 12] = [
@@ -49,7 +49,7 @@ pub fn all(input: &ReportInput) -> String {
         correlation(&input.result),
         significance(input),
         setup(input),
-        drift(input.campaign.as_ref()),
+        drift(input.campaign.as_ref(), &input.provenance.time_zone),
         devices(input.campaign.as_ref()),
         provenance(input),
     ];
@@ -97,7 +97,7 @@ fn verdict(r: &IdentifyReport) -> String {
 /// How a metric is shown.
 #[derive(Clone, Copy, PartialEq)]
 enum Shown {
-    /// mm, 4 decimals.
+    /// mm, 3 decimals.
     Mm,
     /// rad shown as mrad, 3 decimals.
     Mrad,
@@ -131,8 +131,8 @@ fn metric_cell(pointer: &str, key: &str, shown: Shown, m: &serde_json::Value) ->
         .and_then(serde_json::Value::as_f64);
     let text = match (v, shown) {
         (Some(v), Shown::Count) => format!("{v:.0}"),
-        (Some(v), Shown::Mrad) => fixed(v * 1e3, 3),
-        (Some(v), Shown::Mm) => fixed(v, 4),
+        (Some(v), Shown::Mrad) => fmt_mrad(v),
+        (Some(v), Shown::Mm) => fmt_mm(v),
         (None, _) => "—".to_owned(),
     };
     json_cell(&format!("{pointer}/{key}"), v, &text)
@@ -322,20 +322,21 @@ fn attitude(input: &ReportInput) -> String {
     s
 }
 
-/// `v` of parameter `p` in its display unit: mm, or mrad for angles.
-fn display(p: &ParameterJson, v: f64) -> (f64, &'static str) {
+/// A parameter error or σ `v` of `p` with its unit: mm, or mrad for an angle (a small angle).
+fn error_text(p: &ParameterJson, v: f64) -> String {
     if p.unit == "rad" {
-        (v * 1e3, "mrad")
+        format!("{} mrad", fmt_mrad(v))
     } else {
-        (v, "mm")
+        format!("{} mm", fmt_mm(v))
     }
 }
 
+/// A nominal value with its unit: mm, or degrees for an angle (a large angle).
 fn nominal_text(p: &ParameterJson) -> String {
     if p.unit == "rad" {
-        format!("{}°", fixed(p.nominal.to_degrees(), 4))
+        format!("{}°", fmt_deg(p.nominal))
     } else {
-        format!("{} mm", fixed(p.nominal, 3))
+        format!("{} mm", fmt_mm(p.nominal))
     }
 }
 
@@ -351,8 +352,6 @@ fn status_cell(i: usize, status: ParamStatus) -> String {
 }
 
 fn parameter_row(i: usize, p: &ParameterJson) -> String {
-    let (err, unit) = display(p, p.error);
-    let sigma = p.std.map(|s| display(p, s).0);
     let ratio = p.std.filter(|s| *s > 0.0).map(|s| p.error.abs() / s);
     let relative = p.status == ParamStatus::SetupRelative;
     let given = if relative { " given the setup" } else { "" };
@@ -370,13 +369,13 @@ fn parameter_row(i: usize, p: &ParameterJson) -> String {
         json_cell(
             &format!("/parameters/{i}/error"),
             Some(p.error),
-            &format!("{} {unit}", fixed(err, 4))
+            &error_text(p, p.error)
         ),
         json_cell(
             &format!("/parameters/{i}/std"),
             p.std,
-            &sigma
-                .map(|s| format!("{} {unit}{given}", fixed(s, 4)))
+            &p.std
+                .map(|s| format!("± {}{given}", error_text(p, s)))
                 .unwrap_or_default()
         ),
         num_cell(
@@ -392,18 +391,18 @@ fn parameter_row(i: usize, p: &ParameterJson) -> String {
 fn parameters(r: &IdentifyReport) -> String {
     let mut s = format!(
         "<p>{} of {} candidate parameters identified; error = identified − nominal, σ its \
-         standard deviation (σ̂₀ = {} mm over the fit's redundancy). Angles in mrad, nominal \
-         angles in degrees.</p>\n<table>\n",
+         standard deviation (σ̂₀ = {} mm over the fit's redundancy). Lengths in mm, angle \
+         errors and their σ in mrad, nominal angles in degrees.</p>\n<table>\n",
         r.identified.len(),
         r.parameters.len(),
-        json_num("/sigma0_mm", r.sigma0_mm, 4),
+        json_shown("/sigma0_mm", r.sigma0_mm, &fmt_mm(r.sigma0_mm)),
     );
     s.push_str(&header_row(&[
         "parameter",
         "joint",
         "nominal",
         "error",
-        "σ",
+        "± σ",
         "|error|/σ",
         "status",
         "kind",
@@ -446,16 +445,17 @@ fn setup_relative(r: &IdentifyReport) -> String {
 fn listed(r: &IdentifyReport, list: &[NotIdentifiable], key: &str, sigma: &str) -> String {
     let mut s = header_row(&["parameter", "kind", sigma, "reason"]);
     for (i, d) in list.iter().enumerate() {
-        let unit = if r
+        let angle = r
             .parameters
             .iter()
-            .any(|p| p.name == d.name && p.unit == "rad")
-        {
-            "rad"
-        } else {
-            "mm"
-        };
-        let sigma = d.predicted_sigma.map(|v| format!("{} {unit}", sci(v, 3)));
+            .any(|p| p.name == d.name && p.unit == "rad");
+        let sigma = d.predicted_sigma.map(|v| {
+            if angle {
+                format!("{} mrad", fmt_mrad(v))
+            } else {
+                format!("{} mm", fmt_mm(v))
+            }
+        });
         let _ = writeln!(
             s,
             "<tr><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
@@ -473,8 +473,13 @@ fn listed(r: &IdentifyReport, list: &[NotIdentifiable], key: &str, sigma: &str) 
 }
 
 fn vec3(pointer: &str, v: &[f64; 3], decimals: usize) -> String {
+    vec3_shown(pointer, v, |x| fixed(x, decimals))
+}
+
+/// The three values at `pointer`, each shown by `show` and tagged with its JSON value.
+fn vec3_shown(pointer: &str, v: &[f64; 3], show: impl Fn(f64) -> String) -> String {
     let parts: Vec<String> = (0..3)
-        .map(|k| json_num(&format!("{pointer}/{k}"), v[k], decimals))
+        .map(|k| json_shown(&format!("{pointer}/{k}"), v[k], &show(v[k])))
         .collect();
     format!("({})", parts.join(", "))
 }
@@ -483,11 +488,11 @@ fn tool_and_base(r: &IdentifyReport) -> String {
     format!(
         "<h3>Base and tool after identification</h3>\n<table>\n\
          <tr><th>base translation (mm)</th><td class=\"num\">{}</td></tr>\n\
-         <tr><th>base rotation vector (rad)</th><td class=\"num\">{}</td></tr>\n\
+         <tr><th>base rotation vector (deg)</th><td class=\"num\">{}</td></tr>\n\
          <tr><th>tool: ball in the flange frame (mm)</th><td class=\"num\">{}</td></tr>\n</table>\n",
-        vec3("/base/translation_mm", &r.base.translation_mm, 4),
-        vec3("/base/rotation_vector_rad", &r.base.rotation_vector_rad, 7),
-        vec3("/tool/translation_mm", &r.tool.translation_mm, 4),
+        vec3_shown("/base/translation_mm", &r.base.translation_mm, fmt_mm),
+        vec3_shown("/base/rotation_vector_rad", &r.base.rotation_vector_rad, fmt_deg),
+        vec3_shown("/tool/translation_mm", &r.tool.translation_mm, fmt_mm),
     )
 }
 
@@ -603,7 +608,7 @@ fn stage_axis(r: &IdentifyReport) -> String {
             "<tr><th>mean measured P2 − P1 direction (flange frame)</th><td class=\"num\">{}</td></tr>\n\
              <tr><th>angle between them</th><td class=\"num\">{}</td></tr>\n",
             vec3("/stage_axis_measured", m, 5),
-            json_shown("/stage_axis_angle_rad", a, &format!("{} mrad", fixed(a * 1e3, 3)))
+            json_shown("/stage_axis_angle_rad", a, &format!("{} mrad", fmt_mrad(a)))
         );
     }
     s.push_str("</table>\n");
@@ -666,21 +671,21 @@ fn tool_frame(t: &ToolFrameResult) -> String {
         "<h3>Tool frame (docs/method.md §4: jogs along flange x and y, sphere fit of rotations)</h3>\n",
     );
     s.push_str(&kv_table(&[
-        ("ball in the flange frame (mm)", plain3(&t.tool_mm, 4)),
+        ("ball in the flange frame (mm)", fmt_mm3(&t.tool_mm)),
         ("stage axis (flange frame)", plain3(&t.stage_axis, 5)),
-        ("sphere radius = |tool| (mm)", fixed(t.sphere_radius_mm, 4)),
-        ("sphere fit rms (mm)", fixed(t.sphere_rms_mm, 4)),
+        ("sphere radius = |tool| (mm)", fmt_mm(t.sphere_radius_mm)),
+        ("sphere fit rms (mm)", fmt_mm(t.sphere_rms_mm)),
         (
             "angle between the jog axes (deg)",
             fixed(t.jog_axes_angle_deg, 3),
         ),
         (
             "measured stage travel (mm)",
-            fixed(t.stage_travel_measured_mm, 4),
+            fmt_mm(t.stage_travel_measured_mm),
         ),
         (
             "flange origin, tracker frame (mm)",
-            plain3(&t.flange_origin_tracker_mm, 3),
+            fmt_mm3(&t.flange_origin_tracker_mm),
         ),
         ("targets measured", t.targets.to_string()),
     ]));
@@ -690,13 +695,21 @@ fn tool_frame(t: &ToolFrameResult) -> String {
 fn base_registration(b: &BaseResult) -> String {
     let mut s = String::from("<h3>Base registration (tracker ← robot base, nominal model)</h3>\n");
     s.push_str(&kv_table(&[
-        ("translation (mm)", plain3(&b.translation_mm, 3)),
-        ("rotation vector (rad)", plain3(&b.rotation_vector_rad, 6)),
-        ("residual rms (mm)", fixed(b.rms_mm, 4)),
-        ("residual max (mm)", fixed(b.max_mm, 4)),
+        ("translation (mm)", fmt_mm3(&b.translation_mm)),
+        (
+            "rotation vector (deg)",
+            format!(
+                "({}, {}, {})",
+                fmt_deg(b.rotation_vector_rad[0]),
+                fmt_deg(b.rotation_vector_rad[1]),
+                fmt_deg(b.rotation_vector_rad[2])
+            ),
+        ),
+        ("residual rms (mm)", fmt_mm(b.rms_mm)),
+        ("residual max (mm)", fmt_mm(b.max_mm)),
         (
             "tracker position in the base frame (mm)",
-            plain3(&b.tracker_in_base_mm, 1),
+            fmt_mm3(&b.tracker_in_base_mm),
         ),
         ("poses used", b.poses.to_string()),
     ]));
@@ -707,7 +720,7 @@ fn no_store() -> String {
     missing("The data did not come from a campaign store: no journal to report from.")
 }
 
-fn drift(c: Option<&CampaignFacts>) -> String {
+fn drift(c: Option<&CampaignFacts>, tz: &TimeZone) -> String {
     let Some(c) = c else {
         return no_store();
     };
@@ -721,12 +734,12 @@ fn drift(c: Option<&CampaignFacts>) -> String {
             s,
             "<p>{} drift checks at the reference pose; largest {} mm; {} over the threshold.</p>\n<table>",
             c.drift.len(),
-            fixed(worst, 4),
+            fmt_mm(worst),
             over
         );
         s.push_str(&header_row(&[
             "#",
-            "time (UTC)",
+            "time",
             "drift (mm)",
             "threshold (mm)",
             "result",
@@ -736,9 +749,9 @@ fn drift(c: Option<&CampaignFacts>) -> String {
                 s,
                 "<tr>{}{}{}{}{}</tr>",
                 num_cell(&(i + 1).to_string()),
-                cell(&utc_text(d.at_ms)),
-                num_cell(&fixed(d.drift_mm, 4)),
-                num_cell(&fixed(d.max_mm, 3)),
+                cell(&fmt_time_in(d.at_ms, tz)),
+                num_cell(&fmt_mm(d.drift_mm)),
+                num_cell(&fmt_mm(d.max_mm)),
                 cell(if d.drift_mm > d.max_mm { "over" } else { "ok" })
             );
         }
@@ -751,17 +764,13 @@ fn drift(c: Option<&CampaignFacts>) -> String {
     }
     s.push_str("<table>\n");
     s.push_str(&header_row(&[
-        "time (UTC)",
-        "device",
-        "kind",
-        "action",
-        "message",
+        "time", "device", "kind", "action", "message",
     ]));
     for f in &c.faults {
         let _ = writeln!(
             s,
             "<tr>{}{}{}{}{}</tr>",
-            cell(&utc_text(f.at_ms)),
+            cell(&fmt_time_in(f.at_ms, tz)),
             cell(&f.device),
             cell(&f.kind),
             cell(&f.action),
@@ -800,6 +809,7 @@ fn devices(c: Option<&CampaignFacts>) -> String {
 fn provenance(input: &ReportInput) -> String {
     let p = &input.provenance;
     let r = &input.result;
+    let time = |ms: i64| fmt_time_in(ms, &p.time_zone);
     let mut rows: Vec<(&str, String)> = vec![
         ("software", format!("cellcal {}", p.software_version)),
         (
@@ -808,7 +818,7 @@ fn provenance(input: &ReportInput) -> String {
                 .clone()
                 .unwrap_or_else(|| "unknown (not built from a git checkout)".into()),
         ),
-        ("report generated (UTC)", utc_text(p.generated_at_ms)),
+        ("report generated", time(p.generated_at_ms)),
         ("data", input.source.clone()),
     ];
     if let Some(c) = &input.campaign {
@@ -816,16 +826,11 @@ fn provenance(input: &ReportInput) -> String {
             "campaign",
             format!("{} \"{}\" (state {})", c.id, c.name, c.state),
         ));
-        rows.push(("campaign created (UTC)", utc_text(c.created_at_ms)));
+        rows.push(("campaign created", time(c.created_at_ms)));
         if let Some((a, b)) = c.journal_span_ms {
             rows.push((
                 "journal",
-                format!(
-                    "{} entries, {} … {}",
-                    c.journal_entries,
-                    utc_text(a),
-                    utc_text(b)
-                ),
+                format!("{} entries, {} … {}", c.journal_entries, time(a), time(b)),
             ));
         }
         rows.push((
@@ -880,7 +885,7 @@ fn solver_table(r: &IdentifyReport) -> String {
         json_shown(
             "/solver/final_cost",
             r.solver.final_cost,
-            &sci(r.solver.final_cost, 4)
+            &fmt_sig(r.solver.final_cost, 4)
         ),
         if r.solver.converged { "yes" } else { "NO" },
         esc(&rejected),

@@ -122,3 +122,88 @@ fn missing_per_pose_errors_are_reported_with_the_reason() {
     // the heat map and the significance charts remain
     assert_eq!(html.matches("<svg").count(), 1 + 4);
 }
+
+/// The text the page shows for the JSON value at `pointer` (the first element tagged with it).
+fn shown_at(html: &str, pointer: &str) -> String {
+    let tag = format!("data-json=\"{pointer}\" data-value=\"");
+    let at = html
+        .find(&tag)
+        .unwrap_or_else(|| panic!("{pointer} not in the page"));
+    let rest = &html[at..];
+    let start = rest.find('>').expect("element") + 1;
+    let end = rest[start..].find('<').expect("closed") + start;
+    rest[start..end].to_owned()
+}
+
+#[test]
+fn the_parameter_table_shows_mm_mrad_and_degrees_with_three_decimals_and_sigma_beside() {
+    use crate::units::human::{fmt_deg, fmt_mm, fmt_mrad};
+    let (rows, report, id) = small_op();
+    let html = render(&input(&rows, report.clone(), &id));
+    let mut angles = 0;
+    for (i, p) in report.parameters.iter().enumerate() {
+        let nominal = shown_at(&html, &format!("/parameters/{i}/nominal"));
+        let error = shown_at(&html, &format!("/parameters/{i}/error"));
+        let (want_nominal, want_error) = match p.unit.as_str() {
+            "rad" => {
+                angles += 1;
+                (
+                    format!("{}°", fmt_deg(p.nominal)),
+                    format!("{} mrad", fmt_mrad(p.error)),
+                )
+            }
+            "mm" => (
+                format!("{} mm", fmt_mm(p.nominal)),
+                format!("{} mm", fmt_mm(p.error)),
+            ),
+            u => panic!("{}: unit {u}", p.name),
+        };
+        assert_eq!(nominal, want_nominal, "{}", p.name);
+        assert_eq!(error, want_error, "{}", p.name);
+        let decimals = |t: &str| {
+            let number = t
+                .split([' ', '°'])
+                .find(|w| w.contains('.'))
+                .expect("a number");
+            number.split('.').nth(1).map(str::len)
+        };
+        assert_eq!(decimals(&nominal), Some(3), "{nominal}");
+        assert_eq!(decimals(&error), Some(3), "{error}");
+        if let Some(s) = p.std {
+            let sigma = shown_at(&html, &format!("/parameters/{i}/std"));
+            let unit = if p.unit == "rad" { "mrad" } else { "mm" };
+            let value = if p.unit == "rad" {
+                fmt_mrad(s)
+            } else {
+                fmt_mm(s)
+            };
+            assert!(
+                sigma.starts_with(&format!("± {value} {unit}")),
+                "{}: σ `{sigma}`",
+                p.name
+            );
+        }
+    }
+    assert!(angles > 0, "the fixture has angles");
+    // the table's header: σ beside the error
+    assert!(
+        html.contains("<th>error</th><th>± σ</th>"),
+        "σ column beside the error"
+    );
+    // no e-notation in any table of the page (the SVG plots aside)
+    let tables: String = html
+        .split("<table>")
+        .skip(1)
+        .map(|t| t.split("</table>").next().unwrap_or(""))
+        .collect();
+    let b = tables.as_bytes();
+    for i in 1..b.len() - 1 {
+        assert!(
+            !(matches!(b[i], b'e' | b'E')
+                && b[i - 1].is_ascii_digit()
+                && (b[i + 1].is_ascii_digit() || b[i + 1] == b'-' || b[i + 1] == b'+')),
+            "e-notation near `{}`",
+            &tables[i.saturating_sub(20)..(i + 20).min(tables.len())]
+        );
+    }
+}
