@@ -20,6 +20,7 @@ use nalgebra::Vector3;
 use super::{Compensated, Target};
 use crate::dataset::CsvError;
 use crate::model::rotation::from_rotation_vector;
+use crate::units::human::fmt_fixed;
 
 /// One named row of an input file.
 #[derive(Debug, Clone, PartialEq)]
@@ -230,7 +231,7 @@ pub fn write_joints(ids: &[String], rows: &[Compensated], dof: usize) -> String 
     );
     for (id, c) in ids.iter().zip(rows) {
         let joints: Vec<String> = c.q.iter().map(|v| format!("{v:?}")).collect();
-        let degrees: Vec<String> = c.q.iter().map(|v| decimals6(v.to_degrees())).collect();
+        let degrees: Vec<String> = c.q.iter().map(|v| fmt_fixed(v.to_degrees(), 6)).collect();
         let limits: Vec<String> = c.at_limit.iter().map(|j| format!("q{j}")).collect();
         let _ = writeln!(
             out,
@@ -245,15 +246,6 @@ pub fn write_joints(ids: &[String], rows: &[Compensated], dof: usize) -> String 
         );
     }
     out
-}
-
-/// `v` with 6 decimals, `0.000000` (not `-0.000000`) for a value that rounds to zero.
-fn decimals6(v: f64) -> String {
-    let s = format!("{v:.6}");
-    match s.strip_prefix('-') {
-        Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_owned(),
-        _ => s,
-    }
 }
 
 /// An id as a CSV cell (quoted when it holds a comma or a quote).

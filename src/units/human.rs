@@ -15,16 +15,22 @@ pub use jiff::tz::TimeZone;
 /// What a value that is not a finite number shows.
 pub const NO_NUMBER: &str = "—";
 
-/// `v` with 3 decimals; `—` when not finite; `0.000` for a value that rounds to zero.
-fn fixed3(v: f64) -> String {
+/// `v` with `decimals` decimals, no exponent; `—` when not finite; a value that rounds to zero
+/// without its sign (`0.000`, never `-0.000`).
+pub fn fmt_fixed(v: f64, decimals: usize) -> String {
     if !v.is_finite() {
         return NO_NUMBER.to_owned();
     }
-    let s = format!("{v:.3}");
+    let s = format!("{v:.decimals$}");
     match s.strip_prefix('-') {
         Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_owned(),
         _ => s,
     }
+}
+
+/// `v` with 3 decimals ([`fmt_fixed`]).
+fn fixed3(v: f64) -> String {
+    fmt_fixed(v, 3)
 }
 
 /// A length in mm (given in mm), 3 decimals: `-122.248`.
@@ -133,6 +139,9 @@ mod tests {
         assert_eq!(fmt_mrad(-1e-7), "0.000");
         assert_eq!(fmt_deg(-1e-9), "0.000");
         assert_eq!(fmt_mm(-0.0005), "-0.001");
+        assert_eq!(fmt_fixed(-0.0000001, 6), "0.000000");
+        assert_eq!(fmt_fixed(-0.4, 0), "0");
+        assert_eq!(fmt_fixed(-2.5e-7, 6), "0.000000");
         for v in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
             assert_eq!(fmt_mm(v), "—");
             assert_eq!(fmt_mrad(v), "—");

@@ -6,6 +6,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
+use crate::units::human::fmt_fixed;
+
 /// Why a plot could not be drawn.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]
@@ -83,6 +85,17 @@ pub struct BeforeAfter<'a> {
     pub after: &'a [f64],
 }
 
+/// A value axis label with the decimals its ~10 ticks over `span` need, never `-0.0`.
+fn axis_label(v: f64, span: f64) -> String {
+    let step = span / 10.0;
+    let decimals = if step > 0.0 && step.is_finite() {
+        (-step.log10().floor()).clamp(0.0, 9.0) as usize
+    } else {
+        3
+    };
+    fmt_fixed(v, decimals)
+}
+
 /// Per-pose errors before and after (x = pose number 1…n), like the paper's Figs. 8–13.
 pub fn per_pose(title: &str, y_desc: &str, s: &BeforeAfter) -> Result<String, PlotError> {
     let n = s.before.len().max(s.after.len());
@@ -101,6 +114,7 @@ pub fn per_pose(title: &str, y_desc: &str, s: &BeforeAfter) -> Result<String, Pl
             .bold_line_style(GRID)
             .x_desc("pose")
             .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| axis_label(*v, hi - lo))
             .y_desc(y_desc)
             .label_style((FONT, 11))
             .draw()
@@ -341,6 +355,14 @@ fn colour_scale(area: &Area) -> Result<(), PlotError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axis_labels_have_the_ticks_decimals_and_no_negative_zero() {
+        assert_eq!(axis_label(-1e-17, 2.0), "0.0");
+        assert_eq!(axis_label(0.4, 2.0), "0.4");
+        assert_eq!(axis_label(0.005, 0.05), "0.005");
+        assert_eq!(axis_label(12.0, 100.0), "12");
+    }
 
     #[test]
     fn bins_cover_the_maximum_and_count_every_value() {
