@@ -1,6 +1,6 @@
 //! The documentation resolves and matches the code: every relative link and `#anchor` of
-//! README.md, ARCHITECTURE.md and docs/*.md leads somewhere, every repository path and
-//! `file.rs::test` they name exists, docs/cli.md lists exactly the flags `cellcal … --help` shows,
+//! README.md, ARCHITECTURE.md and docs/*.md leads somewhere, every repository path,
+//! `file.rs::test` and `module::item` of this crate they name exists, docs/cli.md lists exactly the flags `cellcal … --help` shows,
 //! docs/rest-api.md exactly the routes of the OpenAPI document, docs/configuration.md every key
 //! of the shipped configuration files, and the README stays short.
 
@@ -235,6 +235,9 @@ fn broken_reference(span: &str) -> Option<String> {
             .any(|f| read(f).contains(&format!("fn {name}(")));
         return (!found).then(|| format!("`{span}`: no fn {name} in {file}"));
     }
+    if let Some(why) = broken_module_path(token) {
+        return Some(format!("`{span}`: {why}"));
+    }
     if !PATH_PREFIXES.iter().any(|p| token.starts_with(p)) {
         return None;
     }
@@ -257,6 +260,78 @@ fn broken_reference(span: &str) -> Option<String> {
         }
     }
     None
+}
+
+/// Why `module::…::item` (a path into this crate's `src/`, lower case) does not resolve: each
+/// module is a folder or file under `src/`, and the last name is declared in the last one.
+fn broken_module_path(token: &str) -> Option<String> {
+    let segments: Vec<&str> = token.split("::").collect();
+    let lower = |s: &&str| !s.is_empty() && s.chars().all(|c| c.is_ascii_lowercase() || c == '_');
+    if segments.len() < 2 || !segments.iter().all(lower) {
+        return None;
+    }
+    let src = root().join("src");
+    let first = segments[0];
+    if !src.join(first).is_dir() && !src.join(format!("{first}.rs")).is_file() {
+        return None; // not one of ours (a driver crate, `std::…`)
+    }
+    let (modules, item) = segments.split_at(segments.len() - 1);
+    let mut at = src;
+    for m in modules {
+        if at.is_file() {
+            break; // an inline module of that file
+        }
+        at = if at.join(m).is_dir() {
+            at.join(m)
+        } else if at.join(format!("{m}.rs")).is_file() {
+            at.join(format!("{m}.rs"))
+        } else {
+            return Some(format!("no module {m} in {}", rel(&at)));
+        };
+    }
+    let item = item[0];
+    if at.is_dir() && (at.join(item).is_dir() || at.join(format!("{item}.rs")).is_file()) {
+        return None;
+    }
+    let mut sources = Vec::new();
+    if at.is_dir() {
+        rust_sources(&at, &mut sources);
+    } else {
+        sources.push(at.clone());
+    }
+    let declared = sources.iter().any(|f| {
+        let text = read(f);
+        [
+            "fn", "struct", "enum", "trait", "type", "const", "static", "mod",
+        ]
+        .iter()
+        .any(|kw| declares(&text, &format!("{kw} {item}")))
+    });
+    (!declared).then(|| format!("nothing named {item} in {}", rel(&at)))
+}
+
+/// Whether `text` holds `decl` (`fn name`) as whole words: after a line start or a space, before
+/// a character that cannot continue the name.
+fn declares(text: &str, decl: &str) -> bool {
+    text.match_indices(decl).any(|(i, _)| {
+        let before_ok = text[..i].ends_with([' ', '\n', '\t']) || i == 0;
+        let after = text[i + decl.len()..].chars().next();
+        before_ok && after.is_none_or(|c| !(c.is_alphanumeric() || c == '_'))
+    })
+}
+
+/// Every `.rs` file under `dir`.
+fn rust_sources(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for p in entries.filter_map(|e| e.ok().map(|e| e.path())) {
+        if p.is_dir() {
+            rust_sources(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
 }
 
 /// Every backticked repository path or `file.rs::test` of `files` that does not resolve.
@@ -341,6 +416,11 @@ fn every_repository_path_and_cited_test_in_the_docs_exists() {
         "docs.rs::every_repository_path_and_cited_test_in_the_docs_exists",
         "target/screenshots/x.png",
         "cellcal run",
+        "calibrate::quality::assess",
+        "campaign::session::open_session",
+        "model::tx60",
+        "emscon::server::serve",
+        "std::fs::read",
     ] {
         assert_eq!(broken_reference(ok), None, "{ok}");
     }
@@ -349,6 +429,8 @@ fn every_repository_path_and_cited_test_in_the_docs_exists() {
         "src/campaign/engine/{setup,nothing}.rs",
         "tests/it/docs.rs::no_such_test",
         "nowhere.rs::no_such_test",
+        "report::calibrate",
+        "report::quality::assess",
     ] {
         assert!(broken_reference(bad).is_some(), "{bad}");
     }
