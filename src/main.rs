@@ -35,7 +35,7 @@ enum Command {
     Sim(cli::sim::SimCellArgs),
     /// Run a calibration campaign (plan, measure, store, identify); simulated devices start in-process.
     Run(cli::run::RunArgs),
-    /// Run the campaign daemon: the REST API of one cell (`/api/...`, see README), until
+    /// Run the campaign daemon: the REST API of one cell (`/api/...`, see docs/rest-api.md), until
     /// Ctrl-C / SIGTERM / SIGHUP (a running campaign is aborted: the robot stops, the campaign stays
     /// resumable).
     Serve(cli::serve::ServeArgs),

@@ -415,7 +415,7 @@ async fn journal(
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "the `cellcal identify` JSON contract (see README), rendered from the stored result; an ISO 9283 campaign's stored figures", body = serde_json::Value),
+    responses((status = 200, description = "the `cellcal identify` JSON contract (see docs/data-formats.md), rendered from the stored result; an ISO 9283 campaign's stored figures", body = serde_json::Value),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
@@ -464,7 +464,7 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see README)", body = String, content_type = "text/html"),
+    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see docs/report.md)", body = String, content_type = "text/html"),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),

@@ -1050,7 +1050,7 @@ fn every_cited_method_section_exists_in_docs_method_md() {
         .filter_map(|h| h.split('.').next()?.parse().ok())
         .collect();
     let mut files = Vec::new();
-    for dir in ["src", "tests", "config", "web", "deploy"] {
+    for dir in ["src", "tests", "config", "web", "deploy", "docs"] {
         let mut all = Vec::new();
         collect_files(&root.join(dir), &mut all);
         files.extend(all);
