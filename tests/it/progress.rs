@@ -102,7 +102,7 @@ fn run_piped(cfg: &Path, store: &Path, args: &[&str]) -> (Vec<(String, bool)>, S
 }
 
 #[test]
-fn run_with_stderr_piped_writes_a_progress_line_per_pose_and_state_as_they_happen() {
+fn piped_run_prints_progress_as_it_happens() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = readme_config(dir.path());
     // no --progress: stderr is no terminal, so lines
