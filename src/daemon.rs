@@ -690,7 +690,7 @@ impl Daemon {
             cell: Arc::clone(&self.cell),
             status,
             run,
-            progress: StdMutex::new(Progress::new(&session.ctx.plan)),
+            progress: StdMutex::new(Progress::for_campaign(&session.ctx)),
         };
         tokio::spawn(observer.run(session.ctx.control.events.subscribe()));
     }

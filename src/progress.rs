@@ -12,7 +12,7 @@ use std::collections::HashMap;
 use std::time::Duration;
 
 use crate::campaign::events::fault_kind_name;
-use crate::campaign::{CampaignEvent, CampaignState, Journalled};
+use crate::campaign::{CampaignContext, CampaignEvent, CampaignState, Journalled};
 use crate::dataset::PoseSet;
 use crate::plan::Plan;
 
@@ -45,6 +45,15 @@ impl Progress {
         Progress {
             sets: plan.poses.iter().map(|p| (p.index, p.set)).collect(),
             ..Progress::default()
+        }
+    }
+
+    /// The formatter of a campaign's run: its plan's sets, none for an ISO 9283 campaign
+    /// (whose poses are cycles, not identification or verification poses).
+    pub fn for_campaign(ctx: &CampaignContext) -> Progress {
+        match ctx.iso {
+            Some(_) => Progress::default(),
+            None => Progress::new(&ctx.plan),
         }
     }
 

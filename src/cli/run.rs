@@ -158,7 +158,7 @@ async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Res
         on_fault,
         total,
     );
-    let progress = Progress::new(&ctx.plan);
+    let progress = Progress::for_campaign(&ctx);
     let mut printer = tokio::spawn(print_events(
         control.events.subscribe(),
         total,
