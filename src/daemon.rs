@@ -42,6 +42,7 @@ use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext, CONFIRM
 use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::metrics::Metrics;
+use crate::progress::Progress;
 use crate::store::{
     CampaignRow, LockHolder, ReaderPool, Store, StoreError, StoreHandle, StoredState,
 };
@@ -689,6 +690,7 @@ impl Daemon {
             cell: Arc::clone(&self.cell),
             status,
             run,
+            progress: StdMutex::new(Progress::for_campaign(&session.ctx)),
         };
         tokio::spawn(observer.run(session.ctx.control.events.subscribe()));
     }

@@ -23,6 +23,7 @@ pub mod measure;
 pub mod metrics;
 pub mod model;
 pub mod plan;
+pub mod progress;
 pub mod report;
 pub mod sim;
 pub mod simulate;

@@ -7,9 +7,9 @@ use async_trait::async_trait;
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::broadcast;
 
-use cellcal::campaign::events::fault_kind_name;
 use cellcal::campaign::{CampaignCommand, CampaignEvent, CampaignState, Control, Journalled};
 use cellcal::cell::{Answer, CellError, DeviceKind, FaultKind, Prompt, Prompter, CONFIRM_CLEAR};
+use cellcal::progress::Progress;
 use cellcal::report::setup_summary_lines;
 
 /// Asks the technician on the terminal; `a` (or end of input) aborts. The question that
@@ -139,21 +139,30 @@ pub async fn ask_on_pause(mut rx: broadcast::Receiver<Journalled>, control: Cont
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Display {
-    /// A progress bar (nobody is asked anything at this terminal).
+    /// A progress bar (nobody is asked anything at this terminal); the other events' lines
+    /// above it.
     Bar,
-    /// Plain lines, one per `every` poses, so that questions at the terminal are never
-    /// overdrawn by a bar.
+    /// The progress lines (`progress: …`, [`Progress`]), written as they happen: a pose line
+    /// every `every` poses, every other event's line; questions at the terminal are never
+    /// overdrawn.
     Lines {
-        /// Print a progress line every this many poses.
+        /// Print a pose line every this many poses (and the last).
         every: usize,
     },
-    /// Nothing but faults and the end state.
+    /// No progress: only faults, stops and a run's failed or aborted end.
     Quiet,
 }
 
-/// Print campaign events until the channel closes.
+/// Print campaign events until the run's final state (`done`, `aborted`, `failed`) or the
+/// channel's end, each line of `progress` written (and flushed: stderr is unbuffered) as its
+/// event arrives.
 /// Cancel-safe: it only receives and prints.
-pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize, display: Display) {
+pub async fn print_events(
+    mut rx: broadcast::Receiver<Journalled>,
+    total: usize,
+    display: Display,
+    mut progress: Progress,
+) {
     let bar = if display == Display::Bar {
         ProgressBar::new(total as u64)
     } else {
@@ -163,8 +172,8 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
         ProgressStyle::with_template("{bar:40} {pos}/{len} poses  {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    // a line for plain displays (a hidden bar swallows `println`)
-    let line = |text: String| {
+    // a line above the bar, or on its own
+    let line = |text: &str| {
         if display == Display::Bar {
             bar.println(text);
         } else {
@@ -172,76 +181,52 @@ pub async fn print_events(mut rx: broadcast::Receiver<Journalled>, total: usize,
         }
     };
     loop {
-        match rx.recv().await.map(|j| j.event) {
-            Ok(CampaignEvent::Measured {
-                pose, done, total, ..
-            }) => {
-                bar.set_position(done as u64);
-                if let Display::Lines { every } = display {
-                    if done % every.max(1) == 0 || done == total {
-                        eprintln!("[{done}/{total}] pose {pose} measured");
-                    }
-                }
-            }
-            Ok(CampaignEvent::State { state }) => {
-                let text = match &state {
-                    CampaignState::Paused { reason } | CampaignState::Failed { reason } => {
-                        format!("{}: {reason}", state.name())
-                    }
-                    s => s.name().to_owned(),
-                };
-                bar.set_message(text.clone());
-                if matches!(state, CampaignState::Failed { .. } | CampaignState::Aborted) {
-                    line(format!("campaign {text}"));
-                }
-            }
-            Ok(CampaignEvent::Fault {
-                device,
-                kind,
-                message,
-                action,
-            }) => line(format!(
-                "{} {}: {message} -> {action}",
-                device.name(),
-                fault_kind_name(kind)
-            )),
-            Ok(CampaignEvent::Drift { drift_mm, max_mm }) => {
-                let text = format!("drift {drift_mm:.4} mm (max {max_mm})");
-                if matches!(display, Display::Lines { .. }) {
-                    eprintln!("{text}");
-                }
-                bar.set_message(text);
-            }
-            Ok(CampaignEvent::Note { text }) => line(text),
-            Ok(CampaignEvent::Stopped {
-                reason,
-                robot,
-                stage,
-            }) => line(format!("stop ({reason}): robot {robot}; stage {stage}")),
-            Ok(CampaignEvent::Devices {
-                tracker,
-                robot,
-                stage,
-            }) => {
-                let said = |s: Option<String>| s.unwrap_or_else(|| "(cannot say)".to_owned());
-                line(format!(
-                    "devices: tracker {}; robot {}; stage {}",
-                    said(tracker),
-                    said(robot),
-                    said(stage)
-                ));
-            }
-            Ok(CampaignEvent::Prompt { .. }) => {}
-            Ok(CampaignEvent::Setup { result }) => {
-                for text in setup_summary_lines(&result) {
-                    line(text);
-                }
-            }
-            Ok(CampaignEvent::Result { .. }) => bar.finish_and_clear(),
-            // only a journal read back has these; the live channel carries typed events
-            Ok(CampaignEvent::Other(_)) => {}
-            Err(broadcast::error::RecvError::Lagged(_)) => {}
+        let j = match rx.recv().await {
+            Ok(j) => j,
+            Err(broadcast::error::RecvError::Lagged(_)) => continue,
             Err(broadcast::error::RecvError::Closed) => break,
+        };
+        let Some(text) = progress.line(&j) else {
+            if matches!(j.event, CampaignEvent::Result { .. }) {
+                bar.finish_and_clear();
+            }
+            continue;
+        };
+        let ends = j.event.ends_run();
+        match (&j.event, display) {
+            // the prompter asks the question itself
+            (CampaignEvent::Prompt { .. }, _) => {}
+            (CampaignEvent::Measured { done, total, .. }, Display::Lines { every }) => {
+                if done % every.max(1) == 0 || done == total {
+                    eprintln!("progress: {text}");
+                }
+            }
+            (_, Display::Lines { .. }) => eprintln!("progress: {text}"),
+            (CampaignEvent::Measured { done, .. }, _) => {
+                bar.set_position(*done as u64);
+            }
+            (CampaignEvent::State { state }, _) => {
+                let name = match state.reason() {
+                    Some(reason) => format!("{}: {reason}", state.name()),
+                    None => state.name().to_owned(),
+                };
+                bar.set_message(name.clone());
+                if matches!(state, CampaignState::Failed { .. } | CampaignState::Aborted) {
+                    line(&format!("campaign {name}"));
+                }
+            }
+            (CampaignEvent::Fault { .. } | CampaignEvent::Stopped { .. }, _) => line(&text),
+            (CampaignEvent::Drift { .. }, _) => bar.set_message(text),
+            (_, Display::Quiet) => {}
+            (_, _) => line(&text),
+        }
+        if let (CampaignEvent::Setup { result }, false) = (&j.event, display == Display::Quiet) {
+            for detail in setup_summary_lines(result) {
+                line(&detail);
+            }
+        }
+        if ends {
+            break;
         }
     }
     bar.finish_and_clear();

@@ -14,6 +14,7 @@ use cellcal::campaign::{run_campaign, CampaignCommand, Control, FaultPolicy, Out
 use cellcal::cell::Prompter;
 use cellcal::config::{load_cell_config, CellConfig};
 use cellcal::iso9283::{format_table, IsoReport};
+use cellcal::progress::Progress;
 use cellcal::report::summary_text;
 use cellcal::store::Store;
 
@@ -44,8 +45,14 @@ pub struct RunArgs {
     /// Resume this stored campaign at its first unmeasured pose.
     #[arg(long)]
     campaign: Option<i64>,
-    /// No progress bar.
-    #[arg(long)]
+    /// Progress on stderr: `bar` (a progress bar; plain lines while questions may be asked at
+    /// the terminal), `lines` (a line per measured pose and per state change, written as it
+    /// happens: for pipes, nohup and the journal) or `none`. Default: `bar` when stderr is a
+    /// terminal, else `lines`.
+    #[arg(long, value_enum)]
+    progress: Option<ProgressMode>,
+    /// Same as `--progress none`.
+    #[arg(long, conflicts_with = "progress")]
     quiet: bool,
     /// What a fault that needs the operator does: `pause` (ask at the terminal: resume or
     /// abort) or `fail` (stop, resumable). Default: `pause` when stdin is a terminal.
@@ -62,7 +69,29 @@ pub struct RunArgs {
     reregister: bool,
 }
 
+/// The values of `--progress`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ProgressMode {
+    /// A progress bar.
+    Bar,
+    /// A line per measured pose and per state change.
+    Lines,
+    /// No progress output.
+    #[value(name = "none")]
+    Off,
+}
+
 impl RunArgs {
+    /// `--progress` (`none` with `--quiet`), else `bar` at a terminal and `lines` otherwise.
+    fn progress_mode(&self) -> ProgressMode {
+        match (self.quiet, self.progress) {
+            (true, _) => ProgressMode::Off,
+            (false, Some(m)) => m,
+            (false, None) if std::io::stderr().is_terminal() => ProgressMode::Bar,
+            (false, None) => ProgressMode::Lines,
+        }
+    }
+
     /// `--on-fault`, or `pause` when a person can answer at the terminal.
     fn fault_policy(&self) -> FaultPolicy {
         match self.on_fault.as_deref() {
@@ -123,21 +152,41 @@ async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Res
     control.apply(&CampaignCommand::Start);
     let mut devices = session.devices;
     let total = ctx.plan.poses.len();
-    let display = display_for(opts.quiet, devices.stage.is_manual(), on_fault, total);
-    let printer = tokio::spawn(print_events(control.events.subscribe(), total, display));
+    let display = display_for(
+        opts.progress_mode(),
+        devices.stage.is_manual(),
+        on_fault,
+        total,
+    );
+    let progress = Progress::for_campaign(&ctx);
+    let mut printer = tokio::spawn(print_events(
+        control.events.subscribe(),
+        total,
+        display,
+        progress,
+    ));
     if on_fault == FaultPolicy::Pause {
         tokio::spawn(ask_on_pause(control.events.subscribe(), control.clone()));
     }
     let caught = abort_on_stop_signals(&control)?;
     let outcome = run_campaign(&ctx, &mut devices).await.map_err(other)?;
     drop(ctx);
-    printer.abort();
+    // the printer ends after the final state's line (journalled before run_campaign returned)
+    if tokio::time::timeout(PRINTER_DRAIN, &mut printer)
+        .await
+        .is_err()
+    {
+        printer.abort();
+    }
     if let Some(sim) = session.sim {
         sim.stop().await;
     }
     let signal = caught.get().copied();
     finish(outcome, id, signal, &opts, &store_path)
 }
+
+/// How long the end of a run waits for the progress printer to write the final state's line.
+const PRINTER_DRAIN: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// The campaign's first lines: planned or resumed, and the simulated cell's addresses.
 fn announce(session: &Session, store_path: &Path) {
@@ -162,19 +211,18 @@ fn announce(session: &Session, store_path: &Path) {
     }
 }
 
-/// Progress: none with `--quiet`; a line per event while a technician is asked; lines every
-/// tenth of the poses when a fault asks at the terminal; else a bar.
-fn display_for(quiet: bool, manual: bool, on_fault: FaultPolicy, total: usize) -> Display {
-    if quiet {
-        Display::Quiet
-    } else if manual {
-        Display::Lines { every: 1 }
-    } else if on_fault == FaultPolicy::Pause {
-        Display::Lines {
+/// Progress: none with `--progress none`; a line per pose with `lines`; with `bar`, a line per
+/// pose while a technician is asked, lines every tenth of the poses when a fault asks at the
+/// terminal (a bar would overdraw the questions), else a bar.
+fn display_for(mode: ProgressMode, manual: bool, on_fault: FaultPolicy, total: usize) -> Display {
+    match mode {
+        ProgressMode::Off => Display::Quiet,
+        ProgressMode::Lines => Display::Lines { every: 1 },
+        ProgressMode::Bar if manual => Display::Lines { every: 1 },
+        ProgressMode::Bar if on_fault == FaultPolicy::Pause => Display::Lines {
             every: (total / 10).max(1),
-        }
-    } else {
-        Display::Bar
+        },
+        ProgressMode::Bar => Display::Bar,
     }
 }
 

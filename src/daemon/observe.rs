@@ -1,6 +1,7 @@
 //! What the daemon learns from a loaded campaign's journalled events: the engine's state (for
-//! command replies), the devices' status (`GET /api/devices`), the metrics and the structured
-//! log lines of state changes and faults. One observer task per loaded campaign reads the live
+//! command replies), the devices' status (`GET /api/devices`), the metrics, the structured
+//! log lines of state changes and faults, and the run's progress lines ([`Progress`], target
+//! `cellcal::progress`). One observer task per loaded campaign reads the live
 //! channel from before the engine starts, and replays from the journal whatever a lag lost, so
 //! it sees every event once, in journal order.
 //!
@@ -25,6 +26,7 @@ use crate::campaign::{CampaignEvent, Journalled};
 use crate::cell::{DeviceKind, FaultKind};
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::metrics::Metrics;
+use crate::progress::Progress;
 use crate::sim::RunningSimCell;
 use crate::store::ReaderPool;
 
@@ -240,6 +242,8 @@ pub(super) struct Observer {
     pub(super) status: RunWatch,
     /// The run's number ([`CellWatch::run_loaded`]).
     pub(super) run: u64,
+    /// The run's progress lines (as `cellcal run --progress lines` prints them).
+    pub(super) progress: StdMutex<Progress>,
 }
 
 impl Observer {
@@ -305,6 +309,10 @@ impl Observer {
     /// Take one journal entry into the state, devices, metrics and log; `false` when it ends
     /// the run.
     fn note(&self, e: &Journalled) -> bool {
+        if let Some(line) = lock(&self.progress).line(e) {
+            let id = self.id;
+            tracing::info!(target: "cellcal::progress", campaign = id, "campaign {id} progress: {line}");
+        }
         match &e.event {
             CampaignEvent::State { state } => {
                 let name = state.name();

@@ -14,8 +14,9 @@ fn repo_file(path: &str) -> String {
 
 /// The `[Service]` lines of the shipped unit a plant relies on (dedicated user, read-only
 /// system, state directory, serial access by group, restart policy, SIGTERM handling, the
-/// writable default lock directory of the cell locks, loopback listen, descriptor limit).
-const REQUIRED_UNIT_LINES: [&str; 13] = [
+/// writable default lock directory of the cell locks, loopback listen, descriptor limit, the
+/// log and the progress lines in the journal under the tag `cellcal`).
+const REQUIRED_UNIT_LINES: [&str; 15] = [
     "User=cellcal",
     "RuntimeDirectory=lock/cellcal",
     "SupplementaryGroups=dialout",
@@ -31,6 +32,8 @@ const REQUIRED_UNIT_LINES: [&str; 13] = [
     "ExecStart=/usr/local/bin/cellcal serve --config /etc/cellcal/cell.toml --listen 127.0.0.1:8080 --store /var/lib/cellcal/cellcal.db",
     // room for the connection cap (512) and the reserve (64) of `cellcal serve`
     "LimitNOFILE=1024",
+    "StandardError=journal",
+    "SyslogIdentifier=cellcal",
 ];
 
 #[test]

@@ -265,7 +265,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("devices", &["cell"]),
     ("simulated cell", &["sim"]),
     ("campaign", &["campaign"]),
-    ("service metrics", &["metrics"]),
+    ("service metrics, progress", &["metrics", "progress"]),
     ("service", &["daemon"]),
     ("HTTP", &["api"]),
     ("terminal front end", &["signals", "terminal"]),

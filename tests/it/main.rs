@@ -26,6 +26,7 @@ mod model_out;
 mod paper;
 mod paths;
 mod practical;
+mod progress;
 mod quality;
 mod realdata;
 mod report;

@@ -150,7 +150,7 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     t.expect("Set the micrometer to 0.000 mm and enter the reading");
     t.send_line("0.001");
     // second pose, once the cell is confirmed clear (asked at once: the progress line
-    // `[1/20] pose` may print before or after it)
+    // `progress: pose 1/20` may print before or after it)
     t.expect("Confirm that the cell is clear");
     t.send_line("c");
     t.expect("Set the micrometer to 10.000 mm and enter the reading");
@@ -166,7 +166,7 @@ fn technician_prompts_at_the_terminal_validate_readings_and_abort() {
     let status = t.wait_exit();
     assert_eq!(status.code(), Some(130), "abort exit code");
     let printed = t.output.lock().expect("output").clone();
-    for line in ["[1/20] pose", "[2/20] pose"] {
+    for line in ["progress: pose 1/20 ", "progress: pose 2/20 "] {
         assert!(printed.contains(line), "{line}: {printed}");
     }
     let s = Store::open(&store).expect("store");
@@ -208,7 +208,7 @@ fn a_fault_pauses_at_the_terminal_and_enter_resumes() {
     t.expect("Campaign paused: tracker: no acceptable point after 5 attempts");
     t.expect("press Enter to resume, or type a to abort");
     t.send_line("");
-    t.expect("[20/20] pose");
+    t.expect("progress: pose 20/20 ");
     t.expect("verify  after");
     let status = t.wait_exit();
     assert!(status.success(), "{status:?}");
