@@ -297,3 +297,190 @@ fn lock_holders_say_since_when_in_local_iso_8601() {
         );
     }
 }
+
+/// The TX60 robot file and the simulated cell's configuration.
+fn robot_and_config() -> (String, String) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let robot = root.join("config/robots/staubli_tx60.toml");
+    let config = root.join("config/cell.sim.toml");
+    (
+        robot.to_str().unwrap().to_owned(),
+        config.to_str().unwrap().to_owned(),
+    )
+}
+
+/// A simulated data set `name` in `dir` (60 poses, 30 to identify), `extra` options.
+fn simulated(dir: &Path, name: &str, extra: &[&str]) {
+    let (robot, _) = robot_and_config();
+    let mut args = vec!["simulate-data", "--robot", &robot, "--out", name];
+    args.extend(["--poses", "60", "--ident", "30"]);
+    args.extend(extra);
+    let (code, err) = cellcal_in(dir, &args);
+    assert_eq!(code, Some(0), "{err}");
+}
+
+/// `identify … | head`: stdout closed before anything is printed. No panic, no broken-pipe
+/// text, the command's own exit code, and its files still written.
+#[test]
+fn a_closed_stdout_ends_identify_quietly_and_its_files_are_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulated(d, "d.csv", &[]);
+    let (robot, _) = robot_and_config();
+    let mut child = super::common::cellcal_process()
+        .current_dir(d)
+        .args([
+            "identify", "--robot", &robot, "--data", "d.csv", "--model", "op",
+        ])
+        .args(["--json", "r.json"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        matches!(out.status.code(), Some(0 | 3)),
+        "{:?}: {err}",
+        out.status
+    );
+    assert!(
+        !err.contains("panicked") && !err.to_lowercase().contains("broken pipe"),
+        "{err}"
+    );
+    assert!(d.join("r.json").is_file(), "the JSON is still written");
+}
+
+/// `serve --listen localhost:PORT` listens on the loopback address (no token needed there), and
+/// a closed stdout (its lines read by nobody) does not stop the daemon.
+#[test]
+fn serve_listens_on_localhost_and_outlives_its_closed_stdout() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let (_, config) = robot_and_config();
+    let port = super::common::free_port();
+    let mut child = super::common::cellcal_process()
+        .current_dir(dir.path())
+        .args(["serve", "--config", &config, "--store", "c.db"])
+        .args(["--listen", &format!("localhost:{port}")])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let answer = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("serve ended: {status:?}");
+        }
+        let asked = std::net::TcpStream::connect(("127.0.0.1", port)).and_then(|mut s| {
+            write!(
+                s,
+                "GET /api/health HTTP/1.1\r\nHost: localhost:{port}\r\nConnection: close\r\n\r\n"
+            )?;
+            let mut text = String::new();
+            s.read_to_string(&mut text)?;
+            Ok(text)
+        });
+        match asked {
+            Ok(text) if !text.is_empty() => break text,
+            _ if std::time::Instant::now() > deadline => panic!("serve never answered"),
+            _ => std::thread::sleep(std::time::Duration::from_millis(100)),
+        }
+    };
+    let alive = child.try_wait().unwrap().is_none();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    assert!(alive, "serve ended after printing to its closed stdout");
+}
+
+/// A semicolon- or tab-separated file is refused naming the separator found and the one this
+/// format takes (today: "missing column `set`").
+#[test]
+fn a_data_file_with_another_separator_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    simulated(d, "d.csv", &[]);
+    let text = std::fs::read_to_string(d.join("d.csv")).unwrap();
+    let (robot, _) = robot_and_config();
+    for (sep, named) in [(";", "`;` (semicolon)"), ("\t", "a tab")] {
+        let other: String = text
+            .lines()
+            .map(|l| {
+                if l.starts_with('#') {
+                    format!("{l}\n")
+                } else {
+                    format!("{}\n", l.replace(',', sep))
+                }
+            })
+            .collect();
+        std::fs::write(d.join("other.csv"), other).unwrap();
+        let (code, err) = cellcal_in(
+            d,
+            &[
+                "identify",
+                "--robot",
+                &robot,
+                "--data",
+                "other.csv",
+                "--model",
+                "op",
+            ],
+        );
+        assert_eq!(code, Some(2), "{err}");
+        assert!(
+            err.contains(&format!("separated by {named}, not by commas")) && err.contains("line 3"),
+            "{err}"
+        );
+        assert!(!err.contains("missing column"), "{err}");
+    }
+}
+
+/// Data measured in the tracker's frame (2.5 m away, turned 155°), identified without
+/// `--identify-base`: the frame is named with the flag to add, not the stage axis; with the
+/// flag it identifies.
+#[test]
+fn data_in_the_tracker_frame_without_identify_base_is_diagnosed_as_such() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let frame = [
+        "--base-translation-mm",
+        "2400,-700,-200",
+        "--base-rotvec-deg",
+        "0,0,155",
+    ];
+    simulated(d, "d.csv", &frame);
+    let (robot, _) = robot_and_config();
+    for model in ["op", "np", "position"] {
+        let (code, err) = cellcal_in(
+            d,
+            &[
+                "identify", "--robot", &robot, "--data", "d.csv", "--model", model,
+            ],
+        );
+        assert_eq!(code, Some(2), "{model}: {err}");
+        assert!(
+            err.contains("the data is in another frame than the robot base (the tracker's)")
+                && err.contains("Add --identify-base")
+                && err.contains("turned 155.0°"),
+            "{model}: {err}"
+        );
+        assert!(!err.contains("stage axis"), "{model}: {err}");
+    }
+    let (code, err) = cellcal_in(
+        d,
+        &[
+            "identify",
+            "--robot",
+            &robot,
+            "--data",
+            "d.csv",
+            "--model",
+            "op",
+            "--identify-base",
+        ],
+    );
+    assert!(matches!(code, Some(0 | 3)), "{err}");
+}
