@@ -66,11 +66,11 @@ pub enum DaemonError {
     /// The request conflicts with the cell's current use.
     #[error("{0}")]
     Conflict(String),
-    /// The store failed.
-    #[error("store: {0}")]
+    /// The store failed (its message names the campaign store).
+    #[error(transparent)]
     Store(#[from] StoreError),
     /// The campaign session could not be set up.
-    #[error("{0}")]
+    #[error(transparent)]
     Session(#[from] SessionError),
     /// A daemon task panicked or was cancelled.
     #[error("daemon task failed: {0}")]

@@ -5,6 +5,21 @@
 //! each part lives, what it may know and the invariants with their tests: `ARCHITECTURE.md`;
 //! the method and its conventions: `docs/method.md`.
 
+/// `impl From<$cause> for $error` giving `$error::$variant(cause)`, for a variant whose
+/// message prints its cause: `#[from]` would also make the cause its `source()`, and printed
+/// with its causes (anyhow's `{:#}`) the cause would appear twice. Every error of the crate
+/// prints its cause and gives no `source()`
+/// (`tests/it/messages.rs::every_error_message_prints_its_cause_and_none_is_also_a_source`).
+macro_rules! from_cause {
+    ($cause:ty => $error:ident :: $variant:ident) => {
+        impl From<$cause> for $error {
+            fn from(cause: $cause) -> Self {
+                $error::$variant(cause)
+            }
+        }
+    };
+}
+
 pub mod analysis;
 pub mod api;
 pub mod auth;

@@ -6,6 +6,25 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+/// `print!` of every command (it shadows the standard macro): to stdout through
+/// [`cli::print_out`], which takes a closed stdout (its reader, e.g. `head`, went away) quietly
+/// instead of panicking.
+macro_rules! print {
+    ($($arg:tt)*) => {
+        $crate::cli::print_out(format_args!($($arg)*))
+    };
+}
+
+/// `println!` of every command, as [`print!`] above.
+macro_rules! println {
+    () => {
+        $crate::cli::print_out(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::print_out(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
 mod cli;
 mod signals;
 mod terminal;

@@ -14,6 +14,34 @@ pub fn now_unix_ms() -> i64 {
     unix_ms(SystemTime::now())
 }
 
+/// `t` as people read it: local ISO 8601 with the offset, to the second,
+/// `2026-11-26T11:05:07+01:00` (the zone of `TZ`, else `/etc/localtime`, else UTC).
+/// (A stand-in for `units::human::fmt_local_time`, same name and signature.)
+pub fn fmt_local_time(t: SystemTime) -> String {
+    fmt_time_in(t, &jiff::tz::TimeZone::system())
+}
+
+/// `ms` since the Unix epoch as [`fmt_local_time`] writes it.
+pub fn local_text(ms: i64) -> String {
+    let t = match u64::try_from(ms) {
+        Ok(ms) => UNIX_EPOCH + std::time::Duration::from_millis(ms),
+        Err(_) => UNIX_EPOCH - std::time::Duration::from_millis(ms.unsigned_abs()),
+    };
+    fmt_local_time(t)
+}
+
+/// `t` in the zone `tz`, as [`fmt_local_time`] writes it (seconds cut).
+fn fmt_time_in(t: SystemTime, tz: &jiff::tz::TimeZone) -> String {
+    match jiff::Timestamp::try_from(t) {
+        Ok(ts) => ts
+            .to_zoned_datetime(tz.clone())
+            .strftime("%Y-%m-%dT%H:%M:%S%:z")
+            .to_string(),
+        // beyond the years −9999…9999
+        Err(_) => format!("{} ms after the Unix epoch", unix_ms(t)),
+    }
+}
+
 /// `ms` since the Unix epoch as an ISO 8601 UTC time, `2024-05-01T12:34:56Z` (seconds cut).
 pub fn utc_text(ms: i64) -> String {
     let secs = ms.div_euclid(1000);
@@ -47,5 +75,18 @@ mod tests {
         assert_eq!(utc_text(951_868_799_999), "2000-02-29T23:59:59Z");
         assert_eq!(utc_text(1_700_000_000_000), "2023-11-14T22:13:20Z");
         assert_eq!(utc_text(-1), "1969-12-31T23:59:59Z");
+    }
+
+    #[test]
+    fn local_times_carry_their_offset_to_the_second() {
+        let t = UNIX_EPOCH + std::time::Duration::from_millis(1_795_666_135_248);
+        let utc = jiff::tz::TimeZone::UTC;
+        assert_eq!(fmt_time_in(t, &utc), "2026-11-26T04:08:55+00:00");
+        let cet = jiff::tz::TimeZone::posix("CET-1CEST,M3.5.0,M10.5.0/3").unwrap();
+        assert_eq!(fmt_time_in(t, &cet), "2026-11-26T05:08:55+01:00");
+        let summer = UNIX_EPOCH + std::time::Duration::from_secs(1_785_000_000);
+        assert_eq!(fmt_time_in(summer, &cet), "2026-07-25T19:20:00+02:00");
+        let st_johns = jiff::tz::TimeZone::posix("NST3:30").unwrap();
+        assert_eq!(fmt_time_in(t, &st_johns), "2026-11-26T00:38:55-03:30");
     }
 }

@@ -20,14 +20,14 @@ pub enum TlsError {
         message: String,
     },
     /// rustls refused the certificate and key (e.g. the key does not match).
-    #[error("TLS certificate {cert} with key {key}: {source}")]
+    #[error("TLS certificate {cert} with key {key}: {cause}")]
     Rustls {
         /// The certificate file.
         cert: PathBuf,
         /// The key file.
         key: PathBuf,
         /// rustls' reason.
-        source: rustls::Error,
+        cause: rustls::Error,
     },
 }
 
@@ -50,10 +50,10 @@ pub fn server_config(cert: &Path, key: &Path) -> Result<RustlsConfig, TlsError> 
     let mut config = rustls::ServerConfig::builder_with_provider(provider)
         .with_safe_default_protocol_versions()
         .and_then(|b| b.with_no_client_auth().with_single_cert(chain, private))
-        .map_err(|source| TlsError::Rustls {
+        .map_err(|cause| TlsError::Rustls {
             cert: cert.to_owned(),
             key: key.to_owned(),
-            source,
+            cause,
         })?;
     config.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
     Ok(RustlsConfig::from_config(Arc::new(config)))

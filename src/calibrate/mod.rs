@@ -20,13 +20,16 @@ pub use setup::{BaseResult, SetupResult, ToolFrameResult};
 
 use crate::analysis::metrics::evaluate_pair;
 use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
+use crate::identify::observation::{predict, Measured};
 use crate::identify::{identify_with, Identification, IdentifyError, IdentifyOptions, JointTrig};
+use crate::measure::rigid::fit_rigid;
 use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
 use identify_json::{
     BaseJson, BeforeAfter, CorrelationJson, MetricsJson, NotIdentifiable, ParameterJson,
     SolverJson, ToolJson,
 };
+use nalgebra::Vector3;
 use quality::{stage_axis_check, QualityBounds};
 
 /// Why the pipeline failed.
@@ -41,6 +44,27 @@ pub enum CalibrateError {
     /// No identification rows.
     #[error("no rows with set = ident")]
     NoIdentRows,
+    /// The measured positions are in a frame far from the robot base (the tracker's), and the
+    /// base is neither identified nor given: checked before the stage axis, which would be
+    /// blamed for it.
+    #[error(
+        "the data is in another frame than the robot base (the tracker's): the measured \
+         positions lie {raw_rms_mm:.0} mm (rms) from where the robot model puts the ball, but a \
+         rigid move of {translation_mm:.0} mm, turned {angle_deg:.1}°, brings them within \
+         {fitted_rms_mm:.1} mm. Add --identify-base (the base is then identified with the rest), \
+         or give the base in the data's header (`# base_translation_mm = X,Y,Z`, \
+         `# base_rotation_vector_rad = X,Y,Z`; `cellcal export` writes them)"
+    )]
+    FrameFarFromBase {
+        /// RMS distance of the measured positions from the model's (mm).
+        raw_rms_mm: f64,
+        /// Translation of the rigid fit (mm): the robot base origin in the data's frame.
+        translation_mm: f64,
+        /// Rotation angle of the rigid fit (deg).
+        angle_deg: f64,
+        /// RMS distance after the rigid fit (mm).
+        fitted_rms_mm: f64,
+    },
     /// The measured P2 − P1 directions contradict the stage axis (or the model) in use.
     #[error("the stage axis in use ({}) contradicts the data: the measured P2 − P1 directions in the flange frame average ({}), {:.1}° away, scattering {:.1}° (limit {:.0}°). Give the stage axis the stage is mounted along (`--stage-axis X,Y,Z`; the np model assumes +x, op +y)", show3(used), show3(measured), angle_deg, scatter_deg, limit_deg)]
     StageAxisContradiction {
@@ -59,6 +83,45 @@ pub enum CalibrateError {
 
 fn show3(v: &[f64; 3]) -> String {
     format!("{:.3}, {:.3}, {:.3}", v[0], v[1], v[2])
+}
+
+/// Positions this far (rms, mm) from the model's are not robot errors (a few mm at most)...
+const FRAME_FAR_MM: f64 = 50.0;
+/// ...when a rigid move brings them within this fraction of it: a frame, not the robot.
+const FRAME_FIT_FRACTION: f64 = 0.2;
+/// Poses the frame check looks at (spread over the set).
+const FRAME_CHECK_POSES: usize = 200;
+
+/// [`CalibrateError::FrameFarFromBase`] when the measured positions of `poses` are far from
+/// `robot`'s prediction (its base, tool) and a rigid move explains most of it.
+fn frame_far_from_base(robot: &RobotModel, poses: &[Measured]) -> Option<CalibrateError> {
+    let step = poses.len().div_ceil(FRAME_CHECK_POSES).max(1);
+    let (a, b): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = poses
+        .iter()
+        .step_by(step)
+        .map(|m| (predict(robot, &m.q).p, m.p1))
+        .unzip();
+    // rms distance of the points `a` moved by `f` from `b`
+    let rms = |f: &dyn Fn(&Vector3<f64>) -> Vector3<f64>| {
+        let sum: f64 = a
+            .iter()
+            .zip(&b)
+            .map(|(a, b)| (f(a) - b).norm_squared())
+            .sum();
+        (sum / a.len() as f64).sqrt()
+    };
+    let raw = rms(&|a| *a);
+    if raw.is_nan() || raw <= FRAME_FAR_MM {
+        return None;
+    }
+    let fit = fit_rigid(&a, &b).ok()?;
+    let fitted = rms(&|a| fit.transform_point(a));
+    (fitted < FRAME_FIT_FRACTION * raw).then(|| CalibrateError::FrameFarFromBase {
+        raw_rms_mm: raw,
+        translation_mm: fit.p.norm(),
+        angle_deg: fit.rotation_angle().to_degrees(),
+        fitted_rms_mm: fitted,
+    })
 }
 
 /// The pose ids of the identification rows at `indices` (into the identification rows).
@@ -82,6 +145,11 @@ pub fn calibrate(
     }
     let model = opts.obs.model;
     let (ident, verify) = split_measured(rows, model, stage_travel_mm)?;
+    if !opts.identify_base {
+        if let Some(e) = frame_far_from_base(robot, &ident) {
+            return Err(e);
+        }
+    }
     // one joint table for the identification and the metrics of the ident set
     let trig = JointTrig::of(&ident);
     let id = identify_with(robot, &ident, &trig, opts)?;

@@ -128,8 +128,9 @@ impl std::fmt::Display for CellHolder {
         }
         write!(
             f,
-            ", store {}, since {} ms after the epoch)",
-            self.store, self.acquired_at_ms
+            ", store {}, since {})",
+            self.store,
+            crate::wall_clock::local_text(self.acquired_at_ms)
         )
     }
 }
@@ -151,15 +152,14 @@ pub enum CellLockError {
     },
     /// The lock directory or file cannot be used.
     #[error(
-        "cell lock {path}: {source} (every process that may command this cell needs write \
+        "cell lock {path}: {cause} (every process that may command this cell needs write \
          access to the lock directory: `lock_dir` in the configuration or {LOCK_DIR_ENV})"
     )]
     Io {
         /// The directory or file.
         path: PathBuf,
         /// What failed.
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
 }
 
@@ -202,7 +202,7 @@ impl CellLock {
     ) -> Result<(CellLock, Option<CellHolder>), CellLockError> {
         let io = |path: &Path| {
             let path = path.to_owned();
-            move |source| CellLockError::Io { path, source }
+            move |cause| CellLockError::Io { path, cause }
         };
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let path = dir.join(key.file_name());
@@ -242,9 +242,9 @@ impl CellLock {
     /// Record the campaign this process runs (once a new campaign is stored). Blocking.
     pub fn set_campaign(&mut self, campaign: i64) -> Result<(), CellLockError> {
         self.me.campaign = Some(campaign);
-        self.write_record().map_err(|source| CellLockError::Io {
+        self.write_record().map_err(|cause| CellLockError::Io {
             path: self.path.clone(),
-            source,
+            cause,
         })
     }
 

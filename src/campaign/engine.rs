@@ -105,12 +105,12 @@ pub enum Outcome {
 /// An error that ends a run without a resumable state change.
 #[derive(Debug, thiserror::Error)]
 pub enum CampaignError {
-    /// The store failed.
-    #[error("store: {0}")]
+    /// The store failed (its message names the campaign store).
+    #[error(transparent)]
     Store(#[from] StoreError),
     /// The identification failed.
     #[error("identification: {0}")]
-    Identify(#[from] CalibrateError),
+    Identify(CalibrateError),
     /// A store task panicked or was cancelled.
     #[error("store task failed: {0}")]
     Task(String),
@@ -118,6 +118,8 @@ pub enum CampaignError {
     #[error("ISO 9283 figures: {0}")]
     Iso(String),
 }
+
+from_cause!(CalibrateError => CampaignError::Identify);
 
 enum Stop {
     /// The operator aborted.

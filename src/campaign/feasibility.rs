@@ -118,8 +118,8 @@ pub enum FeasibilityError {
         /// Store file.
         store: PathBuf,
     },
-    /// The store could not be read.
-    #[error("store: {0}")]
+    /// The store could not be read (its message names the campaign store).
+    #[error(transparent)]
     Store(#[from] StoreError),
 }
 

@@ -53,12 +53,12 @@ pub enum IsoResultError {
         complete: usize,
     },
     /// The figures of a pose.
-    #[error("campaign {id}: {source}")]
+    #[error("campaign {id}: {cause}")]
     Figures {
         /// Campaign id.
         id: i64,
         /// Why.
-        source: IsoError,
+        cause: IsoError,
     },
 }
 
@@ -149,7 +149,7 @@ pub fn iso_report(store: &Store, id: i64) -> Result<IsoReport, IsoResultError> {
         .iter()
         .map(pose_figures)
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|source| IsoResultError::Figures { id, source })?;
+        .map_err(|cause| IsoResultError::Figures { id, cause })?;
     Ok(IsoReport {
         kind: ISO9283_KIND.to_owned(),
         frame: frame.to_owned(),

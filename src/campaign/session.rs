@@ -50,12 +50,12 @@ pub enum SessionError {
         /// What is wrong.
         message: String,
     },
-    /// Store.
-    #[error("store: {0}")]
+    /// Store (its message names the campaign store).
+    #[error(transparent)]
     Store(#[from] crate::store::StoreError),
     /// Planning.
     #[error("planning: {0}")]
-    Plan(#[from] crate::plan::PlanError),
+    Plan(crate::plan::PlanError),
     /// Inconsistent request.
     #[error("{0}")]
     Invalid(String),
@@ -85,11 +85,14 @@ pub enum SessionError {
     Infeasible(#[from] super::feasibility::FeasibilityError),
     /// The ISO 9283 poses cannot be planned.
     #[error("planning: {0}")]
-    Iso(#[from] IsoPlanError),
+    Iso(IsoPlanError),
     /// Another process commands the cell (or its lock cannot be taken).
     #[error(transparent)]
     Cell(#[from] CellLockError),
 }
+
+from_cause!(crate::plan::PlanError => SessionError::Plan);
+from_cause!(IsoPlanError => SessionError::Iso);
 
 /// A stored campaign to resume.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -25,20 +25,20 @@ pub enum StoredError {
     #[error(transparent)]
     Store(#[from] StoreError),
     /// The stored configuration no longer parses.
-    #[error("campaign {id}: its stored configuration: {source}")]
+    #[error("campaign {id}: its stored configuration: {cause}")]
     Config {
         /// Campaign id.
         id: i64,
         /// The parse error.
-        source: ConfigError,
+        cause: ConfigError,
     },
     /// The stored robot model no longer parses.
-    #[error("campaign {id}: its stored robot model: {source}")]
+    #[error("campaign {id}: its stored robot model: {cause}")]
     Robot {
         /// Campaign id.
         id: i64,
         /// The parse error.
-        source: RobotFileError,
+        cause: RobotFileError,
     },
     /// An imported campaign without a stored robot model.
     #[error("campaign {0} has no stored robot model: give one")]
@@ -52,12 +52,12 @@ pub enum StoredError {
         message: String,
     },
     /// The stored result does not fit the stored robot model.
-    #[error("campaign {id}: its corrected model: {source}")]
+    #[error("campaign {id}: its corrected model: {cause}")]
     Model {
         /// Campaign id.
         id: i64,
         /// What does not fit.
-        source: ModelFileError,
+        cause: ModelFileError,
     },
 }
 
@@ -107,7 +107,7 @@ pub fn load_stored(
     let row = store.campaign(id)?;
     let label = PathBuf::from(format!("campaign {id}.toml"));
     let mut cfg = parse_cell_config(&row.config_toml, &label)
-        .map_err(|source| StoredError::Config { id, source })?;
+        .map_err(|cause| StoredError::Config { id, cause })?;
     if row.config_toml.trim().is_empty() {
         // an imported campaign: its recorded model (an unknown name keeps the default, `op`)
         if let Ok(m) = row.model.parse() {
@@ -118,7 +118,7 @@ pub fn load_stored(
         Some(r) => r,
         None if row.robot_toml.trim().is_empty() => return Err(StoredError::NoRobot(id)),
         None => parse_robot(&row.robot_toml, Path::new("robot.toml"))
-            .map_err(|source| StoredError::Robot { id, source })?,
+            .map_err(|cause| StoredError::Robot { id, cause })?,
     };
     nominal.tool = Vector3::from(cfg.campaign.tool_mm);
     let setup = SetupResult::load(store, id)?;
@@ -201,5 +201,5 @@ pub fn stored_model_toml(store: &Store, id: i64) -> Result<Option<String>, Store
     ];
     corrected_model_toml(&result, &c.nominal, &provenance, base)
         .map(Some)
-        .map_err(|source| StoredError::Model { id, source })
+        .map_err(|cause| StoredError::Model { id, cause })
 }

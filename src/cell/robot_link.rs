@@ -77,8 +77,10 @@ pub enum RobotSecretError {
     NotSet,
     /// The file is missing, open to every user, or not 64 hex digits.
     #[error("robot_controller.secret_file: {0}")]
-    File(#[from] SecretError),
+    File(SecretError),
 }
+
+from_cause!(SecretError => RobotSecretError::File);
 
 /// The secret shared with the robot controller: read from `[robot_controller] secret_file`
 /// (required for a real controller); a simulated controller without one gets a fresh random

@@ -21,6 +21,30 @@ pub mod stored;
 mod tests;
 pub mod token;
 
+/// Set once stdout is found closed or broken: later output is dropped.
+static STDOUT_GONE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Write `args` to stdout and flush: what `print!`/`println!` do in every command (main.rs
+/// shadows them). A closed stdout (EPIPE: the reader, e.g. `head`, went away) is no failure:
+/// the output is dropped and the command goes on (it still writes its files and exits with its
+/// own code; `serve` keeps serving; SIGPIPE stays ignored, so a device's or client's closed
+/// socket is an error, never the process's death); any other write error is said once on
+/// stderr.
+pub fn print_out(args: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    use std::sync::atomic::Ordering;
+    if STDOUT_GONE.load(Ordering::Relaxed) {
+        return;
+    }
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_fmt(args).and_then(|()| out.flush()) {
+        if !STDOUT_GONE.swap(true, Ordering::Relaxed) && e.kind() != std::io::ErrorKind::BrokenPipe
+        {
+            eprintln!("cellcal: cannot write to stdout ({e}); the rest of its output is dropped");
+        }
+    }
+}
+
 /// A failure and its exit code (2 = bad input, 1 = anything else, 3 = a poor result).
 pub struct Failure(pub u8, pub anyhow::Error);
 

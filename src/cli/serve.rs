@@ -1,5 +1,6 @@
 //! `cellcal serve`: the campaign daemon of one cell and its REST API.
 
+use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -18,8 +19,9 @@ pub struct ServeArgs {
     /// Cell configuration file (TOML).
     #[arg(long, default_value = "config/cell.sim.toml")]
     config: PathBuf,
-    /// Address to listen on (`127.0.0.1:0` picks a free port; the line `listening on
-    /// http://ADDR` tells which).
+    /// Address to listen on: `IP:PORT` or `HOST:PORT` (`localhost:8080`; a name is resolved,
+    /// its first IPv4 address taken, else its first; a loopback address needs no token).
+    /// `127.0.0.1:0` picks a free port; the line `listening on http://ADDR` tells which.
     #[arg(long, default_value = "127.0.0.1:8080")]
     listen: String,
     /// Store file (default: `store` of the configuration).
@@ -30,6 +32,40 @@ pub struct ServeArgs {
     /// request answered 4xx/5xx; never a token.
     #[arg(long, value_parser = ["text", "json"], default_value = "text")]
     pub log_format: String,
+}
+
+/// The address `--listen` names, and its host name when it gave one: `IP:PORT`, or
+/// `HOST:PORT` resolved (of several addresses the first IPv4 one, else the first; `localhost`
+/// is the loopback address). The exposure rules ([`access::check_exposure`]) are judged on
+/// the address bound, so a name that resolves to a public address needs tokens like the
+/// address itself.
+fn listen_addr(listen: &str) -> Result<(SocketAddr, Option<String>), Failure> {
+    if let Ok(addr) = listen.parse() {
+        return Ok((addr, None));
+    }
+    let bad = |why: String| {
+        input(anyhow!(
+            "--listen `{listen}`: {why}; give IP:PORT or HOST:PORT (e.g. 127.0.0.1:8080, \
+             localhost:8080, 0.0.0.0:8080)"
+        ))
+    };
+    let Some((host, port)) = listen.rsplit_once(':') else {
+        return Err(bad("no port".into()));
+    };
+    if port.parse::<u16>().is_err() {
+        return Err(bad(format!("`{port}` is not a port number (0 to 65535)")));
+    }
+    let addrs: Vec<SocketAddr> = listen
+        .to_socket_addrs()
+        .map_err(|e| bad(format!("cannot resolve `{host}`: {e}")))?
+        .collect();
+    let addr = addrs
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addrs.first())
+        .copied()
+        .ok_or_else(|| bad(format!("`{host}` resolves to no address")))?;
+    Ok((addr, Some(host.to_ascii_lowercase())))
 }
 
 /// `cellcal serve`: the campaign daemon and its REST API until Ctrl-C / SIGTERM.
@@ -44,10 +80,10 @@ pub fn run(a: ServeArgs) -> Result<(), Failure> {
     let cfg = load_cell_config(config).map_err(input)?;
     // the controller's secret is checked now, not at the first campaign (a 5xx then)
     drop(cellcal::cell::controller_secret(&cfg.robot_controller).map_err(input)?);
-    let addr: std::net::SocketAddr = listen
-        .parse()
-        .map_err(|e| input(anyhow!("--listen `{listen}`: {e}")))?;
-    let api_cfg = cfg.api.clone();
+    let (addr, host) = listen_addr(listen)?;
+    let mut api_cfg = cfg.api.clone();
+    // the name it was told to listen on is a Host the page may be opened with
+    api_cfg.allowed_hosts.extend(host);
     access::check_exposure(addr, &api_cfg)?;
     let tls = match &api_cfg.tls {
         Some((cert, key)) => Some(api::tls::server_config(cert, key).map_err(input)?),

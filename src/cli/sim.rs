@@ -75,7 +75,6 @@ pub struct SimCellArgs {
 /// stop signal.
 pub fn run(a: SimCellArgs) -> Result<(), Failure> {
     let config = a.config.as_path();
-    use std::io::Write;
     let text = std::fs::read_to_string(config)
         .with_context(|| format!("{}: cannot read", config.display()))
         .map_err(input)?;
@@ -98,7 +97,6 @@ pub fn run(a: SimCellArgs) -> Result<(), Failure> {
             .await
             .with_context(|| format!("{}: [sim]", config.display()))
             .map_err(input)?;
-        let mut out = std::io::stdout().lock();
         let mut lines = vec![
             format!("tracker {}", cell.tracker_addr),
             format!("robot {}", cell.robot_addr),
@@ -107,11 +105,10 @@ pub fn run(a: SimCellArgs) -> Result<(), Failure> {
         if let Some(g) = &cell.gauge_path {
             lines.push(format!("gauge {g}"));
         }
+        // a closed stdout does not stop the cell (main.rs' `println!`)
         for l in lines {
-            writeln!(out, "{l}").map_err(other)?;
+            println!("{l}");
         }
-        out.flush().map_err(other)?;
-        drop(out);
         let mut stopping = cell.stopping();
         let _ = stopping.wait_for(|v| *v).await;
         cell.stop().await;

@@ -619,9 +619,9 @@ impl CellConfig {
 
 /// Load and validate a cell configuration file.
 pub fn load_cell_config(path: &Path) -> Result<CellConfig, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Read {
         path: path.to_owned(),
-        source,
+        cause,
     })?;
     parse_cell_config(&text, path)
 }

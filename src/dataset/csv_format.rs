@@ -69,6 +69,19 @@ pub enum CsvError {
     /// A header but no data rows.
     #[error("the file has a header but no data rows")]
     NoRows,
+    /// The header row is separated by another character than the comma (a spreadsheet in a
+    /// decimal-comma locale writes `;`), so it is one column.
+    #[error(
+        "line {line}: the header row is separated by {found}, not by commas: this format is \
+         comma-separated with a decimal point (`set,q1,…`, `0.25`); save the file as CSV with \
+         `,` between columns and `.` in numbers (in a spreadsheet: a locale with a decimal point)"
+    )]
+    Delimiter {
+        /// The line of the header row (1-based).
+        line: usize,
+        /// The separator found, for people: `` `;` (semicolon) ``, `` a tab ``, `` `|` ``.
+        found: &'static str,
+    },
     /// A required column is missing.
     #[error("missing column `{0}`")]
     MissingColumn(String),
@@ -524,16 +537,27 @@ pub(super) fn header(
     if headers.is_empty() || (headers.len() == 1 && headers[0].trim().is_empty()) {
         return Err(CsvError::Empty);
     }
-    let names = headers
+    let names: Vec<String> = headers
         .iter()
         .map(|h| h.trim().to_ascii_lowercase())
         .collect();
-    let cols = Columns::find(names, dof, required)?;
     let body_start = usize::try_from(rdr.position().byte())
         .ok()
         .filter(|&b| text.is_char_boundary(b))
         .unwrap_or(text.len());
     let lines_before = newlines(&text.as_bytes()[..body_start]);
+    if let [one] = names.as_slice() {
+        let other = [(';', "`;` (semicolon)"), ('\t', "a tab"), ('|', "`|`")]
+            .into_iter()
+            .find(|(c, _)| one.contains(*c));
+        if let Some((_, found)) = other {
+            return Err(CsvError::Delimiter {
+                line: lines_before,
+                found,
+            });
+        }
+    }
+    let cols = Columns::find(names, dof, required)?;
     Ok((cols, body_start, lines_before))
 }
 

@@ -156,7 +156,9 @@ fn shifted(e: CsvError, lines: usize) -> CsvError {
         | CsvError::BadSetup { line, .. }
         | CsvError::DuplicateSetup { line, .. }
         | CsvError::Malformed { line, .. } => *line += lines,
-        CsvError::Empty
+        // the header row's, read from the file's start
+        CsvError::Delimiter { .. }
+        | CsvError::Empty
         | CsvError::NoRows
         | CsvError::MissingColumn(_)
         | CsvError::DuplicateColumn(_) => {}

@@ -59,8 +59,10 @@ pub enum BaseRegistrationError {
     NotFinite(usize),
     /// Too few or collinear points.
     #[error("base registration: {0}")]
-    Rigid(#[from] RigidFitError),
+    Rigid(RigidFitError),
 }
+
+from_cause!(RigidFitError => BaseRegistrationError::Rigid);
 
 /// Nominal ball position (robot base frame: flange · tool, base not applied).
 fn nominal_ball(model: &RobotModel, q: &[f64]) -> Vector3<f64> {

@@ -144,13 +144,12 @@ pub enum ToolFramePlanError {
     #[error("tool-frame plan: {0}")]
     InvalidRequest(String),
     /// A target has no inverse-kinematics solution from the home pose.
-    #[error("tool-frame plan: target {label}: {source}")]
+    #[error("tool-frame plan: target {label}: {cause}")]
     Ik {
         /// Label of the target.
         label: String,
         /// Why the inverse kinematics failed.
-        #[source]
-        source: IkError,
+        cause: IkError,
     },
 }
 
@@ -212,9 +211,9 @@ pub fn plan_tool_frame(
                 }
                 _ => {
                     solve_motion(model, q0, &mark.motion(), &req.ik)
-                        .map_err(|source| ToolFramePlanError::Ik {
+                        .map_err(|cause| ToolFramePlanError::Ik {
                             label: mark.label(),
-                            source,
+                            cause,
                         })?
                         .q
                 }
@@ -319,8 +318,10 @@ pub enum ToolFrameError {
     },
     /// The sphere fit failed (too few or degenerate rotation points).
     #[error("tool frame: {0}")]
-    Sphere(#[from] SphereFitError),
+    Sphere(SphereFitError),
 }
+
+from_cause!(SphereFitError => ToolFrameError::Sphere);
 
 /// Least-squares line through `(offset, point)`: slope (mm/mm) and RMS distance from the line.
 fn jog_line(points: &[(f64, Vector3<f64>)]) -> Option<(Vector3<f64>, Vec<f64>)> {

@@ -17,12 +17,12 @@ use toml::Value;
 #[derive(Debug, thiserror::Error)]
 pub enum FileError {
     /// The file could not be read.
-    #[error("{path}: cannot read: {source}")]
+    #[error("{path}: cannot read: {cause}")]
     Read {
         /// File path.
         path: PathBuf,
         /// Underlying I/O error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// TOML syntax or schema error (unknown key, wrong type, missing key).
     #[error("{path}: {message}")]

@@ -68,9 +68,9 @@ pub type RobotFileError = FileError;
 
 /// Load a robot model file.
 pub fn load_robot(path: &Path) -> Result<RobotModel, RobotFileError> {
-    let text = std::fs::read_to_string(path).map_err(|source| RobotFileError::Read {
+    let text = std::fs::read_to_string(path).map_err(|cause| RobotFileError::Read {
         path: path.to_owned(),
-        source,
+        cause,
     })?;
     parse_robot(&text, path)
 }

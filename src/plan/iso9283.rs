@@ -132,8 +132,10 @@ pub enum IsoPlanError {
     },
     /// A move of the campaign has no route.
     #[error("ISO campaign: no route: {0}")]
-    Route(#[from] RouteError),
+    Route(RouteError),
 }
+
+from_cause!(RouteError => IsoPlanError::Route);
 
 /// The five commanded positions P1…P5 (mm, robot base frame) of the cube.
 pub fn iso_positions(center: &Vector3<f64>, edge_mm: f64, fraction: f64) -> [Vector3<f64>; 5] {

@@ -24,8 +24,10 @@ pub enum PlanError {
     },
     /// A move of the plan has no route (see [`super::route`]).
     #[error("no route: {0}")]
-    Route(#[from] super::route::RouteError),
+    Route(super::route::RouteError),
 }
+
+from_cause!(super::route::RouteError => PlanError::Route);
 
 /// Sample `n` configurations uniformly in the joint limits, keeping those the workspace accepts.
 pub fn sample_poses<R: Rng>(

@@ -50,12 +50,12 @@ pub enum SimError {
         message: String,
     },
     /// Binding a port or creating a pty failed.
-    #[error("{what}: {source}")]
+    #[error("{what}: {cause}")]
     Io {
         /// What was being done.
         what: String,
         /// The I/O error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
 }
 
@@ -217,9 +217,9 @@ async fn stopped(mut rx: watch::Receiver<bool>) {
 async fn bind(port: u16, what: &str) -> Result<TcpListener, SimError> {
     TcpListener::bind(("127.0.0.1", port))
         .await
-        .map_err(|source| SimError::Io {
+        .map_err(|cause| SimError::Io {
             what: format!("{what}: cannot bind 127.0.0.1:{port}"),
-            source,
+            cause,
         })
 }
 
@@ -287,9 +287,9 @@ pub async fn start_cell_with(
     let stage_pty = match &stage_sim {
         Some(sim) => {
             Some(
-                zaber::pty::spawn_stage_pty(sim.clone()).map_err(|source| SimError::Io {
+                zaber::pty::spawn_stage_pty(sim.clone()).map_err(|cause| SimError::Io {
                     what: "stage: cannot open a pty".into(),
-                    source,
+                    cause,
                 })?,
             )
         }
@@ -431,9 +431,9 @@ fn robot_faults(cfg: &SimWorldConfig) -> robotlink::FaultHandle {
 }
 
 fn local_addr(l: &TcpListener, what: &str) -> Result<SocketAddr, SimError> {
-    l.local_addr().map_err(|source| SimError::Io {
+    l.local_addr().map_err(|cause| SimError::Io {
         what: format!("{what}: local address"),
-        source,
+        cause,
     })
 }
 
@@ -444,9 +444,9 @@ fn gauge_on_pty(
     let w = world.clone();
     let sim = GaugeSim::new(Arc::new(move || lock_world(&w).stage_true_mm()));
     let faults = sim.faults.clone();
-    let pty = zaber::pty::spawn_gauge_pty(sim).map_err(|source| SimError::Io {
+    let pty = zaber::pty::spawn_gauge_pty(sim).map_err(|cause| SimError::Io {
         what: "gauge: cannot open a pty".into(),
-        source,
+        cause,
     })?;
     Ok((pty, faults))
 }

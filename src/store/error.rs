@@ -2,18 +2,17 @@
 
 /// What can go wrong in the campaign store.
 ///
-/// Display strings are short; the SQLite cause is the error's `source()` (print with `{:#}`
-/// through anyhow to see the chain).
+/// Each message names its cause (the SQLite or I/O error) and gives no `source()`: printed
+/// with its causes the cause appears once, and `to_string()` has the whole message.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     /// SQLite failed while doing `op`.
-    #[error("campaign store: {op}")]
+    #[error("campaign store: {op}: {cause}")]
     Sqlite {
         /// The operation that failed (e.g. "commit pose").
         op: &'static str,
         /// The SQLite error.
-        #[source]
-        source: rusqlite::Error,
+        cause: rusqlite::Error,
     },
     /// No campaign has this id.
     #[error("no campaign with id {0}")]
@@ -65,13 +64,12 @@ pub enum StoreError {
         known: i64,
     },
     /// The database file cannot be created.
-    #[error("cannot create the campaign database {path}")]
+    #[error("cannot create the campaign database {path}: {cause}")]
     File {
         /// The file.
         path: std::path::PathBuf,
         /// What failed.
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// A stored value cannot be parsed back (edited or damaged database).
     #[error("corrupt value in the campaign database: {0}")]
@@ -93,6 +91,6 @@ pub(crate) trait Ctx<T> {
 
 impl<T> Ctx<T> for Result<T, rusqlite::Error> {
     fn ctx(self, op: &'static str) -> Result<T, StoreError> {
-        self.map_err(|source| StoreError::Sqlite { op, source })
+        self.map_err(|cause| StoreError::Sqlite { op, cause })
     }
 }

@@ -25,8 +25,10 @@ impl std::fmt::Display for LockHolder {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "pid {} on host {} (since {} ms after the epoch)",
-            self.pid, self.host, self.acquired_at_ms
+            "pid {} on host {} (since {})",
+            self.pid,
+            self.host,
+            crate::wall_clock::local_text(self.acquired_at_ms)
         )
     }
 }

@@ -186,9 +186,9 @@ fn create_private(path: &Path) -> Result<(), StoreError> {
         .create_new(true)
         .mode(0o600)
         .open(path);
-    let io = |source| StoreError::File {
+    let io = |cause| StoreError::File {
         path: path.to_owned(),
-        source,
+        cause,
     };
     match created {
         Ok(f) => f

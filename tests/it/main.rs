@@ -22,6 +22,7 @@ mod http_limits;
 mod identifiability;
 mod iso9283;
 mod journal;
+mod messages;
 mod model_out;
 mod paper;
 mod paths;

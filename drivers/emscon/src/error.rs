@@ -45,7 +45,15 @@ pub enum EmsconError {
     Disconnected,
     /// I/O error while connecting or writing.
     #[error("i/o error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+/// The message prints the I/O error, so it is not also the `source()` (printed with its
+/// causes, it would appear twice).
+impl From<std::io::Error> for EmsconError {
+    fn from(cause: std::io::Error) -> Self {
+        EmsconError::Io(cause)
+    }
 }
 
 impl From<CodecError> for EmsconError {

@@ -38,12 +38,12 @@ type HmacSha256 = Hmac<Sha256>;
 #[derive(Debug, thiserror::Error)]
 pub enum SecretError {
     /// The file could not be read.
-    #[error("{path}: cannot read the shared secret: {source}")]
+    #[error("{path}: cannot read the shared secret: {cause}")]
     Read {
         /// The file.
         path: String,
         /// The I/O error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The file is readable (or writable) by every user of the machine.
     #[error(
@@ -132,9 +132,9 @@ impl SharedSecret {
     /// of the machine may read or write it (any "other" permission bit, Unix).
     pub fn read_file(path: &Path) -> Result<SharedSecret, SecretError> {
         let shown = path.display().to_string();
-        let read = |source| SecretError::Read {
+        let read = |cause| SecretError::Read {
             path: shown.clone(),
-            source,
+            cause,
         };
         let meta = std::fs::metadata(path).map_err(read)?;
         #[cfg(unix)]

@@ -71,7 +71,15 @@ pub enum RobotError {
     OldServer(String),
     /// Transport error while connecting.
     #[error("i/o error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+/// The message prints the I/O error, so it is not also the `source()` (printed with its
+/// causes, it would appear twice).
+impl From<std::io::Error> for RobotError {
+    fn from(cause: std::io::Error) -> Self {
+        RobotError::Io(cause)
+    }
 }
 
 impl RobotError {

@@ -41,7 +41,15 @@ pub enum GaugeError {
     Disconnected,
     /// I/O error.
     #[error("i/o error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+/// The message prints the I/O error, so it is not also the `source()` (printed with its
+/// causes, it would appear twice).
+impl From<std::io::Error> for GaugeError {
+    fn from(cause: std::io::Error) -> Self {
+        GaugeError::Io(cause)
+    }
 }
 
 /// Gauge configuration.

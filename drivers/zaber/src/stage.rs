@@ -57,7 +57,7 @@ pub enum StageError {
     Disconnected,
     /// I/O error (opening or using the port).
     #[error("i/o error: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
     /// The axis stopped on a limit sensor it did not expect (`WL`): a stage fault.
     #[error("unexpected limit trigger (WL): the axis stopped on a limit sensor")]
     UnexpectedLimit,
@@ -94,6 +94,14 @@ pub enum StageError {
     /// A configuration value is unusable (e.g. a non-positive or NaN microsteps_per_mm).
     #[error("invalid stage configuration: {0}")]
     InvalidConfig(String),
+}
+
+/// The message prints the I/O error, so it is not also the `source()` (printed with its
+/// causes, it would appear twice).
+impl From<std::io::Error> for StageError {
+    fn from(cause: std::io::Error) -> Self {
+        StageError::Io(cause)
+    }
 }
 
 /// Largest accepted relative difference between a configured `microsteps_per_mm` and the
