@@ -130,7 +130,7 @@ impl std::fmt::Display for CellHolder {
             f,
             ", store {}, since {})",
             self.store,
-            crate::wall_clock::local_text(self.acquired_at_ms)
+            crate::units::human::fmt_local_time(self.acquired_at_ms)
         )
     }
 }

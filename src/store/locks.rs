@@ -28,7 +28,7 @@ impl std::fmt::Display for LockHolder {
             "pid {} on host {} (since {})",
             self.pid,
             self.host,
-            crate::wall_clock::local_text(self.acquired_at_ms)
+            crate::units::human::fmt_local_time(self.acquired_at_ms)
         )
     }
 }
