@@ -99,7 +99,8 @@ impl Default for TrackerSection {
 pub struct RobotSection {
     /// `sim` or `real`.
     pub mode: DeviceMode,
-    /// robotlink server address (real mode).
+    /// robotlink server address (real mode), `host:port`; the controller application listens
+    /// on [`robotlink::DEFAULT_PORT`] (11100) unless the site set another port on the pendant.
     pub address: String,
     /// Speed (percent of the controller's maximum).
     pub speed_pct: f64,
@@ -126,7 +127,7 @@ impl Default for RobotSection {
     fn default() -> Self {
         RobotSection {
             mode: DeviceMode::Sim,
-            address: "127.0.0.1:11000".into(),
+            address: format!("127.0.0.1:{}", robotlink::DEFAULT_PORT),
             speed_pct: 20.0,
             settle_timeout_ms: 60_000,
             max_attempts: 3,
@@ -698,17 +699,26 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     })
 }
 
-/// Parse the `[sim]` table of a cell configuration alone (`cellcal sim`: the other tables are
-/// not read, but every number of the file is finite) with the rules of [`parse_cell_config`].
+/// Parse the `[sim]` table of a cell configuration with its `[stage]` (`cellcal sim`: the
+/// simulated stage follows `stage.kind` and the Zaber address as in [`parse_cell_config`]; the
+/// other tables are not read, but every number of the file is finite) with the rules of
+/// [`parse_cell_config`].
 pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, ConfigError> {
     /// The part of a cell configuration file that `cellcal sim` reads.
     #[derive(Deserialize, Serialize)]
     struct SimFile {
         #[serde(default)]
+        stage: StageSection,
+        #[serde(default)]
         sim: SimWorldConfig,
     }
     let f: SimFile = parse_checked(text, path)?;
-    simulated_world(f.sim, &StageSection::default(), path)
+    f.stage.check().map_err(|e| ConfigError::Invalid {
+        path: path.to_owned(),
+        key: e.key,
+        message: e.message,
+    })?;
+    simulated_world(f.sim, &f.stage, path)
 }
 
 /// The checked `[sim]` world of the cell: its rules, its `errors` file resolved against the
@@ -734,7 +744,9 @@ fn simulated_world(
         rule(
             sim.stage_mode == super::sim::StageMode::Zaber,
             "sim.stage_mode",
-            "`manual` contradicts stage.kind = \"serial\" (the simulated stage follows [stage])",
+            "`manual` contradicts stage.kind = \"serial\": the simulated stage follows [stage]. \
+             For a manual stage set stage.kind = \"manual\" (or \"manual_gauge\") and delete \
+             sim.stage_mode; for a Zaber stage delete sim.stage_mode",
         )
         .map_err(invalid)?;
         if stage.mode == DeviceMode::Sim {
