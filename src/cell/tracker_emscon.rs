@@ -340,12 +340,17 @@ impl Tracker for EmsconTracker {
         } else {
             "no reflector locked (put the ball in the beam before arming)"
         };
-        Ok(format!(
-            "{identity}; {init}; {reflector}; weather monitor status {} (arming sets {}: \
-             T, P, H read by the tracker, refraction computed)",
-            status.weather_monitor_status,
-            emscon::SystemSettings::default().weather_monitor_status
-        ))
+        let wanted = emscon::SystemSettings::default().weather_monitor_status;
+        let weather = if status.weather_monitor_status == wanted {
+            format!("weather station on (status {wanted}: T, P, H read, refraction computed)")
+        } else {
+            format!(
+                "weather monitor status {} (arming sets {wanted}: T, P, H read, refraction \
+                 computed)",
+                status.weather_monitor_status
+            )
+        };
+        Ok(format!("{identity}; {init}; {reflector}; {weather}"))
     }
 
     fn identity(&self) -> Option<String> {

@@ -1461,6 +1461,38 @@ mod tests {
     }
 
     #[test]
+    fn the_simulated_stage_follows_stage_kind_in_cellcal_sim_too() {
+        let p = Path::new("/etc/cellcal/cell.toml");
+        // one key decides: a manual stage.kind makes the simulated stage manual
+        let sim = parse_sim_config(
+            "[stage]\nkind = \"manual\"\ndevice_address = 2\n[sim]\nstage_mode = \"zaber\"\n",
+            p,
+        )
+        .expect("manual");
+        assert_eq!(sim.stage_mode, super::super::sim::StageMode::Manual);
+        assert_eq!(sim.stage_address, (2, 1));
+        // the other way round is refused, naming both keys and the fix
+        for e in [
+            parse_sim_config("[sim]\nstage_mode = \"manual\"\n", p),
+            parse_cell_config("[sim]\nstage_mode = \"manual\"\n", p).map(|c| c.sim.unwrap()),
+        ] {
+            let e = e.unwrap_err().to_string();
+            assert!(
+                e.contains("sim.stage_mode")
+                    && e.contains("stage.kind = \"serial\"")
+                    && e.contains("set stage.kind = \"manual\"")
+                    && e.contains("delete sim.stage_mode"),
+                "{e}"
+            );
+        }
+        // [stage] by the same strict rules
+        let e = parse_sim_config("[stage]\nbogus = 1\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bogus"), "{e}");
+    }
+
+    #[test]
     fn wrong_type_named() {
         let e = parse_cell_config("[campaign]\nposes = \"many\"\n", Path::new("c.toml"))
             .unwrap_err()

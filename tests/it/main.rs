@@ -16,6 +16,7 @@ mod deploy;
 mod device_config;
 mod frame_first;
 mod frames;
+mod hardware_doc;
 mod house;
 mod http_limits;
 mod identifiability;
