@@ -669,21 +669,37 @@ fn stage_device(
             Box::new(ZaberStageAdapter::new(device.with_section(&cfg.stage)))
         }
         StageMode::Manual | StageMode::ManualGauge => {
-            let asker = match (sim, cfg.stage.mode) {
-                // the simulated micrometer follows the technician's answers
-                (Some(s), DeviceMode::Sim) => {
-                    Arc::new(SimTechnician::new(prompter, s.world.clone())) as Arc<dyn Prompter>
-                }
-                _ => prompter,
+            let manual = ManualStageConfig {
+                tolerance_mm: cfg.stage.tolerance_mm,
+                max_tries: cfg.stage.max_tries,
+                confirm_clear: cfg.stage.confirm_clear(),
             };
-            Box::new(ManualStage::new(
-                asker,
-                ManualStageConfig {
-                    tolerance_mm: cfg.stage.tolerance_mm,
-                    max_tries: cfg.stage.max_tries,
-                    confirm_clear: cfg.stage.confirm_clear(),
-                },
-            ))
+            match (sim, cfg.stage.mode) {
+                // the simulated micrometer follows the technician's answers (typed readings:
+                // the simulated cell has no gauge that follows a confirmation)
+                (Some(s), DeviceMode::Sim) => Box::new(ManualStage::new(
+                    Arc::new(SimTechnician::new(prompter, s.world.clone())),
+                    manual,
+                )),
+                _ if cfg.stage.kind == StageMode::ManualGauge => {
+                    let gauge = ManualStage::with_gauge_port(
+                        prompter,
+                        &cfg.stage.gauge_path,
+                        zaber::GaugeConfig::default(),
+                        manual,
+                    )
+                    .map_err(|e| {
+                        SessionError::Invalid(format!(
+                            "{}: stage.gauge_path: {} (stage.kind = \"manual_gauge\" reads the \
+                             micrometer there)",
+                            cfg.path.display(),
+                            e.message
+                        ))
+                    })?;
+                    Box::new(gauge)
+                }
+                _ => Box::new(ManualStage::new(prompter, manual)),
+            }
         }
     })
 }

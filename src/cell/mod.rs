@@ -154,11 +154,26 @@ pub trait Tracker: Send + Sync {
     /// Drop and re-establish the connection, then prepare again. Must be cancel-safe (see the
     /// trait): a dropped call leaves no connection or a complete one.
     async fn reconnect(&mut self) -> Result<(), CellError>;
+    /// Connect if needed and report what the tracker says without moving its head (no
+    /// Initialize, no search, no measurement): one line for the operator (`cellcal run`
+    /// without `--arm`). Must be cancel-safe (see the trait).
+    async fn check(&mut self) -> Result<String, CellError> {
+        Err(cannot_check(DeviceKind::Tracker))
+    }
     /// What the device said it is at its last successful connection (model, serial, firmware),
     /// for the campaign journal and the report; `None` before one or when it cannot say.
     fn identity(&self) -> Option<String> {
         None
     }
+}
+
+/// The refusal of a device that has no check without motion.
+fn cannot_check(device: DeviceKind) -> CellError {
+    CellError::new(
+        device,
+        FaultKind::Device,
+        "this device cannot be checked without motion",
+    )
 }
 
 /// A robot controller.
@@ -188,6 +203,12 @@ pub trait Robot: Send + Sync {
     /// Must be cancel-safe (see the trait): a dropped call leaves no connection or a complete
     /// one.
     async fn reconnect(&mut self) -> Result<(), CellError>;
+    /// Connect if needed and report what the controller says without power or motion (its
+    /// identity, STATE, the joints): one line for the operator (`cellcal run` without
+    /// `--arm`). Must be cancel-safe (see the trait).
+    async fn check(&mut self) -> Result<String, CellError> {
+        Err(cannot_check(DeviceKind::Robot))
+    }
     /// What the device said it is at its last successful connection (model, serial, firmware),
     /// for the campaign journal and the report; `None` before one or when it cannot say.
     fn identity(&self) -> Option<String> {
@@ -218,6 +239,12 @@ pub trait Stage: Send + Sync {
     /// [`Stage::move_to`]; the engine bounds it with a timeout.
     async fn stop(&mut self) -> Result<(), CellError> {
         Ok(())
+    }
+    /// Open the device if needed and report what it says without any motion (no homing):
+    /// one line for the operator (`cellcal run` without `--arm`). Must be cancel-safe (see
+    /// the trait).
+    async fn check(&mut self) -> Result<String, CellError> {
+        Err(cannot_check(DeviceKind::Stage))
     }
     /// Whether a person may have a hand at the stage after a [`Stage::move_to`] (a manual
     /// stage), so that no robot motion may follow before [`Stage::confirm_clear`].

@@ -15,7 +15,8 @@ use crate::config::{DeviceMode, RobotSection};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LinkRobotConfig {
-    /// Server address, `host:port` (the VAL3 app listens on 11100 by default).
+    /// Server address, `host:port` (the VAL3 app listens on [`robotlink::DEFAULT_PORT`],
+    /// 11100, unless the site set another port on the pendant).
     pub address: String,
     /// TCP connect timeout (ms).
     pub connect_timeout_ms: u64,
@@ -31,7 +32,7 @@ pub struct LinkRobotConfig {
 impl Default for LinkRobotConfig {
     fn default() -> Self {
         LinkRobotConfig {
-            address: "127.0.0.1:11100".into(),
+            address: format!("127.0.0.1:{}", robotlink::DEFAULT_PORT),
             connect_timeout_ms: 5000,
             request_timeout_ms: 5000,
             wait_margin_ms: 2000,
@@ -281,6 +282,29 @@ impl Robot for LinkRobot {
         self.client = Some(client);
         self.identity = Some(identity);
         Ok(())
+    }
+
+    /// Connect and authenticate if needed, then `STATE` and `JOINTS`: no `POWER`, `SPEED` or
+    /// motion. Cancel-safe (driver requests are).
+    async fn check(&mut self) -> Result<String, CellError> {
+        self.ensure_connected().await?;
+        let c = self.connected()?;
+        let st = c.state().await.map_err(cell_err)?;
+        let joints = c.joints().await.map_err(cell_err)?;
+        let joints: Vec<String> = joints.iter().map(|d| format!("{d:.3}")).collect();
+        Ok(format!(
+            "{}; power {}, mode {}, e-stop {}, {}; joints [{}] deg",
+            self.identity.as_deref().unwrap_or("robotlink controller"),
+            if st.power { "on" } else { "off" },
+            st.mode,
+            if st.estop { "PRESSED" } else { "clear" },
+            if st.moving {
+                "MOVING"
+            } else {
+                "standing still"
+            },
+            joints.join(", ")
+        ))
     }
 
     fn identity(&self) -> Option<String> {

@@ -243,6 +243,26 @@ impl Stage for ManualStage {
         ))
     }
 
+    /// With a gauge: one reading; without: nothing to ask before the campaign. Cancel-safe:
+    /// it only reads the gauge.
+    async fn check(&mut self) -> Result<String, CellError> {
+        match self.gauge.as_mut() {
+            Some(g) => {
+                let v = g.read_mm().await.map_err(|e| {
+                    stage_err(classify_gauge(&e), format!("gauge not answering: {e}"))
+                })?;
+                Ok(format!(
+                    "manual micrometer read by its RS-232 gauge; the gauge reads {v:.3} mm"
+                ))
+            }
+            None => Ok(
+                "manual micrometer: the technician types its readings once the \
+                        campaign runs (nothing to check before)"
+                    .to_owned(),
+            ),
+        }
+    }
+
     fn identity(&self) -> Option<String> {
         Some(match self.gauge {
             Some(_) => "manual micrometer read by its RS-232 gauge".to_owned(),

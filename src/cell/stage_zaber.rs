@@ -252,6 +252,44 @@ impl Stage for ZaberStageAdapter {
         r.map_err(|e| self.after(e))
     }
 
+    /// Open the port, identify the device (its scale cross-checked as at prepare) and read its
+    /// position and warning flags: no homing, no move, no warning cleared. Cancel-safe for the
+    /// protocol.
+    async fn check(&mut self) -> Result<String, CellError> {
+        let stage = self.open()?;
+        let r = stage.identify().await;
+        let id = r.map_err(|e| self.after(e))?;
+        let stage = self.open()?;
+        let r = stage.command("get pos").await;
+        let reply = r.map_err(|e| self.after(e))?;
+        let steps: i64 = reply.data.trim().parse().map_err(|_| {
+            CellError::new(
+                DeviceKind::Stage,
+                FaultKind::Protocol,
+                format!("get pos: not a position: {:?}", reply.data),
+            )
+        })?;
+        let identity = format!(
+            "Zaber {} (device.id {}, peripheral.id {}), serial {}, firmware {}",
+            id.product.unwrap_or("stage of configured scale"),
+            id.device_id,
+            id.peripheral_id,
+            id.serial,
+            id.firmware
+        );
+        self.identity = Some(identity.clone());
+        let flags = match reply.warning.as_str() {
+            "--" => "no warning".to_owned(),
+            "WR" => "not homed (arming homes it: the stage moves)".to_owned(),
+            w => format!("warning flag {w}"),
+        };
+        Ok(format!(
+            "{identity}; {:.3} microsteps/mm; at {:.3} mm; {flags}",
+            id.microsteps_per_mm,
+            steps as f64 / id.microsteps_per_mm
+        ))
+    }
+
     fn identity(&self) -> Option<String> {
         self.identity.clone()
     }

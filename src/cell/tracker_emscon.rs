@@ -310,6 +310,49 @@ impl Tracker for EmsconTracker {
         self.connect_and_setup().await
     }
 
+    /// GetSystemStatus and GetMeasurementStatusInfo on the open connection (or a new one,
+    /// kept): nothing that moves the head. Cancel-safe: the client is taken out meanwhile, so a
+    /// drop closes the connection.
+    async fn check(&mut self) -> Result<String, CellError> {
+        let client = match self.client.take() {
+            Some(c) if c.is_connected() => c,
+            old => {
+                if let Some(c) = old {
+                    c.close().await;
+                }
+                Client::connect(self.cfg.address.as_str(), self.cfg.client_config())
+                    .await
+                    .map_err(cell_err)?
+            }
+        };
+        let status = client.system_status().await.map_err(cell_err)?;
+        let found = client.measurement_status().await.map_err(cell_err)?;
+        self.client = Some(client);
+        let identity = status_identity(&status);
+        self.identity = Some(identity.clone());
+        let init = if status.is_initialized() {
+            "initialised"
+        } else {
+            "not initialised (arming initialises it: the head moves)"
+        };
+        let reflector = if found.reflector_found() {
+            "reflector locked"
+        } else {
+            "no reflector locked (put the ball in the beam before arming)"
+        };
+        let wanted = emscon::SystemSettings::default().weather_monitor_status;
+        let weather = if status.weather_monitor_status == wanted {
+            format!("weather station on (status {wanted}: T, P, H read, refraction computed)")
+        } else {
+            format!(
+                "weather monitor status {} (arming sets {wanted}: T, P, H read, refraction \
+                 computed)",
+                status.weather_monitor_status
+            )
+        };
+        Ok(format!("{identity}; {init}; {reflector}; {weather}"))
+    }
+
     fn identity(&self) -> Option<String> {
         self.identity.clone()
     }

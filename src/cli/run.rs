@@ -10,12 +10,13 @@ use anyhow::{anyhow, Context};
 use cellcal::campaign::iso::is_iso_campaign;
 use cellcal::campaign::session::{open_session, Resume, Session, SessionError};
 use cellcal::campaign::stored::{stored_model_toml, stored_result};
-use cellcal::campaign::{run_campaign, CampaignCommand, Control, FaultPolicy, Outcome};
+use cellcal::campaign::{run_campaign, CampaignCommand, Control, Devices, FaultPolicy, Outcome};
 use cellcal::cell::Prompter;
-use cellcal::config::{load_cell_config, CellConfig};
+use cellcal::config::{load_cell_config, CellConfig, DeviceMode, StageMode};
 use cellcal::iso9283::{format_table, IsoReport};
 use cellcal::progress::Progress;
 use cellcal::report::summary_text;
+use cellcal::sim::RunningSimCell;
 use cellcal::store::Store;
 
 use super::identify::{poor_is_exit_3, write_file};
@@ -136,11 +137,26 @@ async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Res
     let mut ctx = session.ctx;
     let id = ctx.campaign_id;
     if !opts.arm {
+        let mut devices = session.devices;
+        let places = device_places(&ctx.cfg, session.sim.as_ref());
+        let failed = check_devices(&mut devices, &places).await;
+        if let Some(sim) = session.sim {
+            sim.stop().await;
+        }
         println!(
             "campaign {id} is not armed: nothing moves. Run `cellcal run --config {} --store {} --campaign {id} --arm` to measure.",
             opts.config.display(),
             store_path.display()
         );
+        if !failed.is_empty() {
+            return Err(Failure(
+                1,
+                anyhow!(
+                    "device check failed: {}. Fix it before arming (docs/hardware.md)",
+                    failed.join(", ")
+                ),
+            ));
+        }
         return Ok(());
     }
     ctx.on_fault = on_fault;
@@ -187,6 +203,50 @@ async fn run_session(opts: RunArgs, cfg: CellConfig, store_path: PathBuf) -> Res
 
 /// How long the end of a run waits for the progress printer to write the final state's line.
 const PRINTER_DRAIN: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Where each device is reached: the simulated cell's address for a simulated one, else the
+/// configured address or serial device.
+fn device_places(cfg: &CellConfig, sim: Option<&RunningSimCell>) -> [String; 3] {
+    let simulated = |mode: DeviceMode| sim.filter(|_| mode == DeviceMode::Sim);
+    let tracker = match simulated(cfg.tracker.mode) {
+        Some(s) => s.tracker_addr.to_string(),
+        None => cfg.tracker.address.clone(),
+    };
+    let robot = match simulated(cfg.robot_controller.mode) {
+        Some(s) => s.robot_addr.to_string(),
+        None => cfg.robot_controller.address.clone(),
+    };
+    let stage = match (simulated(cfg.stage.mode), cfg.stage.kind) {
+        (Some(s), _) => s.stage_path.clone().unwrap_or_else(|| "manual".into()),
+        (None, StageMode::Serial) => cfg.stage.serial_path.clone(),
+        (None, StageMode::ManualGauge) => cfg.stage.gauge_path.clone(),
+        (None, StageMode::Manual) => "manual".into(),
+    };
+    [tracker, robot, stage]
+}
+
+/// Without `--arm`: connect to every device and print what it says, without any motion (no
+/// power, no homing, no tracker initialise or search); the devices whose check failed.
+/// Not cancel-safe (nothing needs it: it runs to its end before the process exits).
+async fn check_devices(devices: &mut Devices, places: &[String; 3]) -> Vec<&'static str> {
+    println!("checking the devices (nothing moves):");
+    let results = [
+        ("tracker", devices.tracker.check().await),
+        ("robot", devices.robot.check().await),
+        ("stage", devices.stage.check().await),
+    ];
+    let mut failed = Vec::new();
+    for ((name, r), place) in results.into_iter().zip(places) {
+        match r {
+            Ok(line) => println!("  {name} {place}: ok: {line}"),
+            Err(e) => {
+                println!("  {name} {place}: FAILED: {}", e.message);
+                failed.push(name);
+            }
+        }
+    }
+    failed
+}
 
 /// The campaign's first lines: planned or resumed, and the simulated cell's addresses.
 fn announce(session: &Session, store_path: &Path) {

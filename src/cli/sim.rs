@@ -65,8 +65,9 @@ fn sim_robot_secret(
 /// Arguments of `cellcal sim`.
 #[derive(clap::Args)]
 pub struct SimCellArgs {
-    /// Cell configuration file (TOML); only `[sim]`, the top-level `robot` and
-    /// `robot_controller.secret_file` are read.
+    /// Cell configuration file (TOML); only `[sim]`, `[stage]` (the simulated stage follows
+    /// its `kind` and Zaber address), the top-level `robot` and `robot_controller.secret_file`
+    /// are read.
     #[arg(long)]
     config: PathBuf,
 }

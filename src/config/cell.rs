@@ -99,7 +99,8 @@ impl Default for TrackerSection {
 pub struct RobotSection {
     /// `sim` or `real`.
     pub mode: DeviceMode,
-    /// robotlink server address (real mode).
+    /// robotlink server address (real mode), `host:port`; the controller application listens
+    /// on [`robotlink::DEFAULT_PORT`] (11100) unless the site set another port on the pendant.
     pub address: String,
     /// Speed (percent of the controller's maximum).
     pub speed_pct: f64,
@@ -126,7 +127,7 @@ impl Default for RobotSection {
     fn default() -> Self {
         RobotSection {
             mode: DeviceMode::Sim,
-            address: "127.0.0.1:11000".into(),
+            address: format!("127.0.0.1:{}", robotlink::DEFAULT_PORT),
             speed_pct: 20.0,
             settle_timeout_ms: 60_000,
             max_attempts: 3,
@@ -698,17 +699,26 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
     })
 }
 
-/// Parse the `[sim]` table of a cell configuration alone (`cellcal sim`: the other tables are
-/// not read, but every number of the file is finite) with the rules of [`parse_cell_config`].
+/// Parse the `[sim]` table of a cell configuration with its `[stage]` (`cellcal sim`: the
+/// simulated stage follows `stage.kind` and the Zaber address as in [`parse_cell_config`]; the
+/// other tables are not read, but every number of the file is finite) with the rules of
+/// [`parse_cell_config`].
 pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, ConfigError> {
     /// The part of a cell configuration file that `cellcal sim` reads.
     #[derive(Deserialize, Serialize)]
     struct SimFile {
         #[serde(default)]
+        stage: StageSection,
+        #[serde(default)]
         sim: SimWorldConfig,
     }
     let f: SimFile = parse_checked(text, path)?;
-    simulated_world(f.sim, &StageSection::default(), path)
+    f.stage.check().map_err(|e| ConfigError::Invalid {
+        path: path.to_owned(),
+        key: e.key,
+        message: e.message,
+    })?;
+    simulated_world(f.sim, &f.stage, path)
 }
 
 /// The checked `[sim]` world of the cell: its rules, its `errors` file resolved against the
@@ -734,7 +744,9 @@ fn simulated_world(
         rule(
             sim.stage_mode == super::sim::StageMode::Zaber,
             "sim.stage_mode",
-            "`manual` contradicts stage.kind = \"serial\" (the simulated stage follows [stage])",
+            "`manual` contradicts stage.kind = \"serial\": the simulated stage follows [stage]. \
+             For a manual stage set stage.kind = \"manual\" (or \"manual_gauge\") and delete \
+             sim.stage_mode; for a Zaber stage delete sim.stage_mode",
         )
         .map_err(invalid)?;
         if stage.mode == DeviceMode::Sim {
@@ -1446,6 +1458,38 @@ mod tests {
         let real = "[tracker]\nmode = \"real\"\n[robot_controller]\nmode = \"real\"\n\
                     [stage]\nmode = \"real\"\nrange_mm = [0, 60]\n";
         assert_eq!(parse_cell_config(real, p).unwrap().sim, None);
+    }
+
+    #[test]
+    fn the_simulated_stage_follows_stage_kind_in_cellcal_sim_too() {
+        let p = Path::new("/etc/cellcal/cell.toml");
+        // one key decides: a manual stage.kind makes the simulated stage manual
+        let sim = parse_sim_config(
+            "[stage]\nkind = \"manual\"\ndevice_address = 2\n[sim]\nstage_mode = \"zaber\"\n",
+            p,
+        )
+        .expect("manual");
+        assert_eq!(sim.stage_mode, super::super::sim::StageMode::Manual);
+        assert_eq!(sim.stage_address, (2, 1));
+        // the other way round is refused, naming both keys and the fix
+        for e in [
+            parse_sim_config("[sim]\nstage_mode = \"manual\"\n", p),
+            parse_cell_config("[sim]\nstage_mode = \"manual\"\n", p).map(|c| c.sim.unwrap()),
+        ] {
+            let e = e.unwrap_err().to_string();
+            assert!(
+                e.contains("sim.stage_mode")
+                    && e.contains("stage.kind = \"serial\"")
+                    && e.contains("set stage.kind = \"manual\"")
+                    && e.contains("delete sim.stage_mode"),
+                "{e}"
+            );
+        }
+        // [stage] by the same strict rules
+        let e = parse_sim_config("[stage]\nbogus = 1\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bogus"), "{e}");
     }
 
     #[test]

@@ -17,6 +17,7 @@ mod device_config;
 mod docs;
 mod frame_first;
 mod frames;
+mod hardware_doc;
 mod house;
 mod http_limits;
 mod identifiability;

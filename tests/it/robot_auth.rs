@@ -239,11 +239,19 @@ fn a_real_controller_needs_a_private_secret_file_and_its_text_never_shows() {
         err.contains("64 hex digits") && !err.contains("horse"),
         "{err}"
     );
-    // private and well formed: the campaign is stored, nothing moves without --arm
+    // private and well formed: the campaign is stored, nothing moves without --arm; the
+    // check of every device finds nobody at the controller's address (exit 1, naming it)
     std::fs::write(&key, format!("{KEY}\n")).unwrap();
     let out = run(&cfg);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{stdout}");
     assert!(
-        out.status.success(),
+        stdout.contains("campaign 1 is not armed: nothing moves")
+            && stdout.contains("robot 127.0.0.1:9: FAILED"),
+        "{stdout}"
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("device check failed: robot."),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -21,3 +21,8 @@ pub use server::{
     serve, serve_connection, BackendError, FaultConfig, FaultHandle, RobotBackend, ServerAccess,
 };
 pub use sim::{SimpleBackend, SimpleConfig};
+
+/// TCP port of the controller application's robotlink server unless a site sets another on
+/// the pendant (`deploy/staubli/README.md`, PROTOCOL.md §1); `[robot_controller] address`
+/// names it.
+pub const DEFAULT_PORT: u16 = 11100;
