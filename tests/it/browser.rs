@@ -197,6 +197,11 @@ pub(super) async fn click(c: &Client, id: &str) {
         ready.then_some(e)
     })
     .await;
+    // in the middle of the window: never under the sticky header
+    let at = serde_json::to_value(&e).expect("element reference");
+    c.execute("arguments[0].scrollIntoView({block: 'center'});", vec![at])
+        .await
+        .expect("scroll");
     e.click()
         .await
         .unwrap_or_else(|err| panic!("click #{id}: {err}"));
