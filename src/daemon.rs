@@ -50,7 +50,7 @@ use crate::store::{
 mod observe;
 mod status;
 use observe::{CellWatch, Observer};
-pub use observe::{DeviceView, DevicesView, FaultView};
+pub use observe::{Connection, DeviceView, DevicesView, FaultView};
 pub use status::RunOutcome;
 use status::RunWatch;
 

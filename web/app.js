@@ -1,4 +1,5 @@
 // cellcal cockpit: a thin client of the REST API (see /api/openapi.json). Plain JS, no build step.
+// Every number and time on the page goes through `human` (human.js, loaded first).
 'use strict';
 
 const TOKEN_KEY = 'cellcal.token';
@@ -44,8 +45,9 @@ class ApiError extends Error {
   constructor(status, message) { super(message); this.status = status; }
 }
 
-/** One API call with the bearer token; the parsed JSON body, or an ApiError with the server's message. */
-async function api(method, path, body) {
+/** One API call with the bearer token: the response when it succeeded, else an ApiError with
+ *  the server's message. */
+async function call(method, path, body) {
   const headers = { Authorization: 'Bearer ' + ui.token };
   const init = { method, headers };
   if (body !== undefined) {
@@ -53,13 +55,17 @@ async function api(method, path, body) {
     init.body = JSON.stringify(body);
   }
   const r = await fetch(path, init);
+  if (r.ok) return r;
   let data = null;
   try { data = await r.json(); } catch (_) { data = null; }
-  if (!r.ok) {
-    if (r.status === 401) signOut((data && data.error) || 'not signed in');
-    throw new ApiError(r.status, (data && data.error) || ('HTTP ' + r.status));
-  }
-  return data;
+  if (r.status === 401) signOut((data && data.error) || 'not signed in');
+  throw new ApiError(r.status, (data && data.error) || ('HTTP ' + r.status));
+}
+
+/** One API call with the bearer token; the parsed JSON body (null for none), or an ApiError. */
+async function api(method, path, body) {
+  const r = await call(method, path, body);
+  try { return await r.json(); } catch (_) { return null; }
 }
 
 function may(action) { return !!ui.me && ui.me.may.includes(action); }
@@ -208,6 +214,7 @@ function renderView(v) {
   $('cmd-pause').disabled = !v || state !== 'running';
   // a disarmed campaign resumes only once armed again (the API answers 409)
   $('cmd-resume').disabled = !v || state !== 'paused' || !v.armed;
+  renderDownloads(v);
   renderPrompt(v);
 }
 
@@ -222,8 +229,7 @@ function timeLeft(v) {
   const newest = ui.samples[ui.samples.length - 1];
   if (ui.samples.length < 2 || newest.done <= first.done) return 'time left: estimating…';
   const perPose = (newest.t - first.t) / (newest.done - first.done);
-  const s = Math.round((perPose * (v.poses_total - v.poses_done)) / 1000);
-  return 'time left: about ' + (s < 120 ? s + ' s' : Math.round(s / 60) + ' min');
+  return 'time left: about ' + human.duration((perPose * (v.poses_total - v.poses_done)) / 1000);
 }
 
 // ---- technician panel ------------------------------------------------------------------
@@ -276,7 +282,7 @@ function promptContext(q) {
   else if (q.step === 'setup') parts.push('Setup (tool frame, base registration)');
   else if (q.step === 'reregister') parts.push('Re-registering the tracker frame');
   if (q.position) parts.push(q.position);
-  if (q.expected_mm != null) parts.push('set to ' + q.expected_mm.toFixed(3) + ' mm');
+  if (q.expected_mm != null) parts.push('set to ' + human.mm(q.expected_mm) + ' mm');
   parts.push('question ' + q.seq);
   return parts.join(' · ');
 }
@@ -496,12 +502,12 @@ function summary(kind, d) {
   switch (kind) {
     case 'state': return (d.state && (d.state.state || d.state)) + (d.state && d.state.reason ? ': ' + d.state.reason : '');
     case 'measured': return 'pose ' + d.pose + ' measured (' + d.done + ' / ' + d.total + ')'
-      + (typeof d.deviation_mm === 'number' ? ', ' + d.deviation_mm.toFixed(3) + ' mm from the nominal model' : '');
+      + (typeof d.deviation_mm === 'number' ? ', ' + human.mm(d.deviation_mm) + ' mm from the nominal model' : '');
     case 'prompt': return 'question ' + d.seq + ': ' + d.text;
     case 'note': return d.text;
     case 'devices': return ['tracker', 'robot', 'stage'].map((k) => k + ' ' + (d[k] || 'unknown')).join('; ');
     case 'fault': return d.device + ' ' + d.kind + ': ' + d.message + ' → ' + d.action;
-    case 'drift': return 'drift ' + fmt(d.drift_mm, 4) + ' mm (max ' + d.max_mm + ')';
+    case 'drift': return 'drift ' + human.mm(d.drift_mm) + ' mm (max ' + human.mm(d.max_mm) + ' mm)';
     case 'result': return 'result: quality ' + ((d.json && d.json.quality) || '—');
     default: {
       const text = JSON.stringify(d);
@@ -512,7 +518,13 @@ function summary(kind, d) {
 
 function logEvent(seq, kind, text) {
   const li = document.createElement('li');
-  li.textContent = (seq !== null ? '#' + seq + ' ' : '') + kind + ': ' + text;
+  if (seq !== null) {
+    const n = document.createElement('span');
+    n.className = 'seq';
+    n.textContent = '#' + seq;
+    li.append(n, ' ');
+  }
+  li.append(kind + ': ' + text);
   const log = $('event-log');
   log.prepend(li);
   while (log.children.length > 500) log.lastElementChild.remove();
@@ -528,8 +540,8 @@ function renderDrift() {
     const over = !(c.drift_mm <= c.max_mm);
     cell(tr, String(i + 1));
     cell(tr, i === 0 ? 'reference' : String(c.after));
-    cell(tr, fmt(c.drift_mm, 4));
-    cell(tr, fmt(c.max_mm, 3));
+    cell(tr, human.mm(c.drift_mm));
+    cell(tr, human.mm(c.max_mm));
     cell(tr, over ? 'OVER' : 'ok');
     if (over) tr.lastChild.className = 'over';
     body.prepend(tr);
@@ -566,7 +578,7 @@ function renderDeviation() {
   const y = (mm) => T + (H - T - B) * (1 - mm / top);
   for (const f of [0, 0.5, 1]) {
     svg(plot, 'line', { class: 'grid', x1: L, x2: W - R, y1: y(top * f), y2: y(top * f) });
-    svg(plot, 'text', { x: L - 6, y: y(top * f) + 4, 'text-anchor': 'end' }, (f ? (top * f).toPrecision(2) : '0') + ' mm');
+    svg(plot, 'text', { x: L - 6, y: y(top * f) + 4, 'text-anchor': 'end' }, human.mm(top * f) + ' mm');
   }
   svg(plot, 'line', { class: 'axis', x1: L, x2: L, y1: T, y2: H - B });
   svg(plot, 'line', { class: 'axis', x1: L, x2: W - R, y1: H - B, y2: H - B });
@@ -578,7 +590,7 @@ function renderDeviation() {
   }
   pts.forEach((p, i) => {
     const dot = svg(plot, 'circle', { class: i === pts.length - 1 ? 'dot last' : 'dot', cx: x(p.done), cy: y(p.dev), r: 3.5 });
-    svg(dot, 'title', {}, 'pose ' + p.pose + ': ' + p.dev.toFixed(4) + ' mm');
+    svg(dot, 'title', {}, 'pose ' + p.pose + ': ' + human.mm(p.dev) + ' mm');
   });
   plot.dataset.points = pts.length;
   const note = $('deviation-summary');
@@ -589,8 +601,8 @@ function renderDeviation() {
   } else {
     const devs = pts.map((p) => p.dev);
     const mean = devs.reduce((a, b) => a + b, 0) / devs.length;
-    note.textContent = pts.length + ' poses · last ' + devs[devs.length - 1].toFixed(3) + ' mm · mean '
-      + mean.toFixed(3) + ' mm · max ' + Math.max(...devs).toFixed(3) + ' mm';
+    note.textContent = pts.length + ' poses · last ' + human.mm(devs[devs.length - 1]) + ' mm · mean '
+      + human.mm(mean) + ' mm · max ' + human.mm(Math.max(...devs)) + ' mm';
   }
 }
 
@@ -609,26 +621,39 @@ async function pollDevices() {
   renderDevices(d, note);
 }
 
+/** What to say of a device's connection, and its style: red only for a connection fault. */
+function connectionText(dev) {
+  const said = {
+    connected: ['yes', 'yes'],
+    fault: ['NO — connection fault', 'no'],
+    not_connected_yet: ['not connected yet', 'idle'],
+    closed: ['closed (no campaign running)', 'idle'],
+    no_connection: ['no connection (manual micrometer)', 'idle'],
+  };
+  if (dev && Object.hasOwn(said, dev.connection)) return said[dev.connection];
+  // a daemon without `connection`: only `connected`
+  const c = dev ? dev.connected : null;
+  return c === true ? ['yes', 'yes'] : c === false ? ['NO', 'no'] : ['unknown', 'idle'];
+}
+
 function renderDevices(d, note) {
   for (const name of ['tracker', 'robot', 'stage']) {
     const dev = d && d[name] ? d[name] : null;
     const cells = $('device-' + name).cells;
     cells[1].textContent = dev ? String(dev.kind) + (dev.simulated ? ' (simulated)' : '') : '';
     cells[2].textContent = dev && dev.address != null ? String(dev.address) : '';
-    const c = dev ? dev.connected : null;
-    cells[3].textContent = c === true ? 'yes' : c === false ? 'NO' : 'unknown';
-    cells[3].className = c === true ? 'yes' : c === false ? 'no' : '';
+    const [text, cls] = connectionText(dev);
+    cells[3].textContent = text;
+    cells[3].className = cls;
     const f = dev ? dev.last_fault : null;
     cells[4].textContent = !dev ? '' : !f ? 'none'
-      : f.kind + ': ' + f.message + (f.at_ms ? ' (' + new Date(f.at_ms).toLocaleTimeString() + ')' : '');
+      : f.kind + ': ' + f.message + (f.at_ms ? ' (' + human.localTime(f.at_ms) + ')' : '');
     cells[5].textContent = dev && typeof dev.identity === 'string' ? dev.identity : '';
   }
   $('device-note').textContent = note;
 }
 
 // ---- result ----------------------------------------------------------------------------
-
-function fmt(x, digits) { return typeof x === 'number' && Number.isFinite(x) ? x.toFixed(digits) : '—'; }
 
 async function showResult(id) {
   let r;
@@ -662,8 +687,8 @@ async function showResult(id) {
     cell(tr, set);
     cell(tr, String(m.after.poses));
     for (const k of ['position_mean_mm', 'position_p95_mm', 'position_max_mm']) {
-      cell(tr, fmt(m.before[k], 4));
-      cell(tr, fmt(m.after[k], 4));
+      cell(tr, human.mm(m.before[k]));
+      cell(tr, human.mm(m.after[k]));
       if (set === 'verify' && k === 'position_mean_mm') tr.lastChild.id = 'result-verify-after';
     }
     mbody.appendChild(tr);
@@ -672,12 +697,12 @@ async function showResult(id) {
   pbody.replaceChildren();
   for (const p of Array.isArray(r.parameters) ? r.parameters : []) {
     const tr = document.createElement('tr');
-    const digits = p.unit === 'rad' ? 7 : 4;
+    // lengths in mm; angles: the nominal in degrees, its error and σ in mrad
+    const angle = p.unit === 'rad';
     cell(tr, p.name);
-    cell(tr, p.unit);
-    cell(tr, fmt(p.nominal, digits));
-    cell(tr, fmt(p.error, digits));
-    cell(tr, p.std == null ? '—' : fmt(p.std, digits));
+    cell(tr, angle ? human.deg(p.nominal) + '°' : human.mm(p.nominal) + ' mm');
+    const small = angle ? human.mrad : human.mm;
+    cell(tr, human.withSigma(small(p.error), p.std == null ? null : small(p.std)) + (angle ? ' mrad' : ' mm'));
     cell(tr, p.status === 'setup_relative' ? 'yes, relative to the setup' : p.identified ? 'yes' : 'no');
     pbody.appendChild(tr);
   }
@@ -692,18 +717,60 @@ async function showResult(id) {
   $('result-view').hidden = false;
 }
 
-/** Save an API document as a file (a plain link could not send the bearer header). */
-async function download(path, name) {
+// ---- hand-over: the calibration's files ----------------------------------------------
+
+/** The files of a campaign the page hands over: button, route, file name, what it needs. */
+const DOWNLOADS = [
+  { id: 'download-report', route: '/report', file: 'report.html', needs: 'result' },
+  { id: 'download-model', route: '/model', file: 'model.toml', needs: 'result' },
+  { id: 'download-csv', route: '/measurements?format=csv', file: 'measurements.csv', needs: 'measured' },
+  { id: 'download-result', route: '/result', file: 'result.json', needs: 'result' },
+  { id: 'download-events', route: '/events', file: 'events.json', needs: 'campaign' },
+];
+
+/** Why campaign view `v` does not have what `needs` names yet; null when it has. */
+function missing(v, needs) {
+  if (!v) return 'no campaign selected';
+  if (needs === 'result' && !v.has_result) {
+    return 'campaign #' + v.id + ' has no result yet: it is identified after its last pose';
+  }
+  if (needs === 'measured' && !v.poses_done) return 'campaign #' + v.id + ' has no measured pose yet';
+  return null;
+}
+
+/** Each download enabled once the selected campaign has its file, else disabled with the reason. */
+function renderDownloads(v) {
+  const reasons = new Set();
+  for (const d of DOWNLOADS) {
+    const why = missing(v, d.needs);
+    const b = $(d.id);
+    b.disabled = why !== null;
+    b.title = why === null ? 'Save ' + fileName(v.id, d) : why;
+    if (why !== null) reasons.add(why);
+  }
+  $('handover-note').textContent = [...reasons].join(' · ');
+}
+
+function fileName(id, d) { return 'campaign-' + id + '-' + d.file; }
+
+/** Save a campaign's file exactly as the API sends it (a plain link could not send the bearer
+ *  header): fetch with the token, then a Blob download named `campaign-<id>-<file>`. */
+async function download(d) {
+  const id = ui.selected;
+  if (id === null) return;
+  say('');
   try {
-    const data = await api('GET', path);
-    const url = URL.createObjectURL(new Blob([JSON.stringify(data, null, 2)], { type: 'application/json' }));
+    const r = await call('GET', '/api/campaigns/' + id + d.route);
+    const url = URL.createObjectURL(await r.blob());
     const a = document.createElement('a');
     a.href = url;
-    a.download = name;
+    a.download = fileName(id, d);
+    document.body.appendChild(a);
     a.click();
-    setTimeout(() => URL.revokeObjectURL(url), 1000);
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
   } catch (e) {
-    say(e.message);
+    say(d.file + ': ' + e.message);
   }
 }
 
@@ -727,8 +794,7 @@ function wire() {
   for (const name of ['disarm', 'start', 'pause', 'resume']) {
     $('cmd-' + name).addEventListener('click', () => command(name));
   }
-  $('download-result').addEventListener('click', () => download('/api/campaigns/' + ui.selected + '/result', 'campaign-' + ui.selected + '-result.json'));
-  $('download-events').addEventListener('click', () => download('/api/campaigns/' + ui.selected + '/events', 'campaign-' + ui.selected + '-events.json'));
+  for (const d of DOWNLOADS) $(d.id).addEventListener('click', () => download(d));
   document.addEventListener('keydown', (ev) => {
     if (ev.key === 'Escape' && !$('prompt-panel').hidden && !$('abort-dialog').open) {
       ev.preventDefault();

@@ -9,7 +9,7 @@
 //!
 //! | method and path | what |
 //! |---|---|
-//! | `GET /`, `/index.html`, `/app.js`, `/app.css` | the cockpit web page ([`web`]; no token needed) |
+//! | `GET /`, `/index.html`, `/app.js`, `/human.js`, `/app.css` | the cockpit web page ([`web`]; no token needed) |
 //! | `GET /api/health` | `{"ok": true, "version"}` |
 //! | `GET /api/openapi.json` | the OpenAPI 3.1 description of these routes ([`openapi`]; no token needed) |
 //! | `GET /api/whoami` | the caller: `{name, role, may: [action…]}` |
@@ -20,14 +20,14 @@
 //! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
-//! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified |
-//! | `GET /api/campaigns/{id}/model` | the corrected model: a robot TOML (`text/plain`) that `--robot` loads, 404 until identified |
+//! | `GET /api/campaigns/{id}/result` | the `cellcal identify` JSON contract, 404 until identified; saved as `campaign-{id}-result.json` (`Content-Disposition`, as model and report) |
+//! | `GET /api/campaigns/{id}/model` | the corrected model: a robot TOML (`text/plain`) that `--robot` loads, 404 until identified; `campaign-{id}-model.toml` |
 //! | `GET /api/campaigns/{id}/measurements` | the measured poses (`[MeasurementRow]`); `?format=csv`: the identify CSV `cellcal export` writes |
 //! | `GET /api/campaigns/{id}/plan` | the stored plan (`PlanView`): poses in move order, set, joints (rad), done marks |
 //! | `GET /api/devices` | tracker, robot, stage: kind, address, simulated, connected, last fault (`DevicesView`) |
 //! | `POST /api/cell/stop` | stop the cell (any role): abort the loaded campaign and stop the robot and the stage → `CellStopView` (what each device answered) |
 //! | `GET /metrics` | Prometheus metrics, OpenMetrics text ([`crate::metrics`]); a token of any role |
-//! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified |
+//! | `GET /api/campaigns/{id}/report` | the calibration report, one self-contained HTML page (`text/html`, no script), 404 (JSON) until identified; `campaign-{id}-report.html` |
 
 pub mod conns;
 pub mod guard;
@@ -415,16 +415,27 @@ async fn journal(
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/result", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "the `cellcal identify` JSON contract (see docs/data-formats.md), rendered from the stored result; an ISO 9283 campaign's stored figures", body = serde_json::Value),
+    responses((status = 200, description = "the `cellcal identify` JSON contract (see docs/data-formats.md), rendered from the stored result; an ISO 9283 campaign's stored figures", body = serde_json::Value,
+            headers(("content-disposition" = String, description = "`attachment; filename=\"campaign-{id}-result.json\"`"))),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
         (status = 500, description = "the stored result cannot be read", body = ErrorBody)))]
 async fn result(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.result(id).await? {
-        Some(v) => Ok(Json(v).into_response()),
+        Some(v) => Ok(attachment(Json(v).into_response(), id, "result.json")),
         None => Err(no_result_yet(id)),
     }
+}
+
+/// `r` with `Content-Disposition: attachment; filename="campaign-{id}-{what}"`: the name a
+/// saved copy gets (the page's downloads and `curl -OJ` use it).
+fn attachment(mut r: Response, id: i64, what: &str) -> Response {
+    let value = format!("attachment; filename=\"campaign-{id}-{what}\"");
+    if let Ok(v) = axum::http::HeaderValue::from_str(&value) {
+        r.headers_mut().insert(CONTENT_DISPOSITION, v);
+    }
+    r
 }
 
 /// 404 for a campaign that has not been identified (its result, model and report).
@@ -440,21 +451,19 @@ fn no_result_yet(id: i64) -> ApiError {
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/model", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "a robot model file (TOML) with the identified absolute MDH values, base and tool, the nominal joint limits and a provenance header; every command loads it as `--robot`", body = String, content_type = "text/plain; charset=utf-8"),
+    responses((status = 200, description = "a robot model file (TOML) with the identified absolute MDH values, base and tool, the nominal joint limits and a provenance header; every command loads it as `--robot`", body = String, content_type = "text/plain; charset=utf-8",
+            headers(("content-disposition" = String, description = "`attachment; filename=\"campaign-{id}-model.toml\"`"))),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
         (status = 500, description = "the stored campaign cannot be rebuilt", body = ErrorBody)))]
 async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.model(id).await? {
-        Some(text) => Ok((
-            [(
-                axum::http::header::CONTENT_TYPE,
-                "text/plain; charset=utf-8",
-            )],
-            text,
-        )
-            .into_response()),
+        Some(text) => Ok(attachment(
+            ([(CONTENT_TYPE, "text/plain; charset=utf-8")], text).into_response(),
+            id,
+            "model.toml",
+        )),
         None => Err(no_result_yet(id)),
     }
 }
@@ -464,14 +473,15 @@ async fn model(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Re
 /// Cancel-safe: it only reads.
 #[utoipa::path(get, path = "/api/campaigns/{id}/report", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
-    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see docs/report.md)", body = String, content_type = "text/html"),
+    responses((status = 200, description = "the calibration report: one self-contained HTML page (inline CSS and SVG plots, no script, no external reference; see docs/report.md)", body = String, content_type = "text/html",
+            headers(("content-disposition" = String, description = "`attachment; filename=\"campaign-{id}-report.html\"`"))),
         (status = 400, description = "the id is not a number", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 404, description = "no such campaign, or no result yet", body = ErrorBody),
         (status = 409, description = "an ISO 9283 campaign: no calibration report (its figures are the result)", body = ErrorBody)))]
 async fn report(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Response, ApiError> {
     match d.report_html(id).await? {
-        Some(html) => Ok(web::report_page(html)),
+        Some(html) => Ok(attachment(web::report_page(html), id, "report.html")),
         None => Err(no_result_yet(id)),
     }
 }
@@ -583,7 +593,7 @@ async fn measurements(
         None | Some("json") => Ok(Json(d.measurements(id).await?).into_response()),
         Some("csv") => {
             let csv = d.measurements_csv(id).await?;
-            let disposition = format!("attachment; filename=\"campaign-{id}.csv\"");
+            let disposition = format!("attachment; filename=\"campaign-{id}-measurements.csv\"");
             Ok((
                 [
                     (CONTENT_TYPE, "text/csv; charset=utf-8".to_owned()),

@@ -37,6 +37,7 @@ use utoipa::{Modify, OpenApi};
         super::prometheus_metrics,
         super::web::index,
         super::web::app_js,
+        super::web::human_js,
         super::web::app_css,
     ),
     modifiers(&BearerScheme),

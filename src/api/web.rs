@@ -1,5 +1,5 @@
 //! The cockpit web page (`web/` in the source tree, embedded in the binary): `/` and
-//! `/index.html`, `/app.js`, `/app.css`. These are the only routes the [`super::guard`] lets
+//! `/index.html`, `/app.js`, `/human.js` (the page's number and time format), `/app.css`. These are the only routes the [`super::guard`] lets
 //! through without a token (the page signs in with one and sends it on every API call); they
 //! still pass its `Host` and `Origin` checks. Every asset is sent with a strict
 //! Content-Security-Policy (same-origin scripts, styles and fetches only), no referrer (the
@@ -12,10 +12,11 @@ use axum::routing::get;
 use axum::Router;
 
 /// Paths of the page and its assets: what the gate admits without a token (GET only).
-pub const PUBLIC_PATHS: [&str; 4] = ["/", "/index.html", "/app.js", "/app.css"];
+pub const PUBLIC_PATHS: [&str; 5] = ["/", "/index.html", "/app.js", "/human.js", "/app.css"];
 
 const INDEX_HTML: &str = include_str!("../../web/index.html");
 const APP_JS: &str = include_str!("../../web/app.js");
+const HUMAN_JS: &str = include_str!("../../web/human.js");
 const APP_CSS: &str = include_str!("../../web/app.css");
 
 /// The page's routes (state-free; merged into the API router).
@@ -24,6 +25,7 @@ pub fn routes<S: Clone + Send + Sync + 'static>() -> Router<S> {
         .route("/", get(index))
         .route("/index.html", get(index))
         .route("/app.js", get(app_js))
+        .route("/human.js", get(human_js))
         .route("/app.css", get(app_css))
 }
 
@@ -93,6 +95,16 @@ pub(super) async fn index() -> Response {
     responses((status = 200, description = "the page's script", body = String, content_type = "text/javascript")))]
 pub(super) async fn app_js() -> Response {
     asset("text/javascript; charset=utf-8", APP_JS)
+}
+
+/// The page's number and time format (lengths mm, small angles mrad, joint angles degrees,
+/// local ISO 8601 times, durations), loaded before its script.
+///
+/// Cancel-safe: no state.
+#[utoipa::path(get, path = "/human.js", tag = "web", security(()),
+    responses((status = 200, description = "the page's number and time format", body = String, content_type = "text/javascript")))]
+pub(super) async fn human_js() -> Response {
+    asset("text/javascript; charset=utf-8", HUMAN_JS)
 }
 
 /// The page's style sheet.

@@ -12,7 +12,9 @@
 //! completed a cell step, or since the device's last connection fault (`Disconnected`,
 //! `Timeout`, `Protocol`), and `true` from the next completed step on (a `setup`, `drift` or
 //! `measured` event: every device answered for it). A manual stage without a gauge has no
-//! connection: always `null`.
+//! connection: always `null`. `connection` ([`Connection`]) says the same for a person: it
+//! tells "not connected yet" (`false` before the first completed step, `null` before any run)
+//! from a connection fault and from a closed run.
 
 use std::sync::{Arc, Mutex as StdMutex};
 
@@ -64,6 +66,28 @@ pub struct DeviceView {
     /// What the device said it is (model, serial, firmware) when a run last prepared it;
     /// kept after the campaign ends, `null` before any run prepared it or when it cannot say.
     pub identity: Option<String>,
+    /// `connected` for a person: not connected yet, connected, a connection fault, closed
+    /// after a run, or no connection to make.
+    pub connection: Connection,
+}
+
+/// What a client may say of a device's connection: `connected` with its `null` and `false`
+/// told apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Connection {
+    /// No run of this daemon has connected it yet, or the loaded run has not yet completed a
+    /// cell step (`connected` `null` before any run, `false` in a run).
+    NotConnectedYet,
+    /// It answered for the last completed cell step (`connected: true`).
+    Connected,
+    /// A connection fault (`Disconnected`, `Timeout`, `Protocol`) since the last completed
+    /// step (`connected: false`).
+    Fault,
+    /// The last run ended and closed its connections; no campaign runs (`connected: null`).
+    Closed,
+    /// The device has no connection: a manual micrometer without a gauge (`connected: null`).
+    NoConnection,
 }
 
 /// The cell's three devices.
@@ -83,6 +107,8 @@ struct Watched {
     /// The simulated device's address during a run.
     sim_address: Option<String>,
     connected: Option<bool>,
+    /// A connection fault since the last completed step of this run.
+    faulted: bool,
     last_fault: Option<FaultView>,
     identity: Option<String>,
 }
@@ -137,6 +163,7 @@ impl CellWatch {
         for (i, (d, a)) in self.devices.iter_mut().zip(addrs).enumerate() {
             d.sim_address = a;
             d.connected = (i < 2 || stage_connects(cfg)).then_some(false);
+            d.faulted = false;
         }
         self.run += 1;
         self.run
@@ -150,6 +177,7 @@ impl CellWatch {
         for d in &mut self.devices {
             d.sim_address = None;
             d.connected = None;
+            d.faulted = false;
         }
     }
 
@@ -158,6 +186,7 @@ impl CellWatch {
         for d in &mut self.devices {
             if d.connected.is_some() {
                 d.connected = Some(true);
+                d.faulted = false;
             }
         }
     }
@@ -177,6 +206,7 @@ impl CellWatch {
         };
         if is_connection_fault(kind) && d.connected.is_some() {
             d.connected = Some(false);
+            d.faulted = true;
         }
         d.last_fault = Some(f);
     }
@@ -190,6 +220,15 @@ impl CellWatch {
             StageMode::Manual => None,
             StageMode::ManualGauge => Some(cfg.stage.gauge_path.clone()),
         };
+        let ran = self.run > 0;
+        let connection = |w: &Watched, connects: bool| match w.connected {
+            _ if !connects => Connection::NoConnection,
+            Some(true) => Connection::Connected,
+            Some(false) if w.faulted => Connection::Fault,
+            Some(false) => Connection::NotConnectedYet,
+            None if ran => Connection::Closed,
+            None => Connection::NotConnectedYet,
+        };
         let one = |kind, w: &Watched, simulated: bool, configured: Option<String>| DeviceView {
             kind,
             address: if simulated {
@@ -201,6 +240,7 @@ impl CellWatch {
             connected: w.connected,
             last_fault: w.last_fault.clone(),
             identity: w.identity.clone(),
+            connection: connection(w, kind != "manual" || stage_connects(cfg)),
         };
         DevicesView {
             tracker: one(
@@ -429,6 +469,43 @@ mod tests {
         assert_eq!(connected(&w, &c), [None; 3]);
         // the last faults stay
         assert_eq!(w.view(&c).tracker.last_fault, Some(fault("BeamBroken")));
+    }
+
+    fn connection(w: &CellWatch, c: &CellConfig) -> [Connection; 3] {
+        let v = w.view(c);
+        [v.tracker.connection, v.robot.connection, v.stage.connection]
+    }
+
+    #[test]
+    fn not_connected_yet_is_told_from_a_fault_and_a_closed_run() {
+        use Connection::{Closed, Connected, Fault, NoConnection, NotConnectedYet};
+        let c = cfg("serial");
+        let mut w = CellWatch::default();
+        assert_eq!(connection(&w, &c), [NotConnectedYet; 3]);
+        let run = w.run_loaded(&c, None);
+        assert_eq!(connection(&w, &c), [NotConnectedYet; 3]);
+        w.fault(
+            DeviceKind::Robot,
+            FaultKind::Disconnected,
+            fault("Disconnected"),
+        );
+        assert_eq!(
+            connection(&w, &c),
+            [NotConnectedYet, Fault, NotConnectedYet]
+        );
+        w.step_done();
+        assert_eq!(connection(&w, &c), [Connected; 3]);
+        w.fault(DeviceKind::Stage, FaultKind::Timeout, fault("Timeout"));
+        assert_eq!(connection(&w, &c), [Connected, Connected, Fault]);
+        w.run_ended(run);
+        assert_eq!(connection(&w, &c), [Closed; 3]);
+        // a new run starts afresh
+        w.run_loaded(&c, None);
+        assert_eq!(connection(&w, &c), [NotConnectedYet; 3]);
+        // a manual micrometer never connects; a gauge does
+        let manual = cfg("manual");
+        assert_eq!(connection(&w, &manual)[2], NoConnection);
+        assert_eq!(connection(&w, &cfg("manual_gauge"))[2], NotConnectedYet);
     }
 
     #[test]

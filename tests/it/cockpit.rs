@@ -28,6 +28,7 @@ fn the_page_needs_no_token_but_the_api_does() {
         ("/index.html", "text/html"),
         ("/?token=abc", "text/html"),
         ("/app.js", "text/javascript"),
+        ("/human.js", "text/javascript"),
         ("/app.css", "text/css"),
     ] {
         let (code, got, body) = get_anonymous(&s, path);
@@ -116,6 +117,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
     for (path, method) in [
         ("/", "get"),
         ("/app.js", "get"),
+        ("/human.js", "get"),
         ("/app.css", "get"),
         ("/api/health", "get"),
         ("/api/openapi.json", "get"),
@@ -160,7 +162,7 @@ fn the_openapi_document_describes_every_route_error_and_the_bearer_scheme() {
         }
     }
     assert!(
-        paths.len() == 20,
+        paths.len() == 21,
         "documented paths: {:?}",
         paths.keys().collect::<Vec<_>>()
     );

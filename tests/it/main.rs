@@ -4,6 +4,7 @@ mod api_fuzz;
 mod api_load;
 mod api_routes;
 mod browser;
+mod browser_handover;
 mod campaign;
 mod cell_sim;
 mod cli;
