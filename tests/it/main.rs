@@ -14,6 +14,7 @@ mod compensate;
 mod contract;
 mod deploy;
 mod device_config;
+mod flow;
 mod frame_first;
 mod frames;
 mod house;
