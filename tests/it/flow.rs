@@ -440,3 +440,109 @@ fn pause_during_an_open_question_answers_at_once() {
     assert_eq!(v["pausing"], false, "{v}");
     assert!(v["prompt"].is_null(), "{v}");
 }
+
+/// The campaign's stored `setup` points (read beside the running daemon).
+fn setup_points(store: &std::path::Path, id: i64) -> usize {
+    let r = cellcal::store::Store::open_reader(store).expect("reader");
+    r.point_count(id, cellcal::store::PointKind::Setup)
+        .expect("count")
+}
+
+/// Answer the setup's questions until the engine asks for something after the setup (the
+/// drift reference); how many stage readings it asked for during the setup.
+fn answer_the_setup(s: &Server, id: i64) -> usize {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut readings = 0;
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "setup never ended: {}",
+            view(s, id)
+        );
+        let q = question(s, id);
+        if q["step"] != "setup" {
+            return readings;
+        }
+        if q["id"] == "stage_move" {
+            readings += 1;
+        }
+        let (code, e) = answer(s, id, &q);
+        assert_eq!(code, 200, "{e}");
+        // until the engine has taken the answer (the next question replaces this one)
+        wait_view(s, id, "past the question", |v| {
+            v["prompt"]["seq"] != q["seq"]
+        });
+    }
+}
+
+/// Readings a technician typed during the setup survive an abort and a resume: each setup
+/// point was stored when taken; the resumed setup reuses them (one reading at P1 is taken again
+/// to check the tracker frame unmoved), so they are not asked again, and the setup result is
+/// computed from them (no setup point is stored twice).
+#[test]
+fn setup_readings_survive_a_resume() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = fast_config(dir.path(), "manual", 20, 14);
+    let store = dir.path().join("c.db");
+    let s = start(&cfg, &store);
+    // the reference: one setup without interruption
+    let reference = super::serve::create(&s, "{}");
+    super::serve::arm_and_start(&s, reference);
+    let all = answer_the_setup(&s, reference);
+    let all_points = setup_points(&store, reference);
+    abort_and_unload(&s, reference);
+    assert!(all >= 4, "{all} setup readings");
+
+    // some readings typed, then aborted at the P1 question of a new target
+    let id = super::serve::create(&s, "{}");
+    super::serve::arm_and_start(&s, id);
+    let mut typed = 0;
+    loop {
+        let q = question(&s, id);
+        if typed >= all / 2 && q["id"] == "stage_move" && q["position"] == "P1" {
+            break;
+        }
+        if q["id"] == "stage_move" {
+            typed += 1;
+        }
+        assert_eq!(answer(&s, id, &q).0, 200);
+        wait_view(&s, id, "past the question", |v| {
+            v["prompt"]["seq"] != q["seq"]
+        });
+    }
+    abort_and_unload(&s, id);
+    let kept = setup_points(&store, id);
+    assert!(
+        kept >= typed,
+        "{kept} setup points stored for {typed} readings"
+    );
+
+    // resumed: the typed readings are not asked again
+    for c in ["arm", "resume"] {
+        let (code, v) = command(&s, id, &format!(r#"{{"command": "{c}"}}"#));
+        assert_eq!(code, 200, "{c}: {v}");
+    }
+    let again = answer_the_setup(&s, id);
+    assert!(
+        again <= all - typed + 1,
+        "{again} readings asked after the resume; {typed} of {all} were typed before"
+    );
+    // … and the setup used them: every setup point stored once, as in the reference
+    assert_eq!(setup_points(&store, id), all_points);
+    let (_, journal) = get(&s, &format!("/api/campaigns/{id}/events"));
+    let text = journal.to_string();
+    assert!(
+        text.contains(&format!("setup: {kept} points taken before are reused")),
+        "{text}"
+    );
+    let setups: Vec<&Value> = journal
+        .as_array()
+        .expect("journal")
+        .iter()
+        .filter(|e| e["kind"] == "setup")
+        .collect();
+    assert_eq!(setups.len(), 1, "{setups:?}");
+    let targets = &setups[0]["event"]["result"]["tool_frame"]["targets"];
+    assert!(targets.as_u64() > Some(0), "{setups:?}");
+    abort_and_unload(&s, id);
+}
