@@ -10,7 +10,7 @@ use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
-use super::{CampaignError, Run, Step, Stop};
+use super::{settle_error, CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::identify::IdentifyOptions;
 use crate::measure::{
@@ -165,6 +165,15 @@ impl Run<'_> {
         Ok(stored.into_iter().map(|p| (p.note.clone(), p)).collect())
     }
 
+    /// How far (rad) settled joints may be from their target (`settle_tolerance_deg`).
+    pub(super) fn settle_tolerance(&self) -> f64 {
+        self.ctx
+            .cfg
+            .robot_controller
+            .settle_tolerance_deg
+            .to_radians()
+    }
+
     /// Keep every stored setup point as `discarded` with `why` (a setup measured again does
     /// not reuse them). Cancel-safe in effect, as [`super::with_store`].
     async fn discard_setup(&self, why: String) -> Result<(), CampaignError> {
@@ -201,10 +210,16 @@ impl Run<'_> {
         };
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s2 = s1 + self.ctx.cfg.stage.travel_mm;
+        let tol = self.settle_tolerance();
         let mut meas = Vec::with_capacity(targets.len());
         for t in &targets {
             let label = t.mark.label();
-            let stored = |at: &str| kept.get(&format!("tool frame {label} {at}")).map(position);
+            // a point of this mark taken at this target's joints (a changed setup is measured)
+            let stored = |at: &str| {
+                kept.get(&format!("tool frame {label} {at}"))
+                    .filter(|p| settle_error(&t.q_rad, &p.joints_rad, tol).is_none())
+                    .map(position)
+            };
             // taken before (P2 too, when the target measures one): reused, not asked again
             let p2 = if t.measure_p2 {
                 stored("P2").map(Some)
@@ -329,9 +344,13 @@ impl Run<'_> {
             .collect();
         let chosen = select_spread(model, &candidates, n);
         let s1 = self.ctx.cfg.stage.p1_mm;
+        let tol = self.settle_tolerance();
         let mut pairs = Vec::with_capacity(chosen.len());
         for (k, i) in chosen.into_iter().enumerate() {
-            if let Some(p) = kept.get(&format!("base registration {}", k + 1)) {
+            let stored = kept
+                .get(&format!("base registration {}", k + 1))
+                .filter(|p| settle_error(&candidates[i], &p.joints_rad, tol).is_none());
+            if let Some(p) = stored {
                 // taken before: reused, not asked again
                 pairs.push((p.joints_rad.clone(), position(p)));
                 continue;
