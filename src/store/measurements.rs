@@ -305,15 +305,18 @@ impl Store {
         Ok(row)
     }
 
-    /// The campaign's `setup` points with joints, oldest first: what a setup resumed before
-    /// its result was stored reuses (by the mark in the note).
+    /// The campaign's `setup` points with joints taken after the latest refusal marker
+    /// ([`Store::discard_setup_points`]), oldest first: what a setup resumed before its result
+    /// was stored reuses (by the mark in the note).
     pub fn setup_points(&self, id: i64) -> Result<Vec<SetupPoint>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         let mut st = self
             .conn
             .prepare(
                 "SELECT id, note FROM measurements WHERE campaign_id = ?1 AND kind = 'setup' \
-                 AND joints_rad IS NOT NULL ORDER BY id",
+                 AND joints_rad IS NOT NULL AND id > coalesce((SELECT max(id) FROM measurements \
+                 WHERE campaign_id = ?1 AND kind = 'discarded' AND note LIKE 'setup refused:%'), 0) \
+                 ORDER BY id",
             )
             .ctx("read setup points")?;
         let raw = st
@@ -334,17 +337,23 @@ impl Store {
             .collect()
     }
 
-    /// Keep every `setup` point of the campaign as `discarded`, `why` added to its note (a
-    /// setup measured again never reuses them); how many.
+    /// Refuse the campaign's `setup` points for reuse (measurements are append-only): a
+    /// `discarded` copy of the latest one, noted `setup refused: <why>`, marks every setup
+    /// point before it as not reused ([`Store::setup_points`]); how many rows were added (0
+    /// without a setup point).
     pub fn discard_setup_points(&mut self, id: i64, why: &str) -> Result<usize, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         self.conn
             .execute(
-                "UPDATE measurements SET kind = 'discarded', note = note || ' (' || ?2 || ')' \
-                 WHERE campaign_id = ?1 AND kind = 'setup'",
+                &format!(
+                    "INSERT INTO measurements (campaign_id, pose_index, kind, {POINT_COLUMNS}, \
+                     note) SELECT campaign_id, NULL, 'discarded', {POINT_COLUMNS}, \
+                     'setup refused: ' || ?2 FROM measurements WHERE campaign_id = ?1 AND \
+                     kind = 'setup' ORDER BY id DESC LIMIT 1"
+                ),
                 params![id, why],
             )
-            .ctx("discard setup points")
+            .ctx("mark setup points refused")
     }
 
     /// How many points of `kind` the campaign has stored.

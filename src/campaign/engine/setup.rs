@@ -3,8 +3,8 @@
 //! the mark in the note) before the robot moves on; the result is stored as JSON and reused on
 //! resume. A setup resumed before its result was stored reuses the points already taken (a
 //! manual stage's readings are not asked again) once one of them, measured again at its
-//! joints, shows the tracker frame unmoved; a setup whose fit is refused keeps its points as
-//! `discarded` and is measured afresh.
+//! joints, shows the tracker frame unmoved; a setup whose fit is refused marks its points
+//! refused (a `discarded` marker row: measurements are append-only) and is measured afresh.
 
 use std::collections::HashMap;
 
@@ -113,7 +113,7 @@ impl Run<'_> {
     /// by the mark in their note (the latest of each), when the tracker frame has not moved
     /// since: the latest of them at P1 is measured again at its joints and must agree within
     /// `campaign.drift_max_mm` (the check a resume makes at the frame reference); otherwise
-    /// they are kept as `discarded` and nothing is reused. Not cancel-safe: one step of the
+    /// they are marked refused and nothing is reused. Not cancel-safe: one step of the
     /// run, ended by the abort token (every device wait is `guarded`), never by dropping it.
     async fn kept_setup_points(&mut self) -> Result<HashMap<String, SetupPoint>, Stop> {
         let id = self.ctx.campaign_id;
@@ -174,8 +174,8 @@ impl Run<'_> {
             .to_radians()
     }
 
-    /// Keep every stored setup point as `discarded` with `why` (a setup measured again does
-    /// not reuse them). Cancel-safe in effect, as [`super::with_store`].
+    /// Mark every stored setup point refused with `why` (a setup measured again does not
+    /// reuse them). Cancel-safe in effect, as [`super::with_store`].
     async fn discard_setup(&self, why: String) -> Result<(), CampaignError> {
         let id = self.ctx.campaign_id;
         self.store(move |s| s.discard_setup_points(id, &why))
