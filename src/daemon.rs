@@ -121,13 +121,20 @@ pub enum ClientCommand {
     /// Disallow motion: a running campaign stops the robot and the stage at once and pauses
     /// (resumable once armed again); the engine moves nothing while disarmed.
     Disarm,
-    /// Start, or resume a stored campaign (requires arm).
+    /// Start, or resume a stored campaign (requires arm). While running: nothing to do (200).
     Start,
-    /// Pause after the current pose.
+    /// Pause after the current pose (or setup or re-registration point). Answers at once;
+    /// while the engine waits for a technician question, the question stays open and the pause
+    /// takes effect after its answer (the view's `pausing` says a pause is pending). Refused
+    /// before the start and while identifying.
     Pause,
-    /// Resume a paused campaign (after an operator fault: retries the step).
+    /// Resume a paused campaign (after an operator fault: retries the step), or start a stored
+    /// campaign loaded to be resumed (aborted, failed, interrupted: as `cellcal run --campaign N
+    /// --arm`, the tracker frame checked at the start). Requires arm; while running it withdraws
+    /// a pending pause; refused before the start of a new campaign and while identifying.
     Resume,
-    /// Resume, re-registering the tracker frame if it is found moved (a new frame segment).
+    /// Resume (as `resume`), re-registering the tracker frame if it is found moved (a new frame
+    /// segment). Refused unless paused or a stored campaign waits for its start.
     Reregister,
     /// Stop the robot now; the campaign stays resumable.
     Abort,
@@ -209,6 +216,10 @@ pub struct CampaignView {
     pub armed: bool,
     /// How the last run of this daemon ended (`done`, `aborted`, `failed: …`), if it ended.
     pub last_outcome: Option<String>,
+    /// A pause was asked for while running and is not taken yet: it takes effect before the
+    /// next pose (or setup or re-registration point), once the open question, if any, is
+    /// answered; `resume` withdraws it.
+    pub pausing: bool,
     /// The question waiting for the technician, if any.
     pub prompt: Option<PromptView>,
     /// A result is stored.
@@ -339,6 +350,8 @@ struct Loaded {
     task: JoinHandle<()>,
     /// The journal's last sequence number before this run: older terminal states are history.
     run_start: i64,
+    /// Loaded from the store (a stored campaign to resume), not created by this run's load.
+    resumed: bool,
 }
 
 impl Loaded {
@@ -527,6 +540,11 @@ impl Daemon {
             armed: l.is_some_and(|l| l.running() && l.control.is_armed()),
             last_outcome: l
                 .and_then(|l| l.status.read(|s| s.outcome.as_ref().map(|o| o.to_string()))),
+            pausing: l.is_some_and(|l| {
+                l.running()
+                    && *l.control.pause.borrow()
+                    && l.status.read(|s| s.state) == Some(StoredState::Running)
+            }),
             prompt,
             has_result: v.has_result,
             quality: v.quality,
@@ -622,6 +640,7 @@ impl Daemon {
         .map_err(|e| refusal(e, id.is_some()))?;
         let control = session.ctx.control.clone();
         let campaign_id = session.ctx.campaign_id;
+        let resumed = session.resumed;
         let (run_start, (done, total)) = self
             .read(move |s| Ok((s.last_event_seq(campaign_id)?, s.pose_counts(campaign_id)?)))
             .await?;
@@ -669,6 +688,7 @@ impl Daemon {
             status,
             task,
             run_start,
+            resumed,
         });
         Ok(campaign_id)
     }
@@ -698,7 +718,10 @@ impl Daemon {
     /// Apply a client command to campaign `id` and answer with the campaign once the engine
     /// has taken it: the reply's `state` is the state the command leads to (`arm` → `armed`,
     /// `start` → `running`, `abort` → `aborted`, …), waiting at most [`COMMAND_SETTLE`] (a
-    /// pause takes effect after the current pose, so a slow pose may still answer `running`).
+    /// pause takes effect after the current pose: a slow pose, or an open technician question
+    /// at once, answers `running` with `pausing`). A command that cannot act in the
+    /// campaign's state is a conflict that says why ([`command_effect`]), never a reply that
+    /// does nothing.
     /// Only `arm`, `start` and `resume` (an operator's) load a stored campaign that is not
     /// loaded; any other command on it changes nothing ([`Daemon::not_loaded`]). Cancel-safe: a
     /// command is applied at once (a load runs in its own task); a dropped call only stops the
@@ -767,9 +790,8 @@ impl Daemon {
             ),
             (None, None) if stops => return Ok(view),
             (None, None) if matches!(cmd, ClientCommand::Reregister) => format!(
-                "campaign {id} is not loaded ({state}): reregister resumes a paused campaign; \
-                 an operator loads it with arm and start (a resumed campaign whose tracker \
-                 moved pauses, then reregister)"
+                "campaign {id} is not loaded ({state}): an operator loads it with arm; then \
+                 reregister resumes it, re-registering a tracker frame found moved"
             ),
             (None, None) => format!(
                 "campaign {id} is not loaded ({state}): nothing to {what}; only an operator \
@@ -780,7 +802,9 @@ impl Daemon {
 
     /// Apply `cmd` to campaign `id` if it is the running one, returning how to wait for the
     /// engine to take it; abort or disarm of a campaign that is not running is a no-op
-    /// (nothing moves anyway).
+    /// (nothing moves anyway). Every other command either acts or is refused with the reason
+    /// ([`command_effect`]): a reply of 200 means the campaign is, or is going to, the state
+    /// the command asks for.
     fn apply_to_loaded(
         &self,
         id: i64,
@@ -790,109 +814,140 @@ impl Daemon {
         let Some(l) = slot.loaded.as_ref().filter(|l| l.id == id && l.running()) else {
             return Ok(None);
         };
-        let wait = settled_by(&cmd).map(|settled| StateWait {
-            status: l.status.clone(),
-            settled,
-        });
-        match cmd {
+        let wait = |settled: fn(StoredState) -> bool, or_asking: bool| {
+            Some(StateWait {
+                status: l.status.clone(),
+                settled,
+                or_asking,
+            })
+        };
+        let state = l.status.read(|s| s.state);
+        let effect = command_effect(id, &cmd, state, l.control.is_armed(), l.resumed)?;
+        match effect {
+            Effect::Holds => return Ok(None),
+            Effect::Start { reregister } => {
+                if reregister {
+                    l.control.apply(&CampaignCommand::Reregister);
+                }
+                l.control.apply(&CampaignCommand::Start);
+                return Ok(wait(started, false));
+            }
+            Effect::Apply => {}
+        }
+        Ok(match cmd {
             ClientCommand::Answer {
                 seq,
                 value_mm,
                 abort,
-            } => l.status.update(|status| {
-                let slot = &mut status.prompt;
-                let r = match slot.take().filter(PendingPrompt::is_open) {
-                    Some(p) if p.seq == seq => {
-                        let answer = match (abort, value_mm) {
-                            (true, _) => Answer::Abort,
-                            (false, _) if p.prompt.id == CONFIRM_CLEAR => {
-                                *slot = Some(p);
-                                return (
-                                    Err(DaemonError::Conflict(format!(
-                                        "question {seq} asks to confirm the cell clear: send \
+            } => {
+                l.status.update(|status| {
+                    let slot = &mut status.prompt;
+                    let r = match slot.take().filter(PendingPrompt::is_open) {
+                        Some(p) if p.seq == seq => {
+                            let answer = match (abort, value_mm) {
+                                (true, _) => Answer::Abort,
+                                (false, _) if p.prompt.id == CONFIRM_CLEAR => {
+                                    *slot = Some(p);
+                                    return (
+                                        Err(DaemonError::Conflict(format!(
+                                            "question {seq} asks to confirm the cell clear: send \
                                          {{\"command\": \"confirm_clear\", \"seq\": {seq}}}"
-                                    ))),
-                                    false,
-                                );
-                            }
-                            (false, Some(v)) if v.is_finite() => Answer::Number(v),
-                            (false, Some(v)) => {
-                                *slot = Some(p);
-                                return (
-                                    Err(DaemonError::BadRequest(format!(
-                                        "value_mm: {v} is not a finite number"
-                                    ))),
-                                    false,
-                                );
-                            }
-                            (false, None) => Answer::Confirmed,
-                        };
-                        p.answer(answer);
-                        Ok(())
-                    }
-                    other => {
-                        let waiting = other.as_ref().map(|p| p.seq);
-                        *slot = other;
-                        Err(DaemonError::Conflict(match waiting {
-                            Some(w) => format!("question {seq} is not open; {w} is"),
-                            None => format!("question {seq} is not open; none is"),
-                        }))
-                    }
-                };
-                (r, true)
-            })?,
-            ClientCommand::ConfirmClear { seq } => l.status.update(|status| {
-                let slot = &mut status.prompt;
-                let r = match slot.take().filter(PendingPrompt::is_open) {
-                    Some(p) if p.seq == seq && p.prompt.id == CONFIRM_CLEAR => {
-                        p.answer(Answer::Clear);
-                        Ok(())
-                    }
-                    other => {
-                        let open = other.as_ref().map(|p| (p.seq, p.prompt.id.clone()));
-                        *slot = other;
-                        Err(DaemonError::Conflict(match open {
-                            Some((w, id)) if id == CONFIRM_CLEAR => {
-                                format!("question {seq} is not open; {w} is")
-                            }
-                            Some((w, _)) => format!(
-                                "no `{CONFIRM_CLEAR}` question {seq} is open (question {w} is \
+                                        ))),
+                                        false,
+                                    );
+                                }
+                                (false, Some(v)) if v.is_finite() => Answer::Number(v),
+                                (false, Some(v)) => {
+                                    *slot = Some(p);
+                                    return (
+                                        Err(DaemonError::BadRequest(format!(
+                                            "value_mm: {v} is not a finite number"
+                                        ))),
+                                        false,
+                                    );
+                                }
+                                (false, None) => Answer::Confirmed,
+                            };
+                            p.answer(answer);
+                            Ok(())
+                        }
+                        other => {
+                            let waiting = other.as_ref().map(|p| p.seq);
+                            *slot = other;
+                            Err(DaemonError::Conflict(match waiting {
+                                Some(w) => format!("question {seq} is not open; {w} is"),
+                                None => format!("question {seq} is not open; none is"),
+                            }))
+                        }
+                    };
+                    (r, true)
+                })?;
+                None
+            }
+            ClientCommand::ConfirmClear { seq } => {
+                l.status.update(|status| {
+                    let slot = &mut status.prompt;
+                    let r = match slot.take().filter(PendingPrompt::is_open) {
+                        Some(p) if p.seq == seq && p.prompt.id == CONFIRM_CLEAR => {
+                            p.answer(Answer::Clear);
+                            Ok(())
+                        }
+                        other => {
+                            let open = other.as_ref().map(|p| (p.seq, p.prompt.id.clone()));
+                            *slot = other;
+                            Err(DaemonError::Conflict(match open {
+                                Some((w, id)) if id == CONFIRM_CLEAR => {
+                                    format!("question {seq} is not open; {w} is")
+                                }
+                                Some((w, _)) => format!(
+                                    "no `{CONFIRM_CLEAR}` question {seq} is open (question {w} is \
                                  answered with `answer`)"
-                            ),
-                            None => format!("question {seq} is not open; none is"),
-                        }))
-                    }
-                };
-                (r, true)
-            })?,
-            ClientCommand::Resume | ClientCommand::Reregister if !l.control.is_armed() => {
-                return Err(DaemonError::Conflict(format!(
-                    "campaign {id} is not armed: arm it first (nothing is powered or moved while disarmed)"
-                )));
+                                ),
+                                None => format!("question {seq} is not open; none is"),
+                            }))
+                        }
+                    };
+                    (r, true)
+                })?;
+                None
             }
-            ClientCommand::Arm => l.control.apply(&CampaignCommand::Arm),
-            ClientCommand::Disarm => l.control.apply(&CampaignCommand::Disarm),
-            ClientCommand::Start if !l.control.is_armed() => {
-                return Err(DaemonError::Conflict(format!(
-                    "campaign {id} is not armed: arm it first (a start before arm is refused, not remembered)"
-                )));
+            ClientCommand::Arm => {
+                l.control.apply(&CampaignCommand::Arm);
+                wait(|s| s != StoredState::Idle, false)
             }
-            ClientCommand::Start => l.control.apply(&CampaignCommand::Start),
-            ClientCommand::Pause => l.control.apply(&CampaignCommand::Pause),
-            ClientCommand::Resume => l.control.apply(&CampaignCommand::Resume),
-            // a re-registration belongs to the resume it comes with: never remembered
-            ClientCommand::Reregister
-                if l.status.read(|s| s.state) != Some(StoredState::Paused) =>
-            {
-                return Err(DaemonError::Conflict(format!(
-                    "campaign {id} is not paused: reregister resumes a paused campaign (it is \
-                     not remembered for a later start)"
-                )));
+            ClientCommand::Disarm => {
+                l.control.apply(&CampaignCommand::Disarm);
+                // a running campaign pauses on a disarm
+                wait(
+                    |s| !matches!(s, StoredState::Armed | StoredState::Running),
+                    false,
+                )
             }
-            ClientCommand::Reregister => l.control.apply(&CampaignCommand::Reregister),
-            ClientCommand::Abort => l.control.apply(&CampaignCommand::Abort),
-        }
-        Ok(wait)
+            ClientCommand::Start => {
+                l.control.apply(&CampaignCommand::Start);
+                wait(started, false)
+            }
+            ClientCommand::Pause => {
+                l.control.apply(&CampaignCommand::Pause);
+                // an open question is answered before the pause takes effect: say so at once
+                wait(|s| s != StoredState::Running, true)
+            }
+            ClientCommand::Resume => {
+                // while running: withdraws a pause asked for and not yet taken
+                l.control.apply(&CampaignCommand::Resume);
+                wait(|s| s != StoredState::Paused, false)
+            }
+            ClientCommand::Reregister => {
+                l.control.apply(&CampaignCommand::Reregister);
+                wait(|s| s != StoredState::Paused, false)
+            }
+            ClientCommand::Abort => {
+                l.control.apply(&CampaignCommand::Abort);
+                // until the run has ended and let go of the campaign and the cell: the reply's
+                // `loaded: false` is true, and a next command loads it again
+                wait(|_| false, false)
+            }
+        })
     }
 
     /// Follow campaign `id`'s events: journal entries with a sequence number above `after`,
@@ -1219,36 +1274,131 @@ impl Daemon {
 /// Longest wait of a command's reply for the engine to take the command.
 pub const COMMAND_SETTLE: Duration = Duration::from_secs(5);
 
-/// The engine states in which a command has been taken (`None`: nothing to wait for).
-fn settled_by(cmd: &ClientCommand) -> Option<fn(StoredState) -> bool> {
-    use StoredState::{Armed, Idle, Paused, Running};
-    Some(match cmd {
-        ClientCommand::Arm => |s| s != Idle,
-        // a running campaign pauses on a disarm
-        ClientCommand::Disarm => |s| !matches!(s, Armed | Running),
-        ClientCommand::Start => |s| !matches!(s, Idle | Armed),
-        // before a start there is nothing to pause
-        ClientCommand::Pause => |s| s != Running,
-        ClientCommand::Resume | ClientCommand::Reregister => |s| s != Paused,
-        // until the run has ended and let go of the campaign and the cell: the reply's
-        // `loaded: false` is true, and a next command loads it again
-        ClientCommand::Abort => |_| false,
-        ClientCommand::Answer { .. } | ClientCommand::ConfirmClear { .. } => return None,
-    })
-}
-
 /// Waiting for the engine to take a command.
 struct StateWait {
     status: RunWatch,
+    /// The engine states in which the command has been taken.
     settled: fn(StoredState) -> bool,
+    /// Also stop waiting while a technician question is open (a pause waits for its answer).
+    or_asking: bool,
 }
 
 impl StateWait {
-    /// Until the engine's state is one `settled` accepts, the run ends, or `limit` passes.
-    /// Cancel-safe (it only waits).
+    /// Until the engine's state is one `settled` accepts, the run ends, (with `or_asking`) a
+    /// question waits for the technician, or `limit` passes. Cancel-safe (it only waits).
     async fn settle(self, limit: Duration) {
-        let _ = tokio::time::timeout(limit, self.status.settled(self.settled)).await;
+        let _ =
+            tokio::time::timeout(limit, self.status.settled(self.settled, self.or_asking)).await;
     }
+}
+
+/// What a command does to a loaded run in its current state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Effect {
+    /// Apply it to the engine.
+    Apply,
+    /// Start the run waiting for its start (a `resume` or `reregister` of a campaign loaded
+    /// from the store is its start, as `cellcal run --campaign N --arm [--reregister]`: the
+    /// engine's frame check at the start re-registers a moved tracker only when asked).
+    Start {
+        /// Re-register a tracker frame found moved at the start's frame check.
+        reregister: bool,
+    },
+    /// The state the command asks for already holds (arm while armed, pause while paused,
+    /// start or resume while running): nothing to do, and the reply says so truthfully.
+    Holds,
+}
+
+/// What `cmd` does to loaded campaign `id` whose engine is in `state` (`None`: not yet
+/// written), armed or not, `resumed` from the store or created by this daemon; `Err` says why
+/// the command cannot act now and what to send instead. Answers and stops always reach the
+/// engine (their own checks follow).
+fn command_effect(
+    id: i64,
+    cmd: &ClientCommand,
+    state: Option<StoredState>,
+    armed: bool,
+    resumed: bool,
+) -> Result<Effect, DaemonError> {
+    use StoredState::{Armed, Identifying, Idle, Paused, Running};
+    let what = command_name(cmd);
+    let refuse = |why: String| Err(DaemonError::Conflict(why));
+    let waiting = matches!(state, None | Some(Idle | Armed));
+    let now = state.map_or("loading", StoredState::name);
+    match cmd {
+        ClientCommand::Arm
+        | ClientCommand::Disarm
+        | ClientCommand::Abort
+        | ClientCommand::Answer { .. }
+        | ClientCommand::ConfirmClear { .. } => Ok(Effect::Apply),
+        ClientCommand::Start if !armed => refuse(format!(
+            "campaign {id} is not armed: arm it first (a start before arm is refused, not \
+             remembered)"
+        )),
+        ClientCommand::Resume | ClientCommand::Reregister if !armed => refuse(format!(
+            "campaign {id} is not armed: arm it, then {what} (nothing is powered or moved while \
+             disarmed)"
+        )),
+        ClientCommand::Start if waiting => Ok(Effect::Apply),
+        ClientCommand::Resume | ClientCommand::Reregister if waiting && resumed => {
+            Ok(Effect::Start {
+                reregister: matches!(cmd, ClientCommand::Reregister),
+            })
+        }
+        ClientCommand::Resume | ClientCommand::Reregister | ClientCommand::Pause if waiting => {
+            refuse(format!(
+                "campaign {id} has not started ({now}): nothing to {what}; send start (a {what} \
+                 before the start is refused, not remembered)"
+            ))
+        }
+        ClientCommand::Start | ClientCommand::Resume if state == Some(Running) => {
+            Ok(if matches!(cmd, ClientCommand::Resume) {
+                // withdraws a pause asked for and not yet taken
+                Effect::Apply
+            } else {
+                Effect::Holds
+            })
+        }
+        ClientCommand::Pause if state == Some(Running) => Ok(Effect::Apply),
+        ClientCommand::Pause if state == Some(Paused) => Ok(Effect::Holds),
+        ClientCommand::Resume | ClientCommand::Reregister if state == Some(Paused) => {
+            Ok(Effect::Apply)
+        }
+        ClientCommand::Start if state == Some(Paused) => refuse(format!(
+            "campaign {id} is paused: send resume (start begins a campaign that waits for its \
+             start)"
+        )),
+        ClientCommand::Reregister if state == Some(Running) => refuse(format!(
+            "campaign {id} is not paused: reregister resumes a paused campaign (it is not \
+             remembered for a later pause)"
+        )),
+        _ if state == Some(Identifying) => refuse(format!(
+            "campaign {id} has measured every pose and is identifying: nothing to {what}"
+        )),
+        _ => refuse(format!(
+            "campaign {id} is {now}: its run is ending; send {what} again once it has ended"
+        )),
+    }
+}
+
+/// The command's name in messages (`arm`, `confirm_clear`, …).
+fn command_name(cmd: &ClientCommand) -> &'static str {
+    match cmd {
+        ClientCommand::Arm => "arm",
+        ClientCommand::Disarm => "disarm",
+        ClientCommand::Start => "start",
+        ClientCommand::Pause => "pause",
+        ClientCommand::Resume => "resume",
+        ClientCommand::Reregister => "reregister",
+        ClientCommand::Abort => "abort",
+        ClientCommand::Answer { .. } => "answer",
+        ClientCommand::ConfirmClear { .. } => "confirm_clear",
+    }
+}
+
+/// The engine has left its wait for the start (the state a start leads to).
+fn started(s: StoredState) -> bool {
+    !matches!(s, StoredState::Idle | StoredState::Armed)
 }
 
 /// What a view needs from the store.

@@ -16,7 +16,7 @@
 //! | `GET /api/campaigns` | every stored campaign (`CampaignView`) |
 //! | `POST /api/campaigns` | plan and store a new campaign; body `{poses?, ident?, seed?, model?}` (may be empty) → 201 + `CampaignView` |
 //! | `GET /api/campaigns/{id}` | one campaign: state, poses done/total, open question |
-//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator; `disarm` stops the robot and the stage and pauses) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` or `{"command": "confirm_clear", "seq"}` (the only answer to a `confirm_clear` question) |
+//! | `POST /api/campaigns/{id}/commands` | `{"command": "arm"\|"disarm"\|"start"\|"pause"\|"resume"\|"reregister"\|"abort"}` (`reregister`: resume, and re-register a tracker frame found moved; operator; `disarm` stops the robot and the stage and pauses; `resume` of an aborted, failed or interrupted campaign, once armed, resumes it; a command that cannot act in the campaign's state is a 409 with the reason, never a 200 that does nothing; `pause` answers at once, `pausing` until it takes effect) or `{"command": "answer", "seq", "value_mm"?, "abort"?}` or `{"command": "confirm_clear", "seq"}` (the only answer to a `confirm_clear` question) |
 //! | `GET /api/campaigns/{id}/events` | the stored event journal: `[{seq, at_ms, kind, event}]` |
 //! | `GET /api/campaigns/{id}/stream` | events, Server-Sent Events (`id:` = journal `seq`, `event:` = kind, `data:` = JSON); resumes after `Last-Event-ID` (header, or `?last_event_id=`); ends after the run's final state |
 //! | `GET /api/campaigns/{id}/prompt` | the open technician question (`PromptView`), 204 when none |
@@ -375,12 +375,12 @@ async fn one(State(d): State<Shared>, CampaignId(id): CampaignId) -> Result<Resp
 #[utoipa::path(post, path = "/api/campaigns/{id}/commands", tag = "campaigns",
     params(("id" = i64, Path, description = "campaign id")),
     request_body(content = ClientCommand, content_type = "application/json"),
-    responses((status = 200, description = "the campaign after the command", body = CampaignView),
+    responses((status = 200, description = "the campaign after the command: in, or going to, the state the command asks for (`pausing`: a pause waits for the current pose or open question)", body = CampaignView),
         (status = 400, description = "a bad command or value", body = ErrorBody),
         (status = 401, description = "no or unknown token", body = ErrorBody),
         (status = 403, description = "the role may not do that", body = ErrorBody),
         (status = 404, description = "no such campaign", body = ErrorBody),
-        (status = 409, description = "conflicts with the cell's current use (not armed, a stale question number, a campaign that is not loaded — only arm, start and resume load one —, another process commanding the cell, …)", body = ErrorBody),
+        (status = 409, description = "conflicts with the cell's current use (not armed, a stale question number, a command the campaign's state has nothing for — a pause or resume before the start, a start while paused, anything but a stop while identifying —, a campaign that is not loaded — only arm, start and resume load one —, another process commanding the cell, …)", body = ErrorBody),
         (status = 413, description = "body over 64 KiB", body = ErrorBody),
         (status = 415, description = "body not declared application/json", body = ErrorBody)))]
 async fn command(

@@ -605,12 +605,7 @@ impl Run<'_> {
         }
         let max = self.ctx.cfg.robot_controller.max_attempts;
         let timeout = Duration::from_millis(self.ctx.cfg.robot_controller.settle_timeout_ms);
-        let tol = self
-            .ctx
-            .cfg
-            .robot_controller
-            .settle_tolerance_deg
-            .to_radians();
+        let tol = self.settle_tolerance();
         let mut last = String::new();
         self.ensure_clear().await?;
         self.robot_settled = false;

@@ -107,12 +107,37 @@ impl RunArgs {
 /// Run a campaign headless (or with terminal prompts for a manual stage).
 pub fn run(opts: RunArgs) -> Result<(), Failure> {
     let cfg = load_cell_config(&opts.config).map_err(input)?;
+    if opts.arm {
+        refuse_manual_without_terminal(&cfg, std::io::stdin().is_terminal())?;
+    }
     let store_path = opts.store.clone().unwrap_or_else(|| cfg.store.clone());
     let rt = runtime()?;
     let result = rt.block_on(run_session(opts, cfg, store_path));
     // a technician question may still be blocked reading the terminal: do not wait for it
     rt.shutdown_background();
     result
+}
+
+/// A manual stage's questions are answered at the terminal: without one (stdin from a file,
+/// `/dev/null`, a pipe, systemd) the first question would read end-of-input as the
+/// technician's abort. Refused before anything is planned, locked, armed or moved (exit 2).
+fn refuse_manual_without_terminal(cfg: &CellConfig, terminal: bool) -> Result<(), Failure> {
+    let kind = match cfg.stage.kind {
+        StageMode::Serial => return Ok(()),
+        StageMode::Manual => "manual",
+        StageMode::ManualGauge => "manual_gauge",
+    };
+    if terminal {
+        return Ok(());
+    }
+    Err(input(anyhow!(
+        "{}: [stage] kind = \"{kind}\": a technician answers the stage's questions, but stdin \
+         is not a terminal, so nobody could answer them; nothing was planned, armed or moved. \
+         Run `cellcal run --arm` in a terminal, or start `cellcal serve --config {}` and answer \
+         the questions on its page",
+        cfg.path.display(),
+        cfg.path.display()
+    )))
 }
 
 /// Open (or resume) the campaign, and with `--arm` run it to its end. Not cancel-safe (as

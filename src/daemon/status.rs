@@ -101,12 +101,17 @@ impl RunWatch {
         let _ = rx.wait_for(|s| s.outcome.is_some()).await;
     }
 
-    /// Until the engine's state is one `settled` accepts or the run has ended. Cancel-safe (it
-    /// only waits).
-    pub(super) async fn settled(&self, settled: fn(StoredState) -> bool) {
+    /// Until the engine's state is one `settled` accepts or the run has ended; with
+    /// `or_asking`, also while a technician question is open (the engine waits for the
+    /// technician, so nothing settles before their answer). Cancel-safe (it only waits).
+    pub(super) async fn settled(&self, settled: fn(StoredState) -> bool, or_asking: bool) {
         let mut rx = self.tx.subscribe();
         let _ = rx
-            .wait_for(|s| s.outcome.is_some() || s.state.is_some_and(settled))
+            .wait_for(|s| {
+                s.outcome.is_some()
+                    || s.state.is_some_and(settled)
+                    || (or_asking && s.prompt.as_ref().is_some_and(PendingPrompt::is_open))
+            })
             .await;
     }
 }

@@ -22,6 +22,19 @@ pub const IMPORTED_STATE: &str = "imported";
 const POINT_COLUMNS: &str = "x_mm, y_mm, z_mm, std_x_mm, std_y_mm, std_z_mm, std_total_mm, \
      temperature_c, pressure_mbar, humidity_pct, stage_mm, sent_at_ms, received_at_ms, joints_rad";
 
+/// A stored setup point ([`Store::setup_points`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetupPoint {
+    /// Measurement row id.
+    pub row: i64,
+    /// The note naming its mark (`tool frame +x P1`, `base registration 2`, …).
+    pub note: String,
+    /// The point (the stage reading in `stage_mm`).
+    pub point: PointRecord,
+    /// Joints read back when it was measured (rad).
+    pub joints_rad: Vec<f64>,
+}
+
 /// One tracker point of a measured pose as recorded, in the campaign's first tracker frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeasuredPoint {
@@ -290,6 +303,57 @@ impl Store {
         let row = insert_point(&tx, id, pose, kind.as_str(), joints.as_deref(), point, note)?;
         tx.commit().ctx("commit add point")?;
         Ok(row)
+    }
+
+    /// The campaign's `setup` points with joints taken after the latest refusal marker
+    /// ([`Store::discard_setup_points`]), oldest first: what a setup resumed before its result
+    /// was stored reuses (by the mark in the note).
+    pub fn setup_points(&self, id: i64) -> Result<Vec<SetupPoint>, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, note FROM measurements WHERE campaign_id = ?1 AND kind = 'setup' \
+                 AND joints_rad IS NOT NULL AND id > coalesce((SELECT max(id) FROM measurements \
+                 WHERE campaign_id = ?1 AND kind = 'discarded' AND note LIKE 'setup refused:%'), 0) \
+                 ORDER BY id",
+            )
+            .ctx("read setup points")?;
+        let raw = st
+            .query_map([id], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))
+            .ctx("read setup points")?
+            .collect::<Result<Vec<_>, _>>()
+            .ctx("read setup points")?;
+        raw.into_iter()
+            .map(|(row, note)| {
+                let (point, joints) = read_point(&self.conn, row)?;
+                Ok(SetupPoint {
+                    row,
+                    note,
+                    point,
+                    joints_rad: joints.unwrap_or_default(),
+                })
+            })
+            .collect()
+    }
+
+    /// Refuse the campaign's `setup` points for reuse (measurements are append-only): a
+    /// `discarded` copy of the latest one, noted `setup refused: <why>`, marks every setup
+    /// point before it as not reused ([`Store::setup_points`]); how many rows were added (0
+    /// without a setup point).
+    pub fn discard_setup_points(&mut self, id: i64, why: &str) -> Result<usize, StoreError> {
+        Store::ensure_campaign(&self.conn, id)?;
+        self.conn
+            .execute(
+                &format!(
+                    "INSERT INTO measurements (campaign_id, pose_index, kind, {POINT_COLUMNS}, \
+                     note) SELECT campaign_id, NULL, 'discarded', {POINT_COLUMNS}, \
+                     'setup refused: ' || ?2 FROM measurements WHERE campaign_id = ?1 AND \
+                     kind = 'setup' ORDER BY id DESC LIMIT 1"
+                ),
+                params![id, why],
+            )
+            .ctx("mark setup points refused")
     }
 
     /// How many points of `kind` the campaign has stored.

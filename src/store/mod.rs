@@ -55,7 +55,9 @@ pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint
 pub use handle::{ReaderPool, StoreHandle};
 pub use kinds::{CampaignKind, ISO9283_KIND};
 pub use locks::{Acquired, LockHolder};
-pub use measurements::{identification_rows, MeasuredPoint, MeasuredPose, IMPORTED_STATE};
+pub use measurements::{
+    identification_rows, MeasuredPoint, MeasuredPose, SetupPoint, IMPORTED_STATE,
+};
 pub use records::{
     CampaignRow, JournalEntry, JournalEvent, NewCampaign, PlannedPose, PointKind, PointRecord,
     PoseMeasurement, StoredState,

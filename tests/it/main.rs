@@ -16,6 +16,7 @@ mod contract;
 mod deploy;
 mod device_config;
 mod docs;
+mod flow;
 mod frame_first;
 mod frames;
 mod hardware_doc;

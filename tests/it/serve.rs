@@ -987,7 +987,8 @@ fn roles_limit_what_a_token_may_do() {
         get_as(&s, "viewer-token", &format!("/api/campaigns/{id}")).1["armed"],
         false
     );
-    // technician: answers (409 here: no question is open, so the role passed), pauses; no arm
+    // technician: answers and pauses (409 here: no question is open and nothing runs to
+    // pause, so the role passed); no arm
     let (code, v) = post_as(
         &s,
         "technician-token",
@@ -995,9 +996,14 @@ fn roles_limit_what_a_token_may_do() {
         r#"{"command": "answer", "seq": 1, "value_mm": 1.0}"#,
     );
     assert_eq!(code, 409, "technician answer: {v}");
-    assert_eq!(
-        post_as(&s, "technician-token", &path, r#"{"command": "pause"}"#).0,
-        200
+    let (code, v) = post_as(&s, "technician-token", &path, r#"{"command": "pause"}"#);
+    assert_eq!(code, 409, "technician pause: {v}");
+    assert!(
+        v["error"]
+            .as_str()
+            .expect("error")
+            .contains("has not started"),
+        "{v}"
     );
     let (code, v) = post_as(&s, "technician-token", &path, r#"{"command": "arm"}"#);
     assert_eq!(code, 403, "technician arm: {v}");

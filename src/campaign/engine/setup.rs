@@ -1,11 +1,16 @@
 //! The cell setup steps, run once per campaign before the drift baseline: the tool-frame
 //! procedure of docs/method.md §4 and the base registration. Every point is stored (`setup` rows, with
 //! the mark in the note) before the robot moves on; the result is stored as JSON and reused on
-//! resume.
+//! resume. A setup resumed before its result was stored reuses the points already taken (a
+//! manual stage's readings are not asked again) once one of them, measured again at its
+//! joints, shows the tracker frame unmoved; a setup whose fit is refused marks its points
+//! refused (a `discarded` marker row: measurements are append-only) and is measured afresh.
+
+use std::collections::HashMap;
 
 use nalgebra::Vector3;
 
-use super::{CampaignError, Run, Step, Stop};
+use super::{settle_error, CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::identify::IdentifyOptions;
 use crate::measure::{
@@ -13,7 +18,7 @@ use crate::measure::{
     ToolFramePlanRequest,
 };
 use crate::model::{forward, RobotModel};
-use crate::store::{PointKind, Store, StoreError};
+use crate::store::{PointKind, SetupPoint, Store, StoreError};
 
 pub use crate::calibrate::setup::{BaseResult, SetupResult, ToolFrameResult};
 
@@ -59,6 +64,11 @@ impl SetupResult {
     }
 }
 
+/// A stored point's position (mm, tracker frame).
+fn position(p: &SetupPoint) -> Vector3<f64> {
+    Vector3::new(p.point.x_mm, p.point.y_mm, p.point.z_mm)
+}
+
 fn arr(v: &Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
 }
@@ -78,15 +88,16 @@ impl Run<'_> {
         }
         let (do_tool, do_base) = (cfg.tool_frame, cfg.base_registration);
         self.step = Step::Setup;
+        let kept = self.kept_setup_points().await?;
         let mut model = self.ctx.nominal.clone();
         let mut result = SetupResult::default();
         if do_tool {
-            let t = self.tool_frame().await?;
+            let t = self.tool_frame(&kept).await?;
             model.tool = Vector3::from(t.tool_mm);
             result.tool_frame = Some(t);
         }
         if do_base {
-            result.base = Some(self.base_registration(&model).await?);
+            result.base = Some(self.base_registration(&model, &kept).await?);
         }
         let json = serde_json::to_string(&result)
             .map_err(|e| Stop::Store(CampaignError::Task(e.to_string())))?;
@@ -98,10 +109,87 @@ impl Run<'_> {
         Ok(result)
     }
 
+    /// The setup points stored before (a setup resumed after an abort, a kill or a fault),
+    /// by the mark in their note (the latest of each), when the tracker frame has not moved
+    /// since: the latest of them at P1 is measured again at its joints and must agree within
+    /// `campaign.drift_max_mm` (the check a resume makes at the frame reference); otherwise
+    /// they are marked refused and nothing is reused. Not cancel-safe: one step of the
+    /// run, ended by the abort token (every device wait is `guarded`), never by dropping it.
+    async fn kept_setup_points(&mut self) -> Result<HashMap<String, SetupPoint>, Stop> {
+        let id = self.ctx.campaign_id;
+        let stored = self.store(move |s| s.setup_points(id)).await?;
+        let s1 = self.ctx.cfg.stage.p1_mm;
+        let tol = self.ctx.cfg.stage.tolerance_mm;
+        let dof = self.ctx.nominal.dof();
+        let Some(check) = stored
+            .iter()
+            .rev()
+            .find(|p| (p.point.stage_mm - s1).abs() <= tol && p.joints_rad.len() == dof)
+            .cloned()
+        else {
+            return Ok(HashMap::new());
+        };
+        self.wait_unpaused().await?;
+        let joints = self.move_to(&check.joints_rad).await?;
+        let a1 = self.stage_to(s1).await?;
+        let p = self.measure_point(None, &joints, a1).await?;
+        let note = format!(
+            "setup check: {} measured again (row {})",
+            check.note, check.row
+        );
+        self.keep_point(PointKind::Drift, None, &joints, &p, a1, note)
+            .await?;
+        let moved = (p.p_mm - position(&check)).norm();
+        let max = self.ctx.cfg.campaign.drift_max_mm;
+        if moved.is_nan() || moved > max {
+            self.discard_setup(format!("the tracker frame moved by {moved:.3} mm"))
+                .await?;
+            self.journal(CampaignEvent::Note {
+                text: format!(
+                    "setup: the tracker or the robot moved by {moved:.3} mm since the setup \
+                     points were taken (limit {max} mm): the setup is measured again"
+                ),
+            })
+            .await?;
+            return Ok(HashMap::new());
+        }
+        self.journal(CampaignEvent::Note {
+            text: format!(
+                "setup: {} points taken before are reused (the tracker frame checked at {}: \
+                 {moved:.3} mm, limit {max} mm)",
+                stored.len(),
+                check.note
+            ),
+        })
+        .await?;
+        Ok(stored.into_iter().map(|p| (p.note.clone(), p)).collect())
+    }
+
+    /// How far (rad) settled joints may be from their target (`settle_tolerance_deg`).
+    pub(super) fn settle_tolerance(&self) -> f64 {
+        self.ctx
+            .cfg
+            .robot_controller
+            .settle_tolerance_deg
+            .to_radians()
+    }
+
+    /// Mark every stored setup point refused with `why` (a setup measured again does not
+    /// reuse them). Cancel-safe in effect, as [`super::with_store`].
+    async fn discard_setup(&self, why: String) -> Result<(), CampaignError> {
+        let id = self.ctx.campaign_id;
+        self.store(move |s| s.discard_setup_points(id, &why))
+            .await
+            .map(|_| ())
+    }
+
     /// docs/method.md §4: jogs along flange x and y, rotations about them, P1/P2 pairs for the stage.
     /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
     /// `guarded`), never by dropping it.
-    async fn tool_frame(&mut self) -> Result<ToolFrameResult, Stop> {
+    async fn tool_frame(
+        &mut self,
+        kept: &HashMap<String, SetupPoint>,
+    ) -> Result<ToolFrameResult, Stop> {
         let cfg = &self.ctx.cfg.setup;
         let req = cfg.tool_frame_request();
         let max_rms = cfg.max_sphere_rms_mm;
@@ -122,10 +210,31 @@ impl Run<'_> {
         };
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s2 = s1 + self.ctx.cfg.stage.travel_mm;
+        let tol = self.settle_tolerance();
         let mut meas = Vec::with_capacity(targets.len());
         for t in &targets {
-            self.wait_unpaused().await?;
             let label = t.mark.label();
+            // a point of this mark taken at this target's joints (a changed setup is measured)
+            let stored = |at: &str| {
+                kept.get(&format!("tool frame {label} {at}"))
+                    .filter(|p| settle_error(&t.q_rad, &p.joints_rad, tol).is_none())
+                    .map(position)
+            };
+            // taken before (P2 too, when the target measures one): reused, not asked again
+            let p2 = if t.measure_p2 {
+                stored("P2").map(Some)
+            } else {
+                Some(None)
+            };
+            if let (Some(p1), Some(p2)) = (stored("P1"), p2) {
+                meas.push(SetupMeasurement {
+                    mark: t.mark,
+                    p1,
+                    p2,
+                });
+                continue;
+            }
+            self.wait_unpaused().await?;
             let joints = self.move_to(&t.q_rad).await?;
             let a1 = self.stage_to(s1).await?;
             let p1 = self.measure_point(None, &joints, a1).await?;
@@ -160,8 +269,20 @@ impl Run<'_> {
                 p2,
             });
         }
-        let f = solve_tool_frame(&meas).map_err(|e| Stop::Fault(format!("tool frame: {e}")))?;
+        let f = match solve_tool_frame(&meas) {
+            Ok(f) => f,
+            Err(e) => {
+                self.discard_setup(format!("tool frame refused: {e}"))
+                    .await?;
+                return Err(Stop::Fault(format!("tool frame: {e}")));
+            }
+        };
         if f.sphere.rms_mm > max_rms {
+            self.discard_setup(format!(
+                "tool frame refused: sphere fit RMS {:.4} mm",
+                f.sphere.rms_mm
+            ))
+            .await?;
             return Err(Stop::Fault(format!(
                 "tool frame: sphere fit RMS {:.4} mm above {max_rms} mm: check that the ball sits firmly in its nest, then resume to measure the tool frame again",
                 f.sphere.rms_mm
@@ -207,7 +328,11 @@ impl Run<'_> {
     /// Tracker ← robot base from spread planned poses on `model` (nominal + measured tool).
     /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
     /// `guarded`), never by dropping it.
-    async fn base_registration(&mut self, model: &RobotModel) -> Result<BaseResult, Stop> {
+    async fn base_registration(
+        &mut self,
+        model: &RobotModel,
+        kept: &HashMap<String, SetupPoint>,
+    ) -> Result<BaseResult, Stop> {
         let n = self.ctx.cfg.setup.base_poses;
         let max_rms = self.ctx.cfg.setup.max_base_rms_mm;
         let candidates: Vec<Vec<f64>> = self
@@ -219,8 +344,17 @@ impl Run<'_> {
             .collect();
         let chosen = select_spread(model, &candidates, n);
         let s1 = self.ctx.cfg.stage.p1_mm;
+        let tol = self.settle_tolerance();
         let mut pairs = Vec::with_capacity(chosen.len());
         for (k, i) in chosen.into_iter().enumerate() {
+            let stored = kept
+                .get(&format!("base registration {}", k + 1))
+                .filter(|p| settle_error(&candidates[i], &p.joints_rad, tol).is_none());
+            if let Some(p) = stored {
+                // taken before: reused, not asked again
+                pairs.push((p.joints_rad.clone(), position(p)));
+                continue;
+            }
             self.wait_unpaused().await?;
             let joints = self.move_to(&candidates[i]).await?;
             let a1 = self.stage_to(s1).await?;
@@ -236,9 +370,20 @@ impl Run<'_> {
             .await?;
             pairs.push((joints, p.p_mm));
         }
-        let reg = register_base(model, &pairs)
-            .map_err(|e| Stop::Fault(format!("base registration: {e}")))?;
+        let reg = match register_base(model, &pairs) {
+            Ok(reg) => reg,
+            Err(e) => {
+                self.discard_setup(format!("base registration refused: {e}"))
+                    .await?;
+                return Err(Stop::Fault(format!("base registration: {e}")));
+            }
+        };
         if reg.rms_mm > max_rms {
+            self.discard_setup(format!(
+                "base registration refused: RMS {:.3} mm",
+                reg.rms_mm
+            ))
+            .await?;
             return Err(Stop::Fault(format!(
                 "base registration RMS {:.3} mm above {max_rms} mm: check the robot model file, the tool and the tracker's view, then resume",
                 reg.rms_mm
