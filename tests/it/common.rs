@@ -153,3 +153,19 @@ pub fn realdata_dir(robot: &str) -> PathBuf {
         .join("tests/data/realdata")
         .join(robot)
 }
+
+/// The `.rs` files under `dir`, sorted, recursively.
+pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut paths: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    paths.sort();
+    for p in paths {
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}

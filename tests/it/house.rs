@@ -7,21 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-/// The `.rs` files under `dir`, sorted, recursively.
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let mut paths: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
-    paths.sort();
-    for p in paths {
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "rs") {
-            out.push(p);
-        }
-    }
-}
+use crate::common::rust_files;
 
 /// The source roots the rule covers: `src/` and every `drivers/<name>/src/`.
 fn source_roots(root: &Path) -> Vec<PathBuf> {

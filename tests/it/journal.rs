@@ -4,6 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::common::rust_files;
+
 use cellcal::campaign::engine::{BaseResult, SetupResult, ToolFrameResult};
 use cellcal::campaign::events::UnknownEvent;
 use cellcal::campaign::{CampaignEvent, CampaignState};
@@ -344,18 +346,6 @@ fn an_old_or_unknown_journal_row_still_loads_and_is_served_as_stored() {
         old[2].1
     );
     assert!(!back.iter().any(|e| e.event.ends_run()));
-}
-
-/// Rust files under `dir`, recursively.
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).expect("read dir") {
-        let path = entry.expect("entry").path();
-        if path.is_dir() {
-            rust_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            out.push(path);
-        }
-    }
 }
 
 #[test]

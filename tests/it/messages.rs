@@ -2,23 +2,9 @@
 //! delimiter named, host names for `--listen`, a closed pipe ends quietly, data in a frame far
 //! from the robot base diagnosed as such.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// The `.rs` files under `dir`, sorted, recursively.
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let mut paths: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
-    paths.sort();
-    for p in paths {
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "rs") {
-            out.push(p);
-        }
-    }
-}
+use crate::common::rust_files;
 
 /// The indentation of `line` in bytes.
 fn indent(line: &str) -> usize {
