@@ -213,7 +213,7 @@ figcaption { font-size: 0.85em; color: #555; }
 svg.plot { max-width: 100%; height: auto; display: block; }
 .missing { color: #777; font-style: italic; }
 .note { background: #fff8e1; border-left: 4px solid #f0b400; padding: 4px 10px; }
-code, .mono { font-family: ui-monospace, "DejaVu Sans Mono", monospace; font-size: 0.92em; word-break: break-all; }
+code, .mono { font-family: ui-monospace, "DejaVu Sans Mono", monospace; font-size: 0.92em; overflow-wrap: break-word; }
 footer { margin-top: 3em; color: #777; font-size: 0.85em; border-top: 1px solid #ddd; padding-top: 6px; }
 @page { size: A4; margin: 14mm 12mm; }
 @media print {
