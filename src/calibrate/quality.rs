@@ -26,6 +26,7 @@ use super::identify_json::{IdentifyReport, ParamStatus};
 pub use super::identify_json::{Quality, QualityWarning};
 use crate::identify::{predict, Measured, ObsConfig, ObsModel};
 use crate::model::RobotModel;
+use crate::units::human::fmt_mm;
 
 /// The verdict thresholds (defaults: the module table).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -141,7 +142,7 @@ pub fn assess(r: &IdentifyReport, b: &QualityBounds) -> Verdict {
             f.add(
                 "verify_worse",
                 Quality::Poor,
-                format!("verification position RMS {after:.4} mm after identification, {before:.4} mm before: the result makes the robot less accurate"),
+                format!("verification position RMS {} mm after identification, {} mm before: the result makes the robot less accurate", fmt_mm(after), fmt_mm(before)),
             );
         }
     }
@@ -169,7 +170,7 @@ pub fn assess(r: &IdentifyReport, b: &QualityBounds) -> Verdict {
                 ratio,
                 b.overfit_warning,
                 b.overfit_poor,
-                format!("verification position RMS {verify:.4} mm is {ratio:.2}× the identification RMS {ident:.4} mm (warning above {}×, poor above {}×): the parameters fit the identification poses better than the robot", b.overfit_warning, b.overfit_poor),
+                format!("verification position RMS {} mm is {ratio:.2}× the identification RMS {} mm (warning above {}×, poor above {}×): the parameters fit the identification poses better than the robot", fmt_mm(verify), fmt_mm(ident), b.overfit_warning, b.overfit_poor),
             );
         }
     }
@@ -487,6 +488,27 @@ mod tests {
 
     fn one(code: &str, q: Quality) -> (Quality, Vec<(String, Quality)>) {
         (q, vec![(code.to_owned(), q)])
+    }
+
+    #[test]
+    fn the_verdict_s_messages_give_lengths_in_mm_with_three_decimals() {
+        let mut r = good();
+        if let Some(m) = r.metrics.verify.as_mut() {
+            m.after.position_rms_mm = 0.04254;
+        }
+        let v = assess(&r, &QualityBounds::default());
+        let overfit = v
+            .warnings
+            .iter()
+            .find(|w| w.code == "overfit")
+            .expect("overfit");
+        assert!(
+            overfit
+                .message
+                .starts_with("verification position RMS 0.043 mm is "),
+            "{}",
+            overfit.message
+        );
     }
 
     #[test]
