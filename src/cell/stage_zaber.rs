@@ -214,14 +214,7 @@ impl Stage for ZaberStageAdapter {
             product = id.product.unwrap_or("(configured scale)"),
             "stage identified"
         );
-        self.identity = Some(format!(
-            "Zaber {} (device.id {}, peripheral.id {}), serial {}, firmware {}",
-            id.product.unwrap_or("stage of configured scale"),
-            id.device_id,
-            id.peripheral_id,
-            id.serial,
-            id.firmware
-        ));
+        self.identity = Some(identity_text(&id));
         let stage = self.open()?;
         if home {
             let r = stage.home().await;
@@ -269,14 +262,7 @@ impl Stage for ZaberStageAdapter {
                 format!("get pos: not a position: {:?}", reply.data),
             )
         })?;
-        let identity = format!(
-            "Zaber {} (device.id {}, peripheral.id {}), serial {}, firmware {}",
-            id.product.unwrap_or("stage of configured scale"),
-            id.device_id,
-            id.peripheral_id,
-            id.serial,
-            id.firmware
-        );
+        let identity = identity_text(&id);
         self.identity = Some(identity.clone());
         let flags = match reply.warning.as_str() {
             "--" => "no warning".to_owned(),
@@ -293,4 +279,16 @@ impl Stage for ZaberStageAdapter {
     fn identity(&self) -> Option<String> {
         self.identity.clone()
     }
+}
+
+/// What the stage says it is, as the `devices` event and the report show it.
+fn identity_text(id: &zaber::StageIdentity) -> String {
+    format!(
+        "Zaber {} (device.id {}, peripheral.id {}), serial {}, firmware {}",
+        id.product.unwrap_or("stage of configured scale"),
+        id.device_id,
+        id.peripheral_id,
+        id.serial,
+        id.firmware
+    )
 }
