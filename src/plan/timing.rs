@@ -10,6 +10,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::campaign::Plan;
+use super::route::Router;
 use crate::model::RobotModel;
 use crate::units::human::fmt_estimate;
 
@@ -190,6 +192,249 @@ impl CampaignEstimate {
             self.readings,
             fmt_estimate(self.total_s)
         )
+    }
+}
+
+/// How the stage gets from one position to the next.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StageTimes {
+    /// A motorised stage: `per_move_s` (start, settling, the driver's polling) plus the
+    /// distance at `speed_mm_s`.
+    Motorised {
+        /// Speed (mm/s).
+        speed_mm_s: f64,
+        /// Time added to every move (s).
+        per_move_s: f64,
+    },
+    /// A micrometer set by a technician: `per_reading_s` for every position they set and
+    /// read (confirming the cell clear included).
+    Manual {
+        /// Time per reading (s).
+        per_reading_s: f64,
+    },
+}
+
+/// How long the cell's devices take (s): from the configuration for real devices, from the
+/// simulated cell's effective timings for simulated ones.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellTimes {
+    /// Joint limits at the campaign's speed.
+    pub motion: MotionLimits,
+    /// Settling after every move (every via point and pre-pose too) (s).
+    pub settle_s: f64,
+    /// One tracker reading: the measuring time plus its overhead (s).
+    pub reading_s: f64,
+    /// The stage.
+    pub stage: StageTimes,
+    /// Preparing the devices before the first move: power, tracker initialisation, stage
+    /// homing (s).
+    pub prepare_s: f64,
+}
+
+/// Where a stage's moves go, in order: `None` for "forget where it is" (after the devices
+/// are prepared, the next move is made even to where it stands), `Some(mm)` for a move the
+/// engine asks for (skipped when the last one already put it there).
+pub type StageSequence = Vec<Option<f64>>;
+
+/// The stage positions one pose is measured at (P1, P2 and back to P1, as the engine
+/// measures today; P1 only without the axis), given where the stage is.
+pub fn pose_stage_targets(_at: Option<f64>, p1_mm: f64, p2_mm: f64, axis: bool) -> Vec<f64> {
+    if axis {
+        vec![p1_mm, p2_mm, p1_mm]
+    } else {
+        vec![p1_mm]
+    }
+}
+
+/// Time (s) and technician readings of a sequence of stage moves from a stage at `home_mm`
+/// (a move within `tolerance_mm` of the last known position is skipped, as the engine skips
+/// it).
+pub fn stage_time_s(
+    sequence: &[Option<f64>],
+    home_mm: f64,
+    tolerance_mm: f64,
+    times: &StageTimes,
+) -> (f64, usize) {
+    let mut known: Option<f64> = None;
+    let mut at = home_mm;
+    let (mut secs, mut readings) = (0.0, 0);
+    for step in sequence {
+        let Some(mm) = *step else {
+            known = None;
+            continue;
+        };
+        if known.is_some_and(|k| (k - mm).abs() <= tolerance_mm) {
+            continue;
+        }
+        match *times {
+            StageTimes::Motorised {
+                speed_mm_s,
+                per_move_s,
+            } => secs += per_move_s + (mm - at).abs() / speed_mm_s,
+            StageTimes::Manual { per_reading_s } => {
+                secs += per_reading_s;
+                readings += 1;
+            }
+        }
+        at = mm;
+        known = Some(mm);
+    }
+    (secs, readings)
+}
+
+/// One place the engine moves the robot to and measures at: its joints, an optional
+/// pre-pose it comes in through, and the stage positions it reads at.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Visit {
+    /// Joints (rad).
+    pub q_rad: Vec<f64>,
+    /// Pre-pose (the last via point), if any.
+    pub approach: Option<Vec<f64>>,
+    /// Stage positions, each with one tracker reading (mm).
+    pub stage_mm: Vec<f64>,
+}
+
+/// What a campaign does, in the engine's order, for [`estimate_campaign`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct CampaignWalk {
+    /// Where the robot stands at the start (rad); `None`: at the first measured visit (the
+    /// drift reference).
+    pub start_q: Option<Vec<f64>>,
+    /// The setup's visits (tool frame, base registration), in order.
+    pub setup: Vec<Visit>,
+    /// The measured part: frame reference, poses, drift checks, in order.
+    pub measured: Vec<Visit>,
+    /// Planned poses and their tracker readings.
+    pub poses: usize,
+    /// Tracker readings at the planned poses.
+    pub readings: usize,
+    /// Stage position after the devices are prepared (mm).
+    pub stage_home_mm: f64,
+    /// Stage positions closer than this count as reached (mm).
+    pub stage_tolerance_mm: f64,
+}
+
+/// The campaign a fresh [`Plan`] measures, visit by visit as the engine does (setup visits
+/// given): the frame reference at the drift reference, every pose (P1, P2, P1), a drift check
+/// after every `drift_every` poses (not after the last) and at the end.
+pub fn campaign_walk(
+    plan: &Plan,
+    drift_every: usize,
+    setup: Vec<Visit>,
+    start_q: Option<Vec<f64>>,
+    stage: (f64, f64, f64),
+    axis: bool,
+) -> CampaignWalk {
+    let (p1, travel, tolerance) = stage;
+    let drift = || Visit {
+        q_rad: plan.drift_reference.clone(),
+        approach: None,
+        stage_mm: vec![p1],
+    };
+    let mut measured = vec![drift()];
+    let mut stage_at = Some(p1);
+    let total = plan.poses.len();
+    for (done, p) in plan.poses.iter().enumerate().map(|(i, p)| (i + 1, p)) {
+        let stage_mm = pose_stage_targets(stage_at, p1, p1 + travel, axis);
+        stage_at = stage_mm.last().copied();
+        measured.push(Visit {
+            q_rad: p.q_rad.clone(),
+            approach: plan.approach.get(&p.index).cloned(),
+            stage_mm,
+        });
+        if drift_every > 0 && done % drift_every == 0 && done < total {
+            measured.push(drift());
+        }
+    }
+    measured.push(drift());
+    CampaignWalk {
+        start_q,
+        setup,
+        measured,
+        poses: total,
+        readings: total * if axis { 2 } else { 1 },
+        stage_home_mm: 0.0,
+        stage_tolerance_mm: tolerance,
+    }
+}
+
+/// Robot motion, settling, readings and stage of a run of visits.
+#[derive(Debug, Default)]
+struct Parts {
+    motion_s: f64,
+    settle_s: f64,
+    measure_s: f64,
+    moves: usize,
+}
+
+/// The planned duration of `walk` on a cell with `times`: each leg along the route the engine
+/// takes (`router`: the campaign's, through the drift reference; a leg it cannot route is
+/// timed as the direct move), a pre-pose's last leg direct, settling after every leg, one
+/// reading per stage position, the stage's moves followed through the whole sequence
+/// ([`stage_time_s`]).
+pub fn estimate_campaign(
+    walk: &CampaignWalk,
+    times: &CellTimes,
+    mut router: Option<&mut Router>,
+) -> CampaignEstimate {
+    let drift_reference = walk.measured.first().map(|v| v.q_rad.clone());
+    let mut at = walk.start_q.clone().or(drift_reference).unwrap_or_default();
+    let mut legs = |visits: &[Visit], parts: &mut Parts, at: &mut Vec<f64>| {
+        for v in visits {
+            let mut points = Vec::new();
+            let first = v.approach.as_deref().unwrap_or(&v.q_rad);
+            if let Some(r) = router.as_deref_mut() {
+                points.extend(r.route(at, first).unwrap_or_default());
+            }
+            if let Some(pre) = &v.approach {
+                if pre.as_slice() != at.as_slice() {
+                    points.push(pre.clone());
+                }
+            }
+            points.push(v.q_rad.clone());
+            for p in points {
+                parts.motion_s += times.motion.move_time_s(at, &p);
+                parts.settle_s += times.settle_s;
+                parts.moves += 1;
+                *at = p;
+            }
+            parts.measure_s += times.reading_s * v.stage_mm.len() as f64;
+        }
+    };
+    let (mut setup, mut measured) = (Parts::default(), Parts::default());
+    legs(&walk.setup, &mut setup, &mut at);
+    legs(&walk.measured, &mut measured, &mut at);
+    let stage = |visits: &[Visit], reset: bool| -> StageSequence {
+        let mut seq: StageSequence = if reset { vec![None] } else { Vec::new() };
+        seq.extend(
+            visits
+                .iter()
+                .flat_map(|v| v.stage_mm.iter().map(|m| Some(*m))),
+        );
+        seq
+    };
+    let home = walk.stage_home_mm;
+    let tol = walk.stage_tolerance_mm;
+    let setup_seq = stage(&walk.setup, true);
+    let (setup_stage_s, _) = stage_time_s(&setup_seq, home, tol, &times.stage);
+    let mut all = setup_seq;
+    all.extend(stage(&walk.measured, false));
+    let (all_stage_s, all_readings) = stage_time_s(&all, home, tol, &times.stage);
+    let setup_s =
+        times.prepare_s + setup.motion_s + setup.settle_s + setup.measure_s + setup_stage_s;
+    let stage_s = all_stage_s - setup_stage_s;
+    let total_s = setup_s + measured.motion_s + measured.settle_s + measured.measure_s + stage_s;
+    CampaignEstimate {
+        poses: walk.poses,
+        readings: walk.readings,
+        setup_s,
+        motion_s: measured.motion_s,
+        settle_s: measured.settle_s,
+        measure_s: measured.measure_s,
+        stage_s,
+        total_s,
+        technician_readings: all_readings,
+        moves: setup.moves + measured.moves,
     }
 }
 
