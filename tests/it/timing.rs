@@ -31,7 +31,7 @@ fn realistic_config() -> String {
 }
 
 #[test]
-fn the_estimate_of_a_short_realistic_campaign_is_within_ten_percent_of_its_measured_duration() {
+fn estimate_matches_the_clock() {
     let text = realistic_config();
     assert!(text.contains("realistic = true\n"), "{text}");
     assert!(text.contains("measure_ms = 1000 "), "{text}");
