@@ -51,13 +51,17 @@ impl MoveProfile {
     /// Fraction of the line covered `t_s` after the start (0 before, 1 from the end on).
     pub fn fraction_at(&self, t_s: f64) -> f64 {
         let total = self.duration_s;
-        if !(total > 0.0) || t_s >= total {
+        if total.is_nan() || total <= 0.0 || t_s >= total {
             return 1.0;
         }
         if t_s <= 0.0 {
             return 0.0;
         }
         let ramp = (self.rate / self.accel).min(total / 2.0);
+        if ramp.is_nan() || ramp <= 0.0 {
+            // instant acceleration: constant speed
+            return (t_s / total).clamp(0.0, 1.0);
+        }
         let peak = self.accel * ramp;
         let s = if t_s < ramp {
             0.5 * self.accel * t_s * t_s
@@ -122,7 +126,7 @@ impl MotionLimits {
         let mut accel = f64::INFINITY;
         for (j, (a, b)) in from.iter().zip(to).enumerate() {
             let d = (b - a).abs();
-            if !(d > 0.0) {
+            if d.is_nan() || d <= 0.0 {
                 continue;
             }
             let v = self.speed_rad_s.get(j).copied().unwrap_or(f64::NAN);
@@ -477,6 +481,8 @@ mod tests {
         // infinite acceleration: distance over speed
         let c = MotionLimits::uniform(1, 2.0);
         assert!(close(c.move_time_s(&[0.0], &[3.0]), 1.5));
+        let p = c.profile(&[0.0], &[3.0]);
+        assert!(close(p.fraction_at(0.375), 0.25), "constant speed");
     }
 
     #[test]
