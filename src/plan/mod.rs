@@ -7,6 +7,7 @@ pub mod order;
 pub mod path;
 pub mod route;
 pub mod sampling;
+pub mod timing;
 pub mod workspace;
 
 pub use campaign::{
@@ -16,4 +17,5 @@ pub use campaign::{
 pub use path::{BoxFace, CheckedPoint, PathCheck, PathChecker, PathFault, PATH_STEP_MM};
 pub use route::{RouteError, Router};
 pub use sampling::{sample_poses, PlanError};
+pub use timing::{CampaignEstimate, MotionLimits};
 pub use workspace::Workspace;
