@@ -6,10 +6,11 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::order::{order_by_time, tour_s, travel, Legs, MotionLimits};
+use super::order::{order_by_time, tour_s, travel, Legs};
 use super::path::{wrist_side, PathChecker};
 use super::route::{RouteError, Router};
 use super::sampling::{sample_poses_where, PlanError};
+use super::timing::MotionLimits;
 use super::workspace::Workspace;
 use crate::dataset::PoseSet;
 use crate::model::kinematics::{forward, Pose};
@@ -446,6 +447,81 @@ mod tests {
         let ordered = total_travel(&p.drift_reference, &p.poses);
         let random = total_travel(&p.drift_reference, &by_index);
         assert!(ordered < 0.6 * random, "{ordered} vs {random}");
+    }
+
+    /// 2-opt starts from the nearest-neighbour order and keeps a move only when it shortens
+    /// the tour: never longer, over seeds, drift intervals and identification blocks.
+    #[test]
+    fn two_opt_never_lengthens_the_nearest_neighbour_order() {
+        let m = tx60();
+        let mut shorter = 0;
+        for (seed, drift_every, block) in [
+            (1, 0, None),
+            (2, 7, None),
+            (3, 20, Some(8)),
+            (4, 1, Some(5)),
+            (5, 13, Some(30)),
+        ] {
+            let mut r = req();
+            r.seed = seed;
+            r.drift_every = drift_every;
+            r.ident_block = block;
+            let p = plan_campaign(&m, &r).unwrap();
+            let hub = p.drift_reference.clone();
+            let mut kept: Vec<PlanEntry> = p.poses.clone();
+            kept.sort_by_key(|e| e.index);
+            let kept = kept.into_iter().map(|e| e.q_rad).collect();
+            let mut router = campaign_router(&m, &r, &hub).unwrap();
+            let o = order_plan(&m, &r, &mut router, kept);
+            assert!(
+                o.planned_order_s <= o.nearest_neighbour_s + 1e-9,
+                "seed {seed}: {} s after 2-opt, {} s before",
+                o.planned_order_s,
+                o.nearest_neighbour_s
+            );
+            assert_eq!(o.planned_order_s, p.planned_order_s);
+            assert_eq!(o.sampling_order_s, p.sampling_order_s);
+            // the reported times are those of the order (and of the sampling order)
+            let (sampling, planned) = order_times(&m, &r, &mut router, &p.poses);
+            assert!((planned - p.planned_order_s).abs() < 1e-9, "{planned}");
+            assert!((sampling - p.sampling_order_s).abs() < 1e-9, "{sampling}");
+            if o.planned_order_s < o.nearest_neighbour_s - 1.0 {
+                shorter += 1;
+            }
+        }
+        assert!(shorter >= 3, "2-opt shortened {shorter} of 5 orders");
+    }
+
+    /// `ident_block = Some(k)`: the identification poses first, block by block in index order
+    /// (each block in its own time order), then the verification poses; `None`: one tour that
+    /// mixes both.
+    #[test]
+    fn identification_blocks_come_first_each_ordered_by_time() {
+        let m = tx60();
+        let mut r = req();
+        r.ident_block = Some(7);
+        let p = plan_campaign(&m, &r).unwrap();
+        let idx: Vec<usize> = p.poses.iter().map(|e| e.index).collect();
+        for (lo, hi) in [(0, 7), (7, 14), (14, 20)] {
+            let mut block = idx[lo..hi].to_vec();
+            assert_ne!(
+                block,
+                (lo..hi).collect::<Vec<_>>(),
+                "ordered, not as sampled"
+            );
+            block.sort_unstable();
+            assert_eq!(block, (lo..hi).collect::<Vec<_>>());
+        }
+        assert!(idx[20..].iter().all(|&i| i >= 20));
+        assert!(p.poses[..20].iter().all(|e| e.set == PoseSet::Ident));
+        assert!(p.planned_order_s < p.sampling_order_s);
+        let one_tour = plan_campaign(&m, &req()).unwrap();
+        let first_verify = one_tour
+            .poses
+            .iter()
+            .position(|e| e.set == PoseSet::Verify)
+            .unwrap();
+        assert!(first_verify < 20, "one tour over both sets");
     }
 
     #[test]

@@ -22,7 +22,7 @@
 use std::collections::{HashMap, VecDeque};
 
 use super::route::Router;
-use crate::model::RobotModel;
+use super::timing::MotionLimits;
 
 /// Largest joint travel between two configurations (rad).
 pub fn travel(a: &[f64], b: &[f64]) -> f64 {
@@ -30,57 +30,6 @@ pub fn travel(a: &[f64], b: &[f64]) -> f64 {
         .zip(b)
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f64::max)
-}
-
-/// Joint speed at 100 % of the stand-in [`MotionLimits::of`] (deg/s).
-const FALLBACK_SPEED_DEG_S: f64 = 250.0;
-/// Joint acceleration at 100 % of the stand-in [`MotionLimits::of`] (deg/s²).
-const FALLBACK_ACCEL_DEG_S2: f64 = 1000.0;
-
-/// Per-joint speed and acceleration of a robot at a speed setting (rad/s, rad/s²).
-///
-/// Stand-in, with the agreed signature, for `plan::timing::MotionLimits` (helper "time"), which
-/// reads the robot file's limits; replaced by it once merged.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MotionLimits {
-    /// Largest speed per joint (rad/s).
-    pub speed_rad_s: Vec<f64>,
-    /// Largest acceleration per joint (rad/s²).
-    pub accel_rad_s2: Vec<f64>,
-}
-
-impl MotionLimits {
-    /// Limits of `model` at `speed_pct` (stand-in: one fallback speed and acceleration for
-    /// every joint, both scaled by the setting).
-    pub fn of(model: &RobotModel, speed_pct: f64) -> MotionLimits {
-        let f = (speed_pct / 100.0).clamp(1e-3, 1.0);
-        let n = model.dof();
-        MotionLimits {
-            speed_rad_s: vec![FALLBACK_SPEED_DEG_S.to_radians() * f; n],
-            accel_rad_s2: vec![FALLBACK_ACCEL_DEG_S2.to_radians() * f; n],
-        }
-    }
-
-    /// Duration of the synchronised trapezoidal joint move `from → to` (s): that of its
-    /// slowest joint.
-    pub fn move_time_s(&self, from: &[f64], to: &[f64]) -> f64 {
-        from.iter()
-            .zip(to)
-            .zip(self.speed_rad_s.iter().zip(&self.accel_rad_s2))
-            .map(|((a, b), (v, acc))| trapezoid_s((b - a).abs(), *v, *acc))
-            .fold(0.0, f64::max)
-    }
-}
-
-/// Time to travel `d` from rest to rest at most at speed `v` and acceleration `a`.
-fn trapezoid_s(d: f64, v: f64, a: f64) -> f64 {
-    if d <= 0.0 {
-        0.0
-    } else if d * a < v * v {
-        2.0 * (d / a).sqrt()
-    } else {
-        d / v + v / a
-    }
 }
 
 /// A move-time measure the k-d tree searches by, with its lower bounds.

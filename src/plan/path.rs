@@ -607,6 +607,39 @@ mod tests {
         );
     }
 
+    /// With the stage at P2 the ball sits elsewhere: a checker told the P2 offset refuses what
+    /// fails there (and names it), and a zero offset checks as before.
+    #[test]
+    fn the_ball_at_p2_is_checked_too() {
+        let m = tx60();
+        let ws = Workspace::default();
+        let a = rad([-173.0, -33.0, -21.0, -42.0, 20.0, 149.0]);
+        let mut b = a.clone();
+        b[0] += 0.4;
+        let mut plain = PathChecker::new(&m, &ws, &tool());
+        assert_eq!(plain.check_move(&a, &b), Ok(()));
+        let mut zero = PathChecker::new(&m, &ws, &tool()).with_ball_at_p2(&Vector3::zeros());
+        assert_eq!(zero.check_move(&a, &b), Ok(()));
+        // a stage that carries the ball 2 m along flange +z puts it far beyond the box
+        let far = Vector3::new(0.0, 0.0, 2000.0);
+        let mut p2 = PathChecker::new(&m, &ws, &tool()).with_ball_at_p2(&far);
+        let f = p2.check_move(&a, &b).unwrap_err();
+        assert_eq!(f.sample, 0);
+        assert!(
+            matches!(
+                f.check,
+                PathCheck::Box {
+                    point: CheckedPoint::BallAtP2,
+                    ..
+                }
+            ),
+            "{f}"
+        );
+        assert!(f.to_string().contains("ball at P2"), "{f}");
+        // the sampling step holds for the ball at P2 too (its lever arm is the longer one)
+        assert!(p2.steps(&a, &b) > plain.steps(&a, &b));
+    }
+
     #[test]
     fn limits_floor_and_bad_input_are_named() {
         let m = tx60();

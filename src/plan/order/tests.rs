@@ -97,21 +97,3 @@ fn k_nearest_are_the_nearest_by_time_and_stay_unvisited() {
     assert_eq!(got, all[..8].iter().map(|a| a.1).collect::<Vec<_>>());
     assert_eq!(tree.left(), 200);
 }
-
-#[test]
-fn a_synchronised_move_takes_its_slowest_joint_s_time() {
-    let m = limits();
-    let a = vec![0.0; 6];
-    // joint 1: 2 rad at 1 rad/s, 2 rad/s²: 0.5 s up, 0.5 s down, 1.5 s cruise
-    let mut b = a.clone();
-    b[0] = 2.0;
-    assert!((m.move_time_s(&a, &b) - 2.5).abs() < 1e-12);
-    // short: no cruise, 2 √(d / a)
-    b[0] = 0.18;
-    assert!((m.move_time_s(&a, &b) - 0.6).abs() < 1e-12);
-    // a faster joint travelling as far does not decide
-    b[5] = 0.18;
-    assert!((m.move_time_s(&a, &b) - 0.6).abs() < 1e-12);
-    assert_eq!(m.move_time_s(&a, &b), m.move_time_s(&b, &a));
-    assert_eq!(m.move_time_s(&a, &a), 0.0);
-}
