@@ -70,17 +70,31 @@ impl Metric for MotionLimits {
         self.move_time_s(a, b)
     }
     fn to_box(&self, q: &[f64], min: &[f64], max: &[f64]) -> f64 {
-        let nearest: Vec<f64> = q
-            .iter()
-            .zip(min.iter().zip(max))
-            .map(|(v, (lo, hi))| v.clamp(*lo, *hi))
-            .collect();
-        self.move_time_s(q, &nearest)
+        with_copy(q, |p| {
+            for ((v, lo), hi) in p.iter_mut().zip(min).zip(max) {
+                *v = v.clamp(*lo, *hi);
+            }
+            self.move_time_s(q, p)
+        })
     }
     fn to_plane(&self, q: &[f64], dim: usize, plane: f64) -> f64 {
-        let mut p = q.to_vec();
-        p[dim] = plane;
-        self.move_time_s(q, &p)
+        with_copy(q, |p| {
+            p[dim] = plane;
+            self.move_time_s(q, p)
+        })
+    }
+}
+
+/// `f` of a scratch copy of `q` (on the stack for up to 8 joints: the tree's bounds are
+/// evaluated at every node it visits).
+fn with_copy(q: &[f64], f: impl FnOnce(&mut [f64]) -> f64) -> f64 {
+    let mut stack = [0.0; 8];
+    match stack.get_mut(..q.len()) {
+        Some(p) => {
+            p.copy_from_slice(q);
+            f(p)
+        }
+        None => f(&mut q.to_vec()),
     }
 }
 
@@ -253,18 +267,53 @@ impl<'a, M: Metric> KdTree<'a, M> {
         }
     }
 
-    /// The `k` unvisited points nearest to `q` (nearest first), left unvisited.
-    fn k_nearest(&mut self, q: &[f64], k: usize) -> Vec<usize> {
-        let mut out = Vec::with_capacity(k);
-        while out.len() < k {
-            let Some((_, i)) = self.nearest(q) else { break };
-            self.remove(i);
-            out.push(i);
+    /// The `k` unvisited points nearest to `q` (nearest first; ties: lowest index), in one
+    /// search that prunes by the `k`-th best so far.
+    fn k_nearest(&self, q: &[f64], k: usize) -> Vec<usize> {
+        let mut best = Vec::with_capacity(k + 1);
+        if k > 0 {
+            self.search_k(q, 0, self.slot.len(), k, &mut best);
         }
-        for &i in &out {
-            self.mark(i, true);
+        best.into_iter().map(|(_, i)| i).collect()
+    }
+
+    /// [`KdTree::search`] keeping the `k` best, sorted.
+    fn search_k(&self, q: &[f64], lo: usize, hi: usize, k: usize, best: &mut Vec<(f64, usize)>) {
+        if lo >= hi {
+            return;
         }
-        out
+        let worst = |best: &Vec<(f64, usize)>| {
+            if best.len() < k {
+                f64::INFINITY
+            } else {
+                best[k - 1].0
+            }
+        };
+        let mid = (lo + hi) / 2;
+        if self.alive[mid] == 0 || self.box_bound(q, mid) > worst(best) {
+            return;
+        }
+        let i = self.slot[mid];
+        let p = &self.points[i];
+        if self.open[mid] {
+            let d = self.metric.dist(q, p);
+            let at = best.partition_point(|&(bd, bi)| bd < d || (bd == d && bi < i));
+            if at < k {
+                best.insert(at, (d, i));
+                best.truncate(k);
+            }
+        }
+        let dim = self.split[mid];
+        let diff = q[dim] - p[dim];
+        let (near, far) = if diff < 0.0 {
+            ((lo, mid), (mid + 1, hi))
+        } else {
+            ((mid + 1, hi), (lo, mid))
+        };
+        self.search_k(q, near.0, near.1, k, best);
+        if self.metric.to_plane(q, dim, p[dim]) <= worst(best) {
+            self.search_k(q, far.0, far.1, k, best);
+        }
     }
 }
 

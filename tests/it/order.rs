@@ -33,8 +33,9 @@ fn two_opt_shortens_the_nearest_neighbour_time_and_the_plan_reports_the_time_sav
         "example campaign legs: sampling order {:.0} s, nearest neighbour {:.0} s, 2-opt {:.0} s",
         o.sampling_order_s, o.nearest_neighbour_s, o.planned_order_s
     );
+    // settles are the same in every order (1.5 s each): the moves are what an order shortens
     assert!(
-        o.planned_order_s < 0.97 * o.nearest_neighbour_s,
+        o.planned_order_s < o.nearest_neighbour_s - 2.0,
         "2-opt {} s vs nearest neighbour {} s",
         o.planned_order_s,
         o.nearest_neighbour_s
@@ -104,7 +105,7 @@ async fn a_manual_campaign_sets_the_stage_once_per_pose_and_keeps_what_p1_and_p2
         );
         let d = (p2.position_mm - m.p1.position_mm).norm();
         assert!(
-            (d - travel).abs() < 0.05,
+            (d - travel).abs() < 0.1,
             "pose {}: |P2 − P1| = {d}",
             m.index
         );
