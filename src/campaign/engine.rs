@@ -5,8 +5,8 @@
 //! `discarded` and measured again; a disconnect or timeout reconnects and retries. A device that
 //! keeps failing (after `max_attempts`), a device error, an emergency stop or a drift above the
 //! threshold is an *operator fault*: with [`FaultPolicy::Pause`] the campaign pauses with the
-//! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
-//! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
+//! reason and, on resume, re-prepares the devices and measures the whole pose again (a reading
+//! taken before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
 //! in `failed`, resumable. A safety refusal (target outside the limits or the
 //! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and the stage
 //! and leaves the campaign resumable at the first unmeasured pose; a disarm does the same and

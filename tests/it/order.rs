@@ -69,7 +69,7 @@ fn two_opt_shortens_the_nearest_neighbour_time_and_the_plan_reports_the_time_sav
 /// stored P1 is still the reading at `p1_mm` and P2 the one at P1 + travel, and the
 /// identification reaches the noise floor as before.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_manual_campaign_sets_the_stage_once_per_pose_and_keeps_what_p1_and_p2_mean() {
+async fn one_stage_move_per_pose() {
     let text = config_text("", "", "")
         .replace("kind = \"serial\"", "kind = \"manual\"")
         .replace("stage_mode = \"zaber\"", "stage_mode = \"manual\"")
