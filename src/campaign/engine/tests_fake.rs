@@ -790,8 +790,9 @@ async fn a_tracker_frame_jump_after_pose_7_fails_the_next_drift_check() {
         3,
         "reference, after pose 5, after pose 10: {drifts:?}"
     );
+    // after pose 5: joint jitter and tracker noise only, below drift_max_mm (0.1 mm)
     assert!(
-        drifts[1] < 0.05 && (drifts[2] - 0.5).abs() < 0.05,
+        drifts[1] < 0.1 && (drifts[2] - 0.5).abs() < 0.05,
         "{drifts:?}"
     );
     assert_eq!(b.done().len(), 10);
