@@ -402,7 +402,7 @@ impl<'a> Legs<'a> {
 /// Whether the engine returns to the hub before the pose at position `m` (of `n` poses):
 /// before the first, after every `drift_every` poses, and at the end (`m == n`).
 fn hub_before(m: usize, n: usize, drift_every: usize) -> bool {
-    m == 0 || m == n || (drift_every > 0 && m % drift_every == 0)
+    m == 0 || m == n || (drift_every > 0 && m.is_multiple_of(drift_every))
 }
 
 /// Time (s) of the measuring legs of `order` (indices into the poses): from the hub to the
@@ -451,7 +451,7 @@ pub fn nearest_neighbour_by_time(
     for block in blocks {
         let mut tree = KdTree::build(points, limits, block.clone());
         while tree.left() > 0 {
-            if drift_every > 0 && !order.is_empty() && order.len() % drift_every == 0 {
+            if drift_every > 0 && !order.is_empty() && order.len().is_multiple_of(drift_every) {
                 at = hub;
             }
             let Some(i) = nearest_by_leg(&mut tree, legs, at) else {
