@@ -49,7 +49,7 @@ impl MoveProfile {
     /// Fraction of the line covered `t_s` after the start (0 before, 1 from the end on).
     pub fn fraction_at(&self, t_s: f64) -> f64 {
         let total = self.duration_s;
-        if !(total > 0.0) || t_s >= total {
+        if total.is_nan() || total <= 0.0 || t_s >= total {
             return 1.0;
         }
         if t_s <= 0.0 {
@@ -120,7 +120,7 @@ impl MotionLimits {
         let mut accel = f64::INFINITY;
         for (j, (a, b)) in from.iter().zip(to).enumerate() {
             let d = (b - a).abs();
-            if !(d > 0.0) {
+            if d.is_nan() || d <= 0.0 {
                 continue;
             }
             let v = self.speed_rad_s.get(j).copied().unwrap_or(f64::NAN);
