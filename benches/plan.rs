@@ -1,6 +1,7 @@
-//! Campaign planning time on `config/cell.example.toml` at 300, 30 000 and 100 000 poses:
-//! sampling, the wrist side, the hub, the path check of every pose against it, the k-d tree
-//! nearest-neighbour order and the routes of every move. Run with `cargo bench --bench plan`.
+//! Campaign planning time on `config/cell.example.toml` at 300, 1000, 30 000 and 100 000
+//! poses: sampling, the wrist side, the hub, the path check of every pose against it (ball at
+//! P1 and P2), the measuring order by leg time (k-d tree nearest neighbour, then 2-opt) and the
+//! routes of every move. Run with `cargo bench --bench plan`.
 
 use std::path::Path;
 use std::time::Duration;
@@ -19,7 +20,7 @@ fn bench_plan(c: &mut Criterion) {
     model.tool = Vector3::from(cfg.campaign.tool_mm);
     let mut group = c.benchmark_group("plan_campaign");
     group.sample_size(10);
-    for poses in [300, 30_000, 100_000] {
+    for poses in [300, 1000, 30_000, 100_000] {
         let mut req = plan_request(&cfg);
         req.poses = poses;
         req.ident = poses / 3;

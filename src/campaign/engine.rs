@@ -5,8 +5,8 @@
 //! `discarded` and measured again; a disconnect or timeout reconnects and retries. A device that
 //! keeps failing (after `max_attempts`), a device error, an emergency stop or a drift above the
 //! threshold is an *operator fault*: with [`FaultPolicy::Pause`] the campaign pauses with the
-//! reason and, on resume, re-prepares the devices and measures the whole pose again (a P1 taken
-//! before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
+//! reason and, on resume, re-prepares the devices and measures the whole pose again (a reading
+//! taken before the fault is kept as `discarded`); with [`FaultPolicy::Fail`] (headless runs) it stops
 //! in `failed`, resumable. A safety refusal (target outside the limits or the
 //! workspace, no route whose every leg passes the path check) always stops in `failed`. Abort cancels every wait, stops the robot and the stage
 //! and leaves the campaign resumable at the first unmeasured pose; a disarm does the same and
@@ -40,7 +40,7 @@ use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
 use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
-use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
+use crate::plan::{campaign_router, target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::store::{
     identification_rows, PointKind, PointRecord, PoseMeasurement, Store, StoreError, StoreHandle,
 };
@@ -933,8 +933,11 @@ impl Run<'_> {
         Ok(())
     }
 
-    /// Move, P1, P2 and back for one planned pose. A P1 taken before a later step fails is kept
-    /// as `discarded`.
+    /// Move, then both readings of one planned pose, starting where the stage stands: P1 then
+    /// P2, or P2 then P1 when the stage is known to be at P2 (the last pose ended there), so a
+    /// pose moves the stage once (a technician sets it once) and the next pose starts where
+    /// this one ended. The records keep their meaning (`p1` is the reading at P1, the position
+    /// point). A reading taken before a later step fails is kept as `discarded`.
     /// Not cancel-safe: one step of the run, ended by the abort token (every device wait is
     /// [`guarded`]), never by dropping it.
     async fn measure_pose(
@@ -945,9 +948,9 @@ impl Run<'_> {
     ) -> Result<PoseMeasurement, Stop> {
         let approach = self.ctx.plan.approach.get(&entry.index).cloned();
         let joints = self.move_via(&entry.q_rad, approach.as_deref()).await?;
-        let a1 = self.stage_to(s1).await?;
-        let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
         if !self.measures_axis() {
+            let a1 = self.stage_to(s1).await?;
+            let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
             return Ok(PoseMeasurement {
                 index: entry.index,
                 joints_rad: joints,
@@ -955,20 +958,31 @@ impl Run<'_> {
                 p2: None,
             });
         }
+        let tol = self.ctx.cfg.stage.tolerance_mm;
+        let p2_first = self.stage_mm.is_some_and(|at| (at - s2).abs() <= tol);
+        let (first_mm, second_mm) = if p2_first { (s2, s1) } else { (s1, s2) };
+        let a = self.stage_to(first_mm).await?;
+        let first = self.measure_point(Some(entry.index), &joints, a).await?;
         let second = async {
-            let a2 = self.stage_to(s2).await?;
-            let p2 = self.measure_point(Some(entry.index), &joints, a2).await?;
-            self.stage_to(s1).await?;
-            Ok::<_, Stop>((a2, p2))
+            let b = self.stage_to(second_mm).await?;
+            let p = self.measure_point(Some(entry.index), &joints, b).await?;
+            Ok::<_, Stop>((b, p))
         }
         .await;
         match second {
-            Ok((a2, p2)) => Ok(PoseMeasurement {
-                index: entry.index,
-                joints_rad: joints,
-                p1: record(&p1, a1),
-                p2: Some(record(&p2, a2)),
-            }),
+            Ok((b, p)) => {
+                let (p1, p2) = if p2_first {
+                    (record(&p, b), record(&first, a))
+                } else {
+                    (record(&first, a), record(&p, b))
+                };
+                Ok(PoseMeasurement {
+                    index: entry.index,
+                    joints_rad: joints,
+                    p1,
+                    p2: Some(p2),
+                })
+            }
             Err(Stop::Store(e)) => Err(Stop::Store(e)),
             Err(e) => {
                 if matches!(e, Stop::Aborted | Stop::Disarmed) {
@@ -981,13 +995,14 @@ impl Run<'_> {
                     Stop::Failed(r) | Stop::Fault(r) => r.clone(),
                     Stop::Store(_) => String::new(),
                 };
-                let note = format!("P1 of an unfinished pose ({why})");
+                let taken = if p2_first { "P2" } else { "P1" };
+                let note = format!("{taken} of an unfinished pose ({why})");
                 self.keep_point(
                     PointKind::Discarded,
                     Some(entry.index),
                     &joints,
-                    &p1,
-                    a1,
+                    &first,
+                    a,
                     note,
                 )
                 .await?;
@@ -1166,12 +1181,8 @@ pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
 ) -> Result<Outcome, CampaignError> {
-    let router = Router::new(
-        &ctx.nominal,
-        &ctx.plan_request.workspace,
-        &ctx.plan_request.tool_mm,
-        &ctx.plan.drift_reference,
-    );
+    // the ball may be at P1 or at P2 while the robot moves: every leg is checked with both
+    let router = campaign_router(&ctx.nominal, &ctx.plan_request, &ctx.plan.drift_reference);
     let mut run = Run {
         ctx,
         dev: devices,

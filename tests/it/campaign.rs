@@ -110,9 +110,14 @@ pub(crate) async fn run_with(
 }
 
 pub(crate) async fn run_in_process(text: &str) -> Finished {
+    run_in_process_with(text, Arc::new(ScriptedPrompter::exact())).await
+}
+
+/// [`run_in_process`] with the technician's answers from `prompter`.
+pub(crate) async fn run_in_process_with(text: &str, prompter: Arc<dyn Prompter>) -> Finished {
     let dir = tempfile::tempdir().expect("tempdir").keep();
     let store = dir.join("c.db");
-    let (ctx, sim, outcome) = run_with(&dir, text, Arc::new(ScriptedPrompter::exact())).await;
+    let (ctx, sim, outcome) = run_with(&dir, text, prompter).await;
     let Outcome::Done(report) = outcome else {
         panic!("campaign did not finish: {outcome:?}");
     };
@@ -507,10 +512,11 @@ async fn a_stage_fault_after_p1_keeps_p1_as_discarded_and_resume_measures_the_po
         .replace("ident = 100", "ident = 20");
     let armed = std::sync::atomic::AtomicBool::new(false);
     let (outcome, store, id) = run_steered(&text, move |e, cell, control| match e {
-        CampaignEvent::Measured { done: 3, .. }
+        CampaignEvent::Measured { done: 2, .. }
             if !armed.swap(true, std::sync::atomic::Ordering::SeqCst) =>
         {
-            // the stage is at P1 already: the next pose's first stage move is the one to P2
+            // after an even number of poses the stage is back at P1: the next pose reads P1
+            // there, then its one stage move (to P2) fails
             cell.stage_sim.as_ref().expect("zaber stage").faults().fault = 1;
         }
         CampaignEvent::State {

@@ -27,6 +27,7 @@ mod iso9283;
 mod journal;
 mod messages;
 mod model_out;
+mod order;
 mod paper;
 mod paths;
 mod practical;

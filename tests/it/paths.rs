@@ -6,11 +6,14 @@ use cellcal::campaign::session::plan_request;
 use cellcal::config::load_cell_config;
 use cellcal::dataset::PoseSet;
 use cellcal::model::{load_robot, RobotModel};
-use cellcal::plan::{count_via_points, plan_campaign, target_ok, Plan, PlanRequest, Router};
+use cellcal::plan::{
+    campaign_router, count_via_points, plan_campaign, target_ok, PathChecker, Plan, PlanRequest,
+    Router,
+};
 use nalgebra::Vector3;
 
 /// The example cell's nominal model (with its tool) and planning request.
-fn example() -> (RobotModel, PlanRequest) {
+pub(crate) fn example() -> (RobotModel, PlanRequest) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/cell.example.toml");
     let cfg = load_cell_config(&path).expect("example config loads");
     let mut model = load_robot(&cfg.robot).expect("robot model loads");
@@ -31,7 +34,7 @@ fn sim_start() -> Vec<f64> {
 /// The measurement moves the engine makes, as (from, to): drift reference → poses in move order,
 /// back to the drift reference after every `drift_every` poses (not after the last) and at the
 /// end.
-fn engine_moves(plan: &Plan, drift_every: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
+pub(crate) fn engine_moves(plan: &Plan, drift_every: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
     let hub = &plan.drift_reference;
     let mut moves = Vec::new();
     let mut at = hub.clone();
@@ -47,8 +50,21 @@ fn engine_moves(plan: &Plan, drift_every: usize) -> Vec<(Vec<f64>, Vec<f64>)> {
     moves
 }
 
-/// Vias of the move `from → to`, after checking that every leg passes the path check.
-fn routed_legs_pass(router: &mut Router, from: &[f64], to: &[f64]) -> usize {
+/// Path checkers of the ball at one stage position each: P1 (the tool) and P2 (tool + stage
+/// axis × travel).
+fn ball_checkers(model: &RobotModel, req: &PlanRequest) -> [PathChecker; 2] {
+    [req.tool_mm, req.tool_mm + req.stage_offset_mm]
+        .map(|ball| PathChecker::new(model, &req.workspace, &ball))
+}
+
+/// Vias of the move `from → to`, after checking that every leg passes the path check of the
+/// router and of each of `balls`.
+fn routed_legs_pass(
+    router: &mut Router,
+    balls: &mut [PathChecker],
+    from: &[f64],
+    to: &[f64],
+) -> usize {
     let vias = router
         .route(from, to)
         .unwrap_or_else(|e| panic!("no route {from:?} → {to:?}: {e}"));
@@ -57,19 +73,32 @@ fn routed_legs_pass(router: &mut Router, from: &[f64], to: &[f64]) -> usize {
         if let Err(f) = router.checker().check_move(&at, leg_end) {
             panic!("leg {at:?} → {leg_end:?} of a route fails: {f}");
         }
+        for (k, c) in balls.iter_mut().enumerate() {
+            if let Err(f) = c.check_move(&at, leg_end) {
+                panic!(
+                    "leg {at:?} → {leg_end:?} fails with the ball at P{}: {f}",
+                    k + 1
+                );
+            }
+        }
         at.clone_from(leg_end);
     }
     vias.len()
 }
 
+/// The robot moves with the stage at P1 or at P2 (a pose reads P2 first when the last one
+/// ended there): every leg passes with the ball at either.
 #[test]
 fn every_move_of_the_example_campaign_passes_the_path_check() {
     let (model, req) = example();
+    // stage axis +y, travel 10 mm
+    assert_eq!(req.stage_offset_mm, Vector3::new(0.0, 10.0, 0.0));
     let plan = plan_campaign(&model, &req).expect("example campaign plans");
-    let mut router = Router::new(&model, &req.workspace, &req.tool_mm, &plan.drift_reference)
+    let mut router = campaign_router(&model, &req, &plan.drift_reference)
         .expect("the drift reference passes the path check");
+    let mut balls = ball_checkers(&model, &req);
     // from the robot's start to the drift reference, as the engine's first measurement move
-    routed_legs_pass(&mut router, &sim_start(), &plan.drift_reference);
+    routed_legs_pass(&mut router, &mut balls, &sim_start(), &plan.drift_reference);
     let moves = engine_moves(&plan, req.drift_every);
     assert_eq!(moves.len(), 300 + 1 + (300 - 1) / req.drift_every);
     let mut vias = 0;
@@ -78,7 +107,7 @@ fn every_move_of_the_example_campaign_passes_the_path_check() {
         if router.checker().check_move(from, to).is_err() {
             direct_failures += 1;
         }
-        vias += routed_legs_pass(&mut router, from, to);
+        vias += routed_legs_pass(&mut router, &mut balls, from, to);
     }
     assert_eq!(vias, plan.via_points);
     assert!(
@@ -107,7 +136,7 @@ fn a_thirty_thousand_pose_plan_is_complete_and_routable() {
     let ident = plan.poses.iter().filter(|e| e.set == PoseSet::Ident);
     assert!(ident.clone().all(|e| e.index < 10_000));
     assert_eq!(ident.count(), 10_000);
-    let mut router = Router::new(&model, &req.workspace, &req.tool_mm, &plan.drift_reference)
+    let mut router = campaign_router(&model, &req, &plan.drift_reference)
         .expect("the drift reference passes the path check");
     for p in &plan.poses {
         assert!(target_ok(&model, &p.q_rad, &req), "pose {}", p.index);

@@ -637,8 +637,9 @@ async fn after_a_manual_stage_answer_the_robot_moves_only_once_the_cell_is_confi
         .collect();
     let answers = asked.iter().filter(|(_, id)| id == "stage_move").count();
     let clears = asked.iter().filter(|(_, id)| id == CONFIRM_CLEAR).count();
+    // one stage answer per pose (P2 first when the last pose ended there), drift checks aside
     assert!(
-        answers > 2 * 20 && clears >= 20,
+        answers >= 20 && clears >= 20,
         "{answers} answers, {clears} clears"
     );
     // between every stage answer and the next MOVEJ, the cell was confirmed clear

@@ -664,13 +664,49 @@ async fn joints_settled_off_target_repeat_the_move_then_fail_without_a_commit() 
     assert_eq!(b.done().len(), 5, "no pose committed off target");
 }
 
+/// The stage is not sent back to P1 after P2: each pose starts where the last one ended, so
+/// a run moves the stage once per pose (the frame reference's P1 aside), back and forth, and
+/// every stored P1 is still the reading at P1.
+#[tokio::test]
+async fn each_pose_moves_the_stage_once_starting_where_the_last_pose_ended() {
+    let mut b = Bench::new(config(POSES, IDENT, false, &[]), false);
+    let (outcome, _) = b.run(nobody).await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let (s1, travel) = (b.ctx.cfg.stage.p1_mm, b.ctx.cfg.stage.travel_mm);
+    let moves: Vec<f64> = b
+        .cell
+        .calls()
+        .iter()
+        .filter_map(|c| match c {
+            Call::StageMove(mm) => Some(*mm),
+            _ => None,
+        })
+        .collect();
+    let expected: Vec<f64> = (0..=POSES)
+        .map(|k| if k % 2 == 0 { s1 } else { s1 + travel })
+        .collect();
+    assert_eq!(
+        moves, expected,
+        "frame reference at P1, then one move per pose"
+    );
+    let id = b.ctx.campaign_id;
+    let poses = b.with_store(|s| s.measured_poses(id)).expect("poses");
+    assert_eq!(poses.len(), POSES);
+    for (_, m) in poses {
+        let p2 = m.p2.expect("P2");
+        assert!((m.p1.stage_mm - s1).abs() < 1e-9, "pose {}", m.index);
+        assert!((p2.stage_mm - s1 - travel).abs() < 1e-9, "pose {}", m.index);
+    }
+}
+
 #[tokio::test]
 async fn a_stage_move_that_fails_once_pauses_keeps_p1_discarded_and_measures_the_pose_again() {
     let mut b = Bench::new(config(POSES, IDENT, false, &[]), false);
     b.ctx.on_fault = FaultPolicy::Pause;
-    // stage move 1 is the frame reference's P1; pose k goes to P2 at move 2k, back at 2k+1
+    // stage move 1 is the frame reference's P1; pose k moves the stage once, at move k + 1
+    // (odd k: read at P1, then to P2; even k: read at P2, then to P1)
     b.cell
-        .on(Op::StageMove, 6, 1, Fault::Fail(FaultKind::Device));
+        .on(Op::StageMove, 4, 1, Fault::Fail(FaultKind::Device));
     let (outcome, events) = b.run(resume_every_pause).await;
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
     assert_eq!(faults(&events), [fault("stage", "Device", "pause")]);
@@ -687,7 +723,7 @@ async fn a_stage_move_that_fails_once_pauses_keeps_p1_discarded_and_measures_the
 #[tokio::test]
 async fn a_stage_slip_fails_the_travel_check_and_the_pose_is_measured_again() {
     let mut b = Bench::new(config(POSES, IDENT, false, &[]), false);
-    // pose 2's move to P2 slips 0.5 mm (the stage reads back its target)
+    // pose 3's move to P2 (stage move 4) slips 0.5 mm (the stage reads back its target)
     b.cell.on(Op::StageMove, 4, 1, Fault::Slip(0.5));
     let (outcome, events) = b.run(nobody).await;
     assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
@@ -702,7 +738,7 @@ async fn a_stage_slip_fails_the_travel_check_and_the_pose_is_measured_again() {
         2,
         "both points of the bad pair kept as discarded"
     );
-    assert_eq!(b.moves_to(2), 2);
+    assert_eq!(b.moves_to(3), 2);
     b.assert_complete();
     let travel = b.ctx.cfg.stage.travel_mm;
     let id = b.ctx.campaign_id;
@@ -738,7 +774,11 @@ async fn a_tracker_frame_jump_after_pose_7_fails_the_next_drift_check() {
     let Outcome::Failed(reason) = outcome else {
         panic!("{outcome:?}");
     };
-    assert!(reason.contains("drift 0.5"), "{reason}");
+    // the drift itself (0.5 mm, within the noise) is checked below
+    assert!(
+        reason.starts_with("drift 0.") && reason.contains("exceeds 0.1 mm"),
+        "{reason}"
+    );
     let drifts: Vec<f64> = events
         .iter()
         .filter_map(|e| match e {
@@ -751,8 +791,9 @@ async fn a_tracker_frame_jump_after_pose_7_fails_the_next_drift_check() {
         3,
         "reference, after pose 5, after pose 10: {drifts:?}"
     );
+    // after pose 5: joint jitter and tracker noise only, below drift_max_mm (0.1 mm)
     assert!(
-        drifts[1] < 0.05 && (drifts[2] - 0.5).abs() < 0.05,
+        drifts[1] < 0.1 && (drifts[2] - 0.5).abs() < 0.05,
         "{drifts:?}"
     );
     assert_eq!(b.done().len(), 10);
