@@ -285,7 +285,7 @@ fn choose_ident(
 }
 
 /// Mixed into the plan's seed for the criterion's reference draw.
-const REFERENCE_SEED: u64 = 0x5e1e_c7ed_0f_u64;
+pub const REFERENCE_SEED: u64 = 0x5e1e_c7ed_0f_u64;
 
 /// A sampled configuration that passes [`target_ok`], with what planning needs of its frames.
 struct Candidate {
@@ -461,5 +461,57 @@ mod tests {
             plan_campaign(&m, &r),
             Err(PlanError::Unreachable { .. })
         ));
+    }
+    /// `selection = "optimal"` chooses only the identification poses: the verification poses
+    /// are the random plan's, and every pose keeps to the plan's constraints.
+    #[test]
+    fn optimal_selection_keeps_the_random_verification_poses() {
+        let m = tx60();
+        let random = plan_campaign(&m, &req()).unwrap();
+        let opt_req = PlanRequest {
+            selection: Selection::Optimal,
+            ..req()
+        };
+        let optimal = plan_campaign(&m, &opt_req).unwrap();
+        let of = |p: &Plan, set: PoseSet| {
+            let mut v: Vec<(usize, Vec<f64>)> = p
+                .poses
+                .iter()
+                .filter(|e| e.set == set)
+                .map(|e| (e.index, e.q_rad.clone()))
+                .collect();
+            v.sort_by_key(|e| e.0);
+            v
+        };
+        assert_eq!(of(&random, PoseSet::Verify), of(&optimal, PoseSet::Verify));
+        assert_eq!(of(&optimal, PoseSet::Ident).len(), 20);
+        assert_ne!(of(&random, PoseSet::Ident), of(&optimal, PoseSet::Ident));
+        assert_eq!(random.drift_reference, optimal.drift_reference);
+        let mut checker = PathChecker::new(&m, &opt_req.workspace, &opt_req.tool_mm);
+        for e in &optimal.poses {
+            assert!(target_ok(&m, &e.q_rad, &opt_req));
+            assert!(checker
+                .check_move(&e.q_rad, &optimal.drift_reference)
+                .is_ok());
+        }
+        assert_eq!(
+            optimal,
+            plan_campaign(&m, &opt_req).unwrap(),
+            "deterministic"
+        );
+        // predicted: the selected identification poses beat the random ones
+        let ident = |p: &Plan| -> Vec<Vec<f64>> {
+            of(p, PoseSet::Ident).into_iter().map(|e| e.1).collect()
+        };
+        let verify: Vec<Vec<f64>> = of(&random, PoseSet::Verify)
+            .into_iter()
+            .map(|e| e.1)
+            .collect();
+        let d = plan_design(&m, &opt_req, &verify).unwrap();
+        let figure = |set: &[Vec<f64>]| {
+            crate::plan::selection::predicted_verification(&d, &d.covariance(set).unwrap(), &verify)
+                .mean_mm
+        };
+        assert!(figure(&ident(&optimal)) < figure(&ident(&random)));
     }
 }
