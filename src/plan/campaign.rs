@@ -233,9 +233,9 @@ fn fill(
 }
 
 /// Candidate poses per identification pose in a campaign's pool ([`Selection::Optimal`]).
-pub const POOL_PER_IDENT: usize = 20;
+pub const POOL_PER_IDENT: usize = 10;
 /// Least and largest pool of a campaign (poses).
-pub const POOL_RANGE: (usize, usize) = (500, 2000);
+pub const POOL_RANGE: (usize, usize) = (500, 1000);
 /// Random workspace poses the criterion's weight `W` is the mean over.
 pub const REFERENCE_POSES: usize = 300;
 
