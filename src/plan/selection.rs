@@ -340,7 +340,7 @@ impl Design {
         if sq > 0.0 {
             let g = self.jitter_rows(q);
             let gp = g.rows(0, 3);
-            let gg = &gp * gp.transpose() * (sq * sq);
+            let gg = gp * gp.transpose() * (sq * sq);
             c += Matrix3::from_fn(|a, b| gg[(a, b)]);
         }
         c
@@ -374,7 +374,7 @@ pub fn expected_norm(cov: &Matrix3<f64>) -> f64 {
     let ev = sym.symmetric_eigenvalues();
     let lam: Vec<f64> = ev.iter().map(|l| l.max(0.0)).collect();
     let total: f64 = lam.iter().sum();
-    if !(total > 0.0) || !total.is_finite() {
+    if total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || !total.is_finite() {
         return if total.is_finite() { 0.0 } else { f64::NAN };
     }
     let rel: Vec<f64> = lam.iter().map(|l| l / total).collect();
@@ -620,6 +620,7 @@ pub fn select(
     let mut current = greedy_criterion;
     for _ in 0..MAX_EXCHANGE_PASSES {
         let mut improved = false;
+        #[allow(clippy::needless_range_loop)] // `chosen[slot]` is replaced inside
         for slot in 0..chosen.len() {
             let out = chosen[slot];
             let Some(without) = search.update(&c, out, -1.0) else {
@@ -809,7 +810,10 @@ pub(crate) mod tests {
     }
     /// The paper's cell: the pool, a reference draw and a verification draw, each measurable
     /// (line of sight unlimited, as `[campaign]`'s default).
-    fn paper_cell(pool: usize) -> (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    /// Pool, reference and verification joints.
+    type Cell = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>);
+
+    fn paper_cell(pool: usize) -> Cell {
         use crate::plan::campaign::{measurable_pool, more_measurable};
         let req = crate::plan::PlanRequest {
             workspace: crate::plan::Workspace::default(),
