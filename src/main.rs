@@ -50,6 +50,8 @@ enum Command {
     Significance(cli::significance::SignificanceArgs),
     /// Simulate a measurement campaign (CSV + truth JSON) for dry runs and tests.
     SimulateData(Box<cli::simulate_data::SimArgs>),
+    /// Choose identification poses by the I-optimal criterion and predict their verification error.
+    SelectPoses(Box<cli::select_poses::SelectPosesArgs>),
     /// Run the simulated cell (tracker, robot, stage) from the `[sim]` table of a config file.
     Sim(cli::sim::SimCellArgs),
     /// Run a calibration campaign (plan, measure, store, identify); simulated devices start in-process.
@@ -101,6 +103,7 @@ fn main() -> ExitCode {
         Command::Identify(args) => cli::identify::run(*args),
         Command::Significance(args) => cli::significance::run(args),
         Command::SimulateData(args) => cli::simulate_data::run(&args),
+        Command::SelectPoses(args) => cli::select_poses::run(&args),
         Command::Sim(args) => cli::sim::run(args),
         Command::Run(args) => cli::run::run(args),
         Command::Serve(args) => cli::serve::run(args),

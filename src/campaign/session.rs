@@ -26,6 +26,7 @@ use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
+use crate::plan::selection::DesignSetup;
 use crate::plan::{
     campaign_router, count_via_points, order_times, plan_campaign, Plan, PlanEntry, PlanError,
     PlanRequest, Workspace,
@@ -154,6 +155,21 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         speed_pct: cfg.robot_controller.speed_pct,
         settle_s: settle_s(cfg),
         stage_offset_mm: stage_offset_mm(cfg),
+        selection: c.selection,
+        design: design_setup(cfg),
+    }
+}
+
+/// What optimal selection designs a campaign's identification for: its observation model and
+/// stage as the identification uses them, its base and tool choice, the AT960's noise.
+fn design_setup(cfg: &CellConfig) -> DesignSetup {
+    let opts = super::engine::identify_options(cfg);
+    DesignSetup {
+        obs: opts.obs,
+        stage_travel_mm: cfg.stage.travel_mm,
+        identify_base: opts.identify_base,
+        identify_tool: opts.identify_tool,
+        ..DesignSetup::default()
     }
 }
 

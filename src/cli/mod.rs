@@ -12,6 +12,7 @@ pub mod iso9283;
 pub mod practical;
 pub mod report;
 pub mod run;
+pub mod select_poses;
 pub mod serve;
 pub mod significance;
 pub mod sim;

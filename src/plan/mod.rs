@@ -7,6 +7,7 @@ pub mod order;
 pub mod path;
 pub mod route;
 pub mod sampling;
+pub mod selection;
 pub mod setup;
 pub mod timing;
 pub mod workspace;

@@ -40,6 +40,7 @@ mod result;
 mod robot_auth;
 mod robust;
 mod safety;
+mod select_poses;
 mod serve;
 mod setup;
 mod setup_relative;
