@@ -43,7 +43,7 @@ use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
 use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
-use crate::plan::{target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
+use crate::plan::{campaign_router, target_ok, Plan, PlanEntry, PlanRequest, RouteError, Router};
 use crate::store::{
     identification_rows, PointKind, PointRecord, PoseMeasurement, Store, StoreError, StoreHandle,
 };
@@ -1255,12 +1255,8 @@ pub async fn run_campaign(
     ctx: &CampaignContext,
     devices: &mut Devices,
 ) -> Result<Outcome, CampaignError> {
-    let router = Router::new(
-        &ctx.nominal,
-        &ctx.plan_request.workspace,
-        &ctx.plan_request.tool_mm,
-        &ctx.plan.drift_reference,
-    );
+    // the ball may be at P1 or at P2 while the robot moves: every leg is checked with both
+    let router = campaign_router(&ctx.nominal, &ctx.plan_request, &ctx.plan.drift_reference);
     let mut run = Run {
         ctx,
         dev: devices,

@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use robotlink::SharedSecret;
 
 use super::cell_lock::{lock_dir, CellKey, CellLock, CellLockError};
-use super::engine::{CampaignContext, Devices, FaultPolicy};
+use super::engine::{identify_options, CampaignContext, Devices, FaultPolicy};
 use super::events::Control;
 use super::feasibility;
 use super::lock::CampaignLock;
@@ -20,14 +20,15 @@ use crate::cell::{
 };
 use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
-use crate::config::{CellConfig, DeviceMode, StageMode};
+use crate::config::{CellConfig, DeviceMode, SimWorldConfig, StageMode};
 use crate::dataset::PoseSet;
 use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
 use crate::plan::{
-    count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
+    campaign_router, count_via_points, order_times, plan_campaign, Plan, PlanEntry, PlanError,
+    PlanRequest, Workspace,
 };
 use crate::sim::{start_cell_with, RunningSimCell, SimTechnician};
 use crate::store::{
@@ -149,7 +150,34 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         line_of_sight_max_rad: c.line_of_sight_max_deg.to_radians(),
         tool_mm: Vector3::from(c.tool_mm),
         drift_every: c.drift_every,
+        ident_block: None,
+        speed_pct: cfg.robot_controller.speed_pct,
+        settle_s: settle_s(cfg),
+        stage_offset_mm: stage_offset_mm(cfg),
     }
+}
+
+/// Settle time after a move the plan's order assumes (s): the simulated robot's when the robot
+/// is simulated, else [`REAL_SETTLE_S`].
+fn settle_s(cfg: &CellConfig) -> f64 {
+    match (&cfg.robot_controller.mode, &cfg.sim) {
+        (DeviceMode::Sim, Some(sim)) => sim.effective_settle_ms() as f64 / 1000.0,
+        (DeviceMode::Sim, None) => SimWorldConfig::default().effective_settle_ms() as f64 / 1000.0,
+        _ => REAL_SETTLE_S,
+    }
+}
+
+/// Settle time of a real robot after a move that the plan's order assumes (s).
+pub const REAL_SETTLE_S: f64 = 1.5;
+
+/// Where the stage puts the ball at P2 relative to P1, flange frame (mm): the stage axis the
+/// identification uses × the travel; zero when no pose measures P2 (an ISO 9283 campaign with
+/// `measure_axis = false`).
+pub fn stage_offset_mm(cfg: &CellConfig) -> Vector3<f64> {
+    if cfg.iso9283.as_ref().is_some_and(|i| !i.measure_axis) {
+        return Vector3::zeros();
+    }
+    identify_options(cfg).obs.stage_axis * cfg.stage.travel_mm
 }
 
 /// Capacity of a session's live event channel (a receiver further behind lags).
@@ -356,20 +384,19 @@ fn plan_and_store(
         }
         Some(s) => {
             // a stored plan whose moves cannot all be routed is refused before anything moves
-            let mut router = Router::new(
-                nominal,
-                &req.workspace,
-                &req.tool_mm,
-                &fresh.drift_reference,
-            )
-            .map_err(PlanError::from)?;
+            let mut router =
+                campaign_router(nominal, req, &fresh.drift_reference).map_err(PlanError::from)?;
             let via_points = count_via_points(&mut router, req.drift_every, &s.poses)
                 .map_err(PlanError::from)?;
+            let (sampling_order_s, planned_order_s) =
+                order_times(nominal, req, &mut router, &s.poses);
             let plan = Plan {
                 poses: s.poses,
                 drift_reference: fresh.drift_reference,
                 via_points,
                 approach: Default::default(),
+                sampling_order_s,
+                planned_order_s,
             };
             (s.id, plan, None, Some(s.model), s.accepted_changes)
         }
@@ -540,8 +567,7 @@ fn iso_engine_plan(
     req: &PlanRequest,
     iso: &IsoPlan,
 ) -> Result<Plan, SessionError> {
-    let mut router = Router::new(nominal, &req.workspace, &req.tool_mm, &iso.hub_q_rad)
-        .map_err(PlanError::from)?;
+    let mut router = campaign_router(nominal, req, &iso.hub_q_rad).map_err(PlanError::from)?;
     let via_points = iso
         .via_points(&mut router, req.drift_every)
         .map_err(PlanError::from)?;

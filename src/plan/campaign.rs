@@ -1,12 +1,12 @@
 //! Campaign planning: poses in the workspace box that the tracker can see, the fixed
-//! identification/verification split, a drift reference pose, and a move order that shortens
-//! robot travel. Pure and seeded.
+//! identification/verification split, a drift reference pose, and a measuring order that
+//! shortens the campaign's time ([`order_plan`]). Pure and seeded.
 
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::order::{nearest_neighbour_order, travel};
+use super::order::{order_by_time, tour_s, travel, Legs, MotionLimits};
 use super::path::{wrist_side, PathChecker};
 use super::route::{RouteError, Router};
 use super::sampling::{sample_poses_where, PlanError};
@@ -35,6 +35,18 @@ pub struct PlanRequest {
     /// The drift reference is measured again every this many poses (0 = start and end only);
     /// the return moves count in [`Plan::via_points`].
     pub drift_every: usize,
+    /// `Some(k)`: the identification poses first, in blocks of `k` in index order (a
+    /// selection's ranking), each block in time order, then the verification poses; `None`:
+    /// one tour over all poses.
+    pub ident_block: Option<usize>,
+    /// Robot speed setting the legs are timed at (%, `robot_controller.speed_pct`).
+    pub speed_pct: f64,
+    /// Settle time after every move (s).
+    pub settle_s: f64,
+    /// The ball's displacement from P1 to P2 in the flange frame (mm; stage axis × travel):
+    /// the robot moves with the stage at either, so every move is checked with the ball at
+    /// both (zero: at P1 only).
+    pub stage_offset_mm: Vector3<f64>,
 }
 
 /// One planned pose.
@@ -63,6 +75,12 @@ pub struct Plan {
     /// route and left by a direct checked move (ISO 9283 unidirectional approach); empty for
     /// calibration plans.
     pub approach: std::collections::BTreeMap<usize, Vec<f64>>,
+    /// Move and settle time of the measuring legs (drift returns included) in sampling order,
+    /// identification poses first (s; [`order_times`]); 0 for ISO 9283 plans.
+    pub sampling_order_s: f64,
+    /// The same in the planned order (s): `sampling_order_s − planned_order_s` is the time
+    /// the order saves.
+    pub planned_order_s: f64,
 }
 
 /// Whether the target ball at `q` faces the tracker within the limit.
@@ -98,17 +116,19 @@ pub fn target_ok(model: &RobotModel, q: &[f64], req: &PlanRequest) -> bool {
 /// route: jog it over first); the drift reference is the hub of every route (see [`choose_hub`]);
 /// a pose is kept when the direct move between it and the drift reference passes the path
 /// check, so every move of the campaign has a route (direct, or through the drift reference).
-/// The first `ident` poses in sampling order identify; the move order is greedy nearest
-/// neighbour from the drift reference, and [`Plan::via_points`] counts the via points of every
-/// move the engine makes (drift reference first, returns to it every `drift_every` poses and at
-/// the end). O(n log n) for the order, O(n) path checks otherwise.
+/// Every move is checked with the ball at P1 and at P2 ([`campaign_checker`]). The first
+/// `ident` poses in sampling order identify; the measuring order is [`order_plan`]'s (by time,
+/// in the blocks of [`PlanRequest::ident_block`]), and [`Plan::via_points`] counts the via
+/// points of every move the engine makes (drift reference first, returns to it every
+/// `drift_every` poses and at the end). O(n log n) for the nearest-neighbour order and the
+/// neighbour lists of 2-opt, O(n) path checks otherwise (2-opt: a few per pose).
 pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, PlanError> {
     let mut rng = ChaCha8Rng::seed_from_u64(req.seed);
     let wanted = req.poses + 1;
     let first = candidates(model, req, wanted, None, &mut rng)?;
     let side = preferred_wrist_side(&first);
     let mut found: Vec<Candidate> = first.into_iter().filter(|c| c.side == side).collect();
-    let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
+    let mut checker = campaign_checker(model, req);
     let hub_i = choose_hub(&mut checker, &found).ok_or(PlanError::Unreachable {
         found: 0,
         wanted,
@@ -140,8 +160,87 @@ pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, Plan
         found = candidates(model, req, need, side, &mut rng)?;
         drawn += need;
     }
-    let order = nearest_neighbour_order(&drift_reference, &kept);
-    let poses: Vec<PlanEntry> = order
+    let mut router = campaign_router(model, req, &drift_reference)?;
+    let ordered = order_plan(model, req, &mut router, kept);
+    let via_points = count_via_points(&mut router, req.drift_every, &ordered.poses)?;
+    Ok(Plan {
+        poses: ordered.poses,
+        drift_reference,
+        via_points,
+        approach: Default::default(),
+        sampling_order_s: ordered.sampling_order_s,
+        planned_order_s: ordered.planned_order_s,
+    })
+}
+
+/// The path checker of a campaign's moves: `req`'s workspace, the ball at P1 and at P2
+/// ([`PlanRequest::stage_offset_mm`]).
+pub fn campaign_checker(model: &RobotModel, req: &PlanRequest) -> PathChecker {
+    PathChecker::new(model, &req.workspace, &req.tool_mm).with_ball_at_p2(&req.stage_offset_mm)
+}
+
+/// The router of a campaign's moves through `hub` with [`campaign_checker`].
+pub fn campaign_router(
+    model: &RobotModel,
+    req: &PlanRequest,
+    hub: &[f64],
+) -> Result<Router, RouteError> {
+    Router::with_checker(campaign_checker(model, req), hub)
+}
+
+/// A measuring order and what it saves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OrderedPlan {
+    /// Poses in measuring order.
+    pub poses: Vec<PlanEntry>,
+    /// [`Plan::sampling_order_s`].
+    pub sampling_order_s: f64,
+    /// Greedy nearest-neighbour order's time (s), before 2-opt.
+    pub nearest_neighbour_s: f64,
+    /// [`Plan::planned_order_s`].
+    pub planned_order_s: f64,
+}
+
+/// The blocks of pose indices measured one after the other: one of every pose, or (with
+/// [`PlanRequest::ident_block`]) the identification poses `0..ident` in blocks of `k`, then the
+/// verification poses.
+fn order_blocks(req: &PlanRequest, n: usize) -> Vec<Vec<usize>> {
+    let ident = req.ident.min(n);
+    match req.ident_block {
+        None => vec![(0..n).collect()],
+        Some(k) => {
+            let mut blocks: Vec<Vec<usize>> = (0..ident)
+                .step_by(k.max(1))
+                .map(|lo| (lo..(lo + k.max(1)).min(ident)).collect())
+                .collect();
+            if ident < n {
+                blocks.push((ident..n).collect());
+            }
+            blocks
+        }
+    }
+}
+
+/// Order the poses `kept` (index = pose index; identification poses are those below
+/// `req.ident`) by time through `router`'s hub ([`order_by_time`]: nearest neighbour, then 2-opt,
+/// on leg time at `req.speed_pct` with `req.settle_s` per stop, routes included), in the blocks
+/// of [`PlanRequest::ident_block`].
+pub fn order_plan(
+    model: &RobotModel,
+    req: &PlanRequest,
+    router: &mut Router,
+    kept: Vec<Vec<f64>>,
+) -> OrderedPlan {
+    let limits = MotionLimits::of(model, req.speed_pct);
+    let blocks = order_blocks(req, kept.len());
+    let sampling: Vec<usize> = blocks.iter().flatten().copied().collect();
+    let mut legs = Legs::new(&kept, router, &limits, req.settle_s);
+    let (nn, order) = order_by_time(&mut legs, &blocks, req.drift_every);
+    let sampling_order_s = tour_s(&mut legs, &sampling, req.drift_every);
+    let nearest_neighbour_s = tour_s(&mut legs, &nn, req.drift_every);
+    let planned_order_s = tour_s(&mut legs, &order, req.drift_every);
+    let mut kept = kept;
+    let poses = order
         .into_iter()
         .map(|index| PlanEntry {
             index,
@@ -153,14 +252,33 @@ pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, Plan
             q_rad: std::mem::take(&mut kept[index]),
         })
         .collect();
-    let mut router = Router::new(model, &req.workspace, &req.tool_mm, &drift_reference)?;
-    let via_points = count_via_points(&mut router, req.drift_every, &poses)?;
-    Ok(Plan {
+    OrderedPlan {
         poses,
-        drift_reference,
-        via_points,
-        approach: Default::default(),
-    })
+        sampling_order_s,
+        nearest_neighbour_s,
+        planned_order_s,
+    }
+}
+
+/// Move and settle time (s) of the measuring legs of `poses` in sampling order (identification
+/// poses first, each set in index order) and in the given order, through `router`'s hub, at
+/// `req`'s speed and settle: ([`Plan::sampling_order_s`], [`Plan::planned_order_s`]).
+pub fn order_times(
+    model: &RobotModel,
+    req: &PlanRequest,
+    router: &mut Router,
+    poses: &[PlanEntry],
+) -> (f64, f64) {
+    let limits = MotionLimits::of(model, req.speed_pct);
+    let points: Vec<Vec<f64>> = poses.iter().map(|p| p.q_rad.clone()).collect();
+    let mut sampling: Vec<usize> = (0..poses.len()).collect();
+    sampling.sort_by_key(|&k| (poses[k].set != PoseSet::Ident, poses[k].index));
+    let planned: Vec<usize> = (0..poses.len()).collect();
+    let mut legs = Legs::new(&points, router, &limits, req.settle_s);
+    (
+        tour_s(&mut legs, &sampling, req.drift_every),
+        tour_s(&mut legs, &planned, req.drift_every),
+    )
 }
 
 /// A sampled configuration that passes [`target_ok`], with what planning needs of its frames.
@@ -292,6 +410,10 @@ mod tests {
             line_of_sight_max_rad: 80f64.to_radians(),
             tool_mm: Vector3::zeros(),
             drift_every: 20,
+            ident_block: None,
+            speed_pct: 20.0,
+            settle_s: 1.5,
+            stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
         }
     }
 

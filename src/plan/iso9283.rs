@@ -23,7 +23,7 @@ use std::collections::BTreeMap;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::campaign::{target_ok, Plan, PlanEntry, PlanRequest};
+use super::campaign::{campaign_router, target_ok, Plan, PlanEntry, PlanRequest};
 use super::path::wrist_side;
 use super::route::{RouteError, Router};
 use crate::compensate::{CompensateError, Compensator, Target};
@@ -279,7 +279,7 @@ pub fn plan_iso(
             }),
         },
     };
-    let mut router = Router::new(model, &req.workspace, &req.tool_mm, hub)?;
+    let mut router = campaign_router(model, req, hub)?;
     plan.via_points(&mut router, req.drift_every)?;
     Ok(plan)
 }
@@ -402,6 +402,8 @@ impl IsoPlan {
             drift_reference: self.hub_q_rad.clone(),
             via_points,
             approach: self.approaches(),
+            sampling_order_s: 0.0,
+            planned_order_s: 0.0,
         }
     }
 }
@@ -441,6 +443,10 @@ mod tests {
             line_of_sight_max_rad: std::f64::consts::PI,
             tool_mm: Vector3::new(0.0, 0.0, 60.0),
             drift_every: 50,
+            ident_block: None,
+            speed_pct: 20.0,
+            settle_s: 1.5,
+            stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
         };
         let hub = plan_campaign(&m, &req).unwrap().drift_reference;
         let iso = IsoRequest {

@@ -10,7 +10,10 @@ pub mod sampling;
 pub mod selection;
 pub mod workspace;
 
-pub use campaign::{count_via_points, plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};
+pub use campaign::{
+    campaign_checker, campaign_router, count_via_points, order_plan, order_times, plan_campaign,
+    target_ok, OrderedPlan, Plan, PlanEntry, PlanRequest,
+};
 pub use path::{BoxFace, CheckedPoint, PathCheck, PathChecker, PathFault, PATH_STEP_MM};
 pub use route::{RouteError, Router};
 pub use sampling::{sample_poses, PlanError};

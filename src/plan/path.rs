@@ -35,6 +35,8 @@ pub enum CheckedPoint {
     Flange,
     /// The target ball (tool point).
     Ball,
+    /// The target ball with the stage at P2 (see [`PathChecker::with_ball_at_p2`]).
+    BallAtP2,
 }
 
 impl std::fmt::Display for CheckedPoint {
@@ -43,6 +45,7 @@ impl std::fmt::Display for CheckedPoint {
             CheckedPoint::Frame(k) => write!(f, "frame {k} origin"),
             CheckedPoint::Flange => f.write_str("flange"),
             CheckedPoint::Ball => f.write_str("ball"),
+            CheckedPoint::BallAtP2 => f.write_str("ball at P2"),
         }
     }
 }
@@ -181,6 +184,8 @@ pub struct PathChecker {
     limits: Vec<JointLimit>,
     workspace: Workspace,
     tool_mm: Vector3<f64>,
+    /// The ball with the stage at P2 (flange frame, mm), when it is checked too.
+    p2_mm: Option<Vector3<f64>>,
     /// `R_i` per joint (mm): bound on the distance of any checked point from joint i's axis.
     lever_mm: Vec<f64>,
     frames: Frames,
@@ -195,9 +200,26 @@ impl PathChecker {
             limits: model.limits.clone(),
             workspace: *workspace,
             tool_mm: *tool_mm,
+            p2_mm: None,
             lever_mm: lever_arms_mm(&model.joints, tool_mm.norm()),
             frames: Frames::new(),
         }
+    }
+
+    /// The same checker that also holds the ball at `tool_mm + offset_mm` (the stage at P2;
+    /// flange frame) to every check: a configuration or move passes only with the ball at both
+    /// ends of the stage travel, and so anywhere between (the box and the half-space above the
+    /// floor are convex). A zero offset checks the ball at P1 only.
+    pub fn with_ball_at_p2(mut self, offset_mm: &Vector3<f64>) -> PathChecker {
+        if *offset_mm == Vector3::zeros() {
+            self.p2_mm = None;
+            self.lever_mm = lever_arms_mm(&self.joints, self.tool_mm.norm());
+        } else {
+            let p2 = self.tool_mm + offset_mm;
+            self.p2_mm = Some(p2);
+            self.lever_mm = lever_arms_mm(&self.joints, self.tool_mm.norm().max(p2.norm()));
+        }
+        self
     }
 
     /// The workspace checked against.
@@ -229,7 +251,7 @@ impl PathChecker {
     }
 
     /// Checked points of the configuration in `self.frames`: every frame origin after the
-    /// base (the last is the flange) and the ball.
+    /// base (the last is the flange), the ball and, when checked, the ball at P2.
     fn points(&self) -> impl Iterator<Item = (CheckedPoint, Vector3<f64>)> + '_ {
         let n = self.joints.len();
         let frames = &self.frames.frames[1..];
@@ -241,8 +263,14 @@ impl PathChecker {
             };
             (point, fr.p)
         });
-        let ball = self.frames.flange().transform_point(&self.tool_mm);
-        named.chain(std::iter::once((CheckedPoint::Ball, ball)))
+        let flange = self.frames.flange();
+        let ball = flange.transform_point(&self.tool_mm);
+        let p2 = self
+            .p2_mm
+            .map(|t| (CheckedPoint::BallAtP2, flange.transform_point(&t)));
+        named
+            .chain(std::iter::once((CheckedPoint::Ball, ball)))
+            .chain(p2)
     }
 
     /// Box, floor and wrist checks of the configuration whose frames are in `self.frames`;
@@ -251,7 +279,10 @@ impl PathChecker {
         let ws = &self.workspace;
         let mut points_mm = f64::INFINITY;
         for (point, p) in self.points() {
-            if matches!(point, CheckedPoint::Flange | CheckedPoint::Ball) {
+            if matches!(
+                point,
+                CheckedPoint::Flange | CheckedPoint::Ball | CheckedPoint::BallAtP2
+            ) {
                 let d = p - ws.center_mm;
                 for k in 0..3 {
                     let room = 0.5 * ws.size_mm[k] + ws.path_margin_mm - d[k].abs();

@@ -52,7 +52,13 @@ impl Router {
         tool_mm: &Vector3<f64>,
         hub: &[f64],
     ) -> Result<Router, RouteError> {
-        let mut checker = PathChecker::new(model, workspace, tool_mm);
+        Router::with_checker(PathChecker::new(model, workspace, tool_mm), hub)
+    }
+
+    /// A router whose every leg passes `checker` (e.g. one that also checks the ball at P2,
+    /// [`PathChecker::with_ball_at_p2`]), with `hub` as the safe intermediate pose; the hub
+    /// must pass the path check.
+    pub fn with_checker(mut checker: PathChecker, hub: &[f64]) -> Result<Router, RouteError> {
         checker.check_pose(hub).map_err(RouteError::Hub)?;
         Ok(Router {
             checker,

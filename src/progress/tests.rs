@@ -20,6 +20,8 @@ fn plan(total: usize, ident: usize) -> Plan {
         drift_reference: vec![0.0; 6],
         via_points: 0,
         approach: Default::default(),
+        sampling_order_s: 0.0,
+        planned_order_s: 0.0,
     }
 }
 

@@ -175,6 +175,10 @@ fn campaign_request(cell: &Cell, tool: &Vector3<f64>) -> PlanRequest {
         line_of_sight_max_rad: 0.6,
         tool_mm: *tool,
         drift_every: 0,
+        ident_block: None,
+        speed_pct: 20.0,
+        settle_s: 1.5,
+        stage_offset_mm: Vector3::zeros(),
     }
 }
 
