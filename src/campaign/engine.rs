@@ -1029,16 +1029,20 @@ impl Run<'_> {
                 .any(|p| p.index == i && p.set == PoseSet::Ident)
         };
         let mut ident_done = done.iter().filter(|i| is_ident(**i)).count();
-        if let Some(c) = rule.as_ref().and_then(|r| r.stopped()) {
-            self.journal(CampaignEvent::Note {
-                text: format!(
-                    "resuming: the identification poses stopped after {} (stop rule: {}); the \
-                     rest stay skipped",
-                    c.after_poses,
-                    c.stopped.map_or("", |r| r.as_str())
-                ),
-            })
-            .await?;
+        if let Some(event) = rule.as_ref().and_then(|r| r.stopped_event()) {
+            // a stop stored by a run that ended before it journalled it is journalled now
+            let journalled: Vec<crate::store::JournalEntry<CampaignEvent>> =
+                self.store(move |s| s.events(id)).await?;
+            if journalled.iter().any(|e| e.event.kind() == event.kind()) {
+                self.journal(CampaignEvent::Note {
+                    text: "resuming: the identification poses stay stopped (stop rule); the \
+                           skipped ones are not measured"
+                        .into(),
+                })
+                .await?;
+            } else {
+                self.journal(event).await?;
+            }
         }
         for entry in self.ctx.plan.poses.clone() {
             if done.contains(&entry.index) {

@@ -11,7 +11,7 @@ use cellcal::campaign::CampaignEvent;
 use cellcal::dataset::PoseSet;
 use cellcal::store::Store;
 
-use crate::campaign::{config_text, run_in_process, write_config};
+use crate::campaign::{check_complete, config_text, run_in_process, write_config};
 
 /// The ident and verify poses a stored campaign planned and measured:
 /// `((ident planned, ident done), (verify planned, verify done))`, and the done ident poses.
@@ -174,4 +174,114 @@ fn bad_stop_keys_exit_2_naming_file_and_key() {
             "{text}: {err}"
         );
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_target_stops_the_identification_poses_once_the_prediction_reaches_it() {
+    // the gain rule off (only a worse prediction would stop): the target alone decides
+    let target = 0.035;
+    let text = config_text(
+        "",
+        &format!("stop_when = \"predicted\"\nstop_min_gain = 0.0\ntarget_verify_mm = {target}"),
+        "",
+    );
+    let f = run_in_process(&text).await;
+    let stop = f.report.ident_stop.clone().expect("ident_stop");
+    eprintln!(
+        "target {target} mm: {:?}",
+        stop.history
+            .iter()
+            .map(|c| (c.after_poses, c.predicted_mm))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(stop.reason, StopReason::Target);
+    let (last, before) = stop.history.split_last().expect("history");
+    assert!(last.predicted_mm <= target && stop.predicted_mm == Some(last.predicted_mm));
+    assert!(before.iter().all(|c| c.predicted_mm > target), "{before:?}");
+    assert_eq!(stop.target_verify_mm, Some(target));
+    assert!(stop.ident_measured < stop.ident_planned);
+    let s = Store::open(&f.store).expect("store");
+    let (ident, verify, _) = counts(&s, f.id);
+    assert_eq!(ident, (stop.ident_planned, stop.ident_measured));
+    assert_eq!(verify.0, verify.1, "every verification pose measured");
+}
+
+#[test]
+fn a_kill_9_after_the_stop_and_a_resume_measure_no_skipped_pose_and_end_the_campaign() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // default simulated timing (~80 ms a pose): the kill lands while verification poses remain
+    let text = config_text("", "stop_when = \"predicted\"\nstop_block = 10", "")
+        .replace(
+            "move_speed_deg_s = 200000.0\nstage_speed_mm_s = 100000.0\n",
+            "",
+        )
+        .replace("poses = 300", "poses = 160");
+    let cfg = write_config(dir.path(), &text);
+    let store = dir.path().join("c.db");
+    let bin = assert_cmd::cargo::cargo_bin("cellcal");
+    let run = |resume: bool| {
+        let mut cmd = std::process::Command::new(&bin);
+        cmd.args(["run", "--quiet", "--arm", "--config"])
+            .arg(&cfg)
+            .arg("--store")
+            .arg(&store);
+        if resume {
+            cmd.args(["--campaign", "1"]);
+        }
+        cmd.stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped());
+        cmd
+    };
+    let mut child = run(false).spawn().expect("spawn cellcal run");
+    // kill -9 as soon as the stop decision is stored
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    let stopped_at = loop {
+        assert!(std::time::Instant::now() < deadline, "no stop decision");
+        assert!(
+            child.try_wait().expect("try_wait").is_none(),
+            "the run ended before it was killed"
+        );
+        let checks: Vec<IdentCheck> = Store::open_reader(&store)
+            .ok()
+            .and_then(|s| s.ident_checks(1).ok())
+            .unwrap_or_default();
+        if let Some(c) = checks.iter().find(|c| c.stopped.is_some()) {
+            child.kill().expect("kill -9");
+            break c.after_poses;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    child.wait().expect("wait");
+    let s = Store::open(&store).expect("store");
+    let ((ident_planned, ident_done), (verify_planned, verify_done), ident_at_kill) = counts(&s, 1);
+    assert_eq!(ident_done, stopped_at, "ident poses measured at the stop");
+    assert!(ident_done < ident_planned && verify_done < verify_planned);
+    drop(s);
+    // resume: the skipped poses stay skipped, the verification set is finished, the campaign ends
+    let out = run(true).output().expect("resume");
+    assert!(
+        out.status.success(),
+        "resume: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s = Store::open(&store).expect("store");
+    let (ident, verify, ident_after) = counts(&s, 1);
+    assert_eq!(ident_after, ident_at_kill, "no skipped ident pose measured");
+    assert_eq!(ident, (ident_planned, stopped_at));
+    assert_eq!(verify, (verify_planned, verify_planned));
+    check_complete(&store, 1, stopped_at + verify_planned);
+    // one ident_stopped event (journalled by the resume if the kill came before it), and
+    // the result says why
+    let events = stop_events(&s, 1);
+    assert_eq!(events.len(), 1, "{events:?}");
+    let stored =
+        CalibrationResult::from_stored_json(&s.latest_result(1).expect("read").expect("result"))
+            .expect("stored result");
+    let stop = stored.report.ident_stop.expect("ident_stop");
+    assert_eq!(
+        (stop.reason, stop.ident_measured, stop.ident_planned),
+        (StopReason::MinGain, stopped_at, ident_planned)
+    );
+    assert_eq!(stored.report.metrics.ident.after.poses, stopped_at);
 }

@@ -4,8 +4,8 @@
 //! After each block of `stop_block` measured identification poses the engine identifies on
 //! what is stored (the campaign's own recipe, [`super::identification_input`]), predicts the
 //! mean verification error of that identification at the plan's verification poses
-//! ([`predicted_verification`]: the identification's parameter covariance carried to the ball
-//! at each verification pose, plus the tracker's noise there), and stops measuring
+//! ([`predicted_verification`] of `plan::selection`: the identification's parameter covariance
+//! carried to the ball at each verification pose, plus the tracker's noise there), and stops measuring
 //! identification poses once a block improves that prediction by less than `stop_min_gain`
 //! ([`decide`]) or it is at or below `target_verify_mm`. The remaining identification poses
 //! are skipped, never measured; the verification poses are always measured in full; the final
@@ -25,84 +25,9 @@ use crate::config::{CellConfig, StopWhen};
 use crate::dataset::PoseSet;
 use crate::identify::{all_params, Identification, TrackerNoise};
 use crate::model::RobotModel;
+use crate::plan::selection::{predicted_verification, Design, NoiseModel, PredictedError};
 use crate::plan::Plan;
 use crate::units::human::fmt_mm;
-
-use selection::{predicted_verification, Design, PredictedError};
-
-/// Stand-in for `crate::plan::selection` (helper "select" owns it) until that module is
-/// merged: the same names and signature, computed the same way in substance (the parameter
-/// covariance carried to the ball at each verification pose, plus the tracker's noise).
-mod selection {
-    use nalgebra::DMatrix;
-
-    use crate::identify::observation::residual_jacobian;
-    use crate::identify::{predict, Measured, ObsConfig, ParamId, TrackerNoise};
-    use crate::model::RobotModel;
-
-    /// What a prediction needs of a campaign: the model (linearisation point), the
-    /// observation configuration, the parameters the covariance is over, the tracker's noise.
-    pub struct Design {
-        /// The robot model whose parameters the covariance is about (measurement frame).
-        pub model: RobotModel,
-        /// The observation configuration.
-        pub obs: ObsConfig,
-        /// The parameters of the covariance, in its order.
-        pub params: Vec<ParamId>,
-        /// The tracker's noise model.
-        pub noise: TrackerNoise,
-    }
-
-    /// Predicted mean verification error (mm) and what it is made of.
-    pub struct PredictedError {
-        /// Predicted mean ‖measured − identified model‖ at the verification poses (mm).
-        pub mean_mm: f64,
-        /// The same with a perfectly known model: the tracker's noise alone (mm).
-        pub noise_floor_mm: f64,
-    }
-
-    /// E‖e‖ of a 3-D normal error with covariance trace `trace` (exact when isotropic).
-    fn mean_norm(trace: f64) -> f64 {
-        (8.0 / (3.0 * std::f64::consts::PI) * trace.max(0.0)).sqrt()
-    }
-
-    /// Predicted verification error of a model identified with parameter covariance `cov`
-    /// (over `design.params`) at the verification joints `verify_q`, under the design's noise
-    /// model.
-    pub fn predicted_verification(
-        design: &Design,
-        cov: &DMatrix<f64>,
-        verify_q: &[Vec<f64>],
-    ) -> PredictedError {
-        let np = design.params.len();
-        let rows = design.obs.model.rows();
-        let (mut res, mut jac) = (vec![0.0; rows], vec![0.0; rows * np]);
-        let (mut mean, mut floor) = (0.0, 0.0);
-        for q in verify_q {
-            let meas = Measured::joints_only(q.clone());
-            residual_jacobian(
-                &design.model,
-                &meas,
-                &design.obs,
-                &design.params,
-                &mut res,
-                &mut jac,
-            );
-            // the position rows: J (3 × np); trace of J Σ Jᵀ
-            let j = DMatrix::from_row_slice(3, np, &jac[..3 * np]);
-            let model_part = (&j * cov * j.transpose()).trace();
-            let sigma = design.noise.sigma_mm(&predict(&design.model, q).p);
-            let noise_part = 3.0 * sigma * sigma;
-            mean += mean_norm(model_part + noise_part);
-            floor += mean_norm(noise_part);
-        }
-        let n = verify_q.len().max(1) as f64;
-        PredictedError {
-            mean_mm: mean / n,
-            noise_floor_mm: floor / n,
-        }
-    }
-}
 
 /// The rule: the relative gain on the `previous` prediction and why to stop, if so. Stops at
 /// or below `target_mm`, or when the gain `(previous − predicted) / previous` is below
@@ -212,6 +137,19 @@ impl StopRule {
         }
     }
 
+    /// The `ident_stopped` event of the check that stopped the identification poses.
+    pub(super) fn stopped_event(&self) -> Option<CampaignEvent> {
+        let c = self.stopped()?;
+        let at = self.checks.iter().position(|x| x.stopped.is_some())?;
+        Some(CampaignEvent::IdentStopped {
+            after_poses: c.after_poses,
+            skipped: self.ident_planned.saturating_sub(c.after_poses),
+            reason: c.stopped?,
+            predicted_mm: c.predicted_mm,
+            history: self.checks[..=at].to_vec(),
+        })
+    }
+
     /// The result's `ident_stop` with `ident_measured` identification poses measured.
     pub(super) fn summary(&self, ident_measured: usize) -> IdentStop {
         let stop = self.stopped();
@@ -227,11 +165,18 @@ impl StopRule {
     }
 }
 
-/// The predicted verification error of identification `id` at `verify_q`: its covariance over
-/// the identified parameters (σ and correlations as it reports them), the identified model as
-/// the linearisation point, the tracker's noise model with the tracker at the measurement
-/// frame's origin (the measurement frame is the tracker's). `None` when a σ is not finite.
-fn predicted_of(id: &Identification, verify_q: &[Vec<f64>]) -> Option<PredictedError> {
+/// The predicted verification error of identification `id` (stage travel `travel_mm`) at
+/// `verify_q` ([`predicted_verification`]): its covariance over the identified parameters (σ
+/// and correlations as it reports them: the a-posteriori σ of unit weight, so a cell noisier
+/// than the tracker's model asks for more poses), the identified model (measurement frame, the
+/// ball as its tool) as the linearisation point, and the AT960 noise model with the tracker at
+/// the measurement frame's origin (the measurement frame is the tracker's). `None` when a σ is
+/// not finite.
+fn predicted_of(
+    id: &Identification,
+    travel_mm: f64,
+    verify_q: &[Vec<f64>],
+) -> Option<PredictedError> {
     let params = id.identifiability.identified.clone();
     let std: Vec<f64> = params
         .iter()
@@ -251,8 +196,12 @@ fn predicted_of(id: &Identification, verify_q: &[Vec<f64>]) -> Option<PredictedE
     let design = Design {
         model: id.corrected.clone(),
         obs: id.options.obs,
+        stage_travel_mm: travel_mm,
+        noise: NoiseModel {
+            tracker: TrackerNoise::at960(Vector3::zeros()),
+            joint_jitter_rad: 0.0,
+        },
         params,
-        noise: TrackerNoise::at960(Vector3::zeros()),
     };
     let p = predicted_verification(&design, &cov, verify_q);
     (p.mean_mm.is_finite()).then_some(p)
@@ -281,7 +230,7 @@ impl Run<'_> {
         let verify_q = rule.verify_q.clone();
         let work = tokio::task::spawn_blocking(move || {
             calibrate(&input.nominal, &input.rows, &input.opts, input.travel)
-                .map(|(_, id)| predicted_of(&id, &verify_q))
+                .map(|(_, id)| predicted_of(&id, input.travel, &verify_q))
         });
         // the robot stands; an abort or a disarm ends the wait at once (the thread's result
         // is dropped)
@@ -318,16 +267,9 @@ impl Run<'_> {
         self.store(move |s| s.add_ident_check(id, ident_done, &stored))
             .await?;
         rule.checks.push(check.clone());
-        match check.stopped {
-            Some(reason) => {
-                self.journal(CampaignEvent::IdentStopped {
-                    after_poses: ident_done,
-                    skipped: rule.ident_planned - ident_done,
-                    reason,
-                    predicted_mm: check.predicted_mm,
-                    history: rule.checks.clone(),
-                })
-                .await?;
+        match rule.stopped_event() {
+            Some(event) => {
+                self.journal(event).await?;
                 Ok(true)
             }
             None => {
@@ -431,25 +373,5 @@ mod tests {
             (StopReason::MinGain, 30, 35, 3)
         );
         assert_eq!(s.predicted_mm, Some(0.0396));
-    }
-
-    #[test]
-    fn the_prediction_falls_with_a_smaller_covariance_to_the_noise_floor() {
-        let model = crate::model::tx60();
-        let params = all_params(6, false, false);
-        let k = params.len();
-        let design = Design {
-            model: model.clone(),
-            obs: crate::identify::ObsConfig::new(crate::identify::ObsModel::Op, 10.0),
-            params,
-            noise: TrackerNoise::at960(Vector3::new(2500.0, 0.0, 0.0)),
-        };
-        let q = crate::identify::generic_poses(&model, 20);
-        let at =
-            |s: f64| predicted_verification(&design, &DMatrix::identity(k, k).scale(s * s), &q);
-        let (big, small, none) = (at(1e-3), at(1e-5), at(0.0));
-        assert!(big.mean_mm > small.mean_mm && small.mean_mm > none.mean_mm);
-        assert!((none.mean_mm - none.noise_floor_mm).abs() < 1e-15);
-        assert!(none.noise_floor_mm > 0.01 && none.noise_floor_mm < 0.03);
     }
 }
