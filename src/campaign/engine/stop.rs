@@ -114,7 +114,7 @@ impl StopRule {
     /// of blocks, some planned ones left, not checked (or failed) at that count, not stopped.
     fn due(&self, ident_done: usize) -> bool {
         ident_done > 0
-            && ident_done % self.block == 0
+            && ident_done.is_multiple_of(self.block)
             && ident_done < self.ident_planned
             && self
                 .checks
