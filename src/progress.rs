@@ -11,6 +11,7 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
+use crate::calibrate::StopReason;
 use crate::campaign::events::fault_kind_name;
 use crate::campaign::{CampaignContext, CampaignEvent, CampaignState, Journalled};
 use crate::dataset::PoseSet;
@@ -134,6 +135,24 @@ impl Progress {
                 robot,
                 stage,
             } => format!("stopped ({reason}): robot {robot}; stage {stage}"),
+            CampaignEvent::IdentStopped {
+                after_poses,
+                skipped,
+                reason,
+                predicted_mm,
+                history,
+            } => {
+                let why = match (reason, history.last().and_then(|c| c.gain)) {
+                    (StopReason::Target, _) => "at the target".to_owned(),
+                    (_, Some(g)) => format!("the last block gained {:.1} %", 100.0 * g),
+                    (_, None) => reason.as_str().to_owned(),
+                };
+                format!(
+                    "identification poses stopped after {after_poses}, {skipped} skipped: predicted \
+                     verification error {} mm, {why}",
+                    fmt_mm(*predicted_mm)
+                )
+            }
             CampaignEvent::Note { text } => format!("note: {text}"),
             CampaignEvent::Devices {
                 tracker,

@@ -505,6 +505,8 @@ function summary(kind, d) {
       + (typeof d.deviation_mm === 'number' ? ', ' + human.mm(d.deviation_mm) + ' mm from the nominal model' : '');
     case 'prompt': return 'question ' + d.seq + ': ' + d.text;
     case 'note': return d.text;
+    case 'ident_stopped': return 'identification poses stopped after ' + d.after_poses + ', ' + d.skipped
+      + ' skipped (' + d.reason + '): predicted verification error ' + human.mm(d.predicted_mm) + ' mm';
     case 'devices': return ['tracker', 'robot', 'stage'].map((k) => k + ' ' + (d[k] || 'unknown')).join('; ');
     case 'fault': return d.device + ' ' + d.kind + ': ' + d.message + ' → ' + d.action;
     case 'drift': return 'drift ' + human.mm(d.drift_mm) + ' mm (max ' + human.mm(d.max_mm) + ' mm)';

@@ -212,6 +212,70 @@ pub struct IdentifyReport {
     /// Identified parameters relative to the setup, and why.
     #[serde(default)]
     pub setup_relative: Vec<NotIdentifiable>,
+    /// A campaign with `stop_when = "predicted"`: when and why it stopped measuring
+    /// identification poses (absent otherwise, and from `cellcal identify`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ident_stop: Option<IdentStop>,
+}
+
+/// Why a campaign stopped measuring identification poses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// A block improved the predicted verification error by less than `stop_min_gain`.
+    MinGain,
+    /// The predicted verification error reached `target_verify_mm`.
+    Target,
+    /// Every planned identification pose was measured before the rule stopped them.
+    Planned,
+}
+
+impl StopReason {
+    /// Its JSON spelling (`min_gain`, `target`, `planned`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StopReason::MinGain => "min_gain",
+            StopReason::Target => "target",
+            StopReason::Planned => "planned",
+        }
+    }
+}
+
+/// The stop rule's check after a block of identification poses: an identification on the
+/// measured poses and its predicted verification error at the planned verification poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IdentCheck {
+    /// Identification poses measured when it was made.
+    pub after_poses: usize,
+    /// Predicted mean verification error of that identification (mm).
+    pub predicted_mm: f64,
+    /// The part of it the tracker's noise alone makes (mm).
+    pub noise_floor_mm: f64,
+    /// Relative improvement on the previous check, `(previous − this) / previous` (null for
+    /// the first).
+    pub gain: Option<f64>,
+    /// Why this check stopped the identification poses (null: measuring on).
+    pub stopped: Option<StopReason>,
+}
+
+/// `ident_stop` of a result: how the stop rule ended the identification poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IdentStop {
+    /// Why the identification poses ended.
+    pub reason: StopReason,
+    /// Identification poses measured (the identification uses these).
+    pub ident_measured: usize,
+    /// Identification poses planned (the rest were skipped, never measured).
+    pub ident_planned: usize,
+    /// The predicted verification error of the check that stopped them, else of the last
+    /// check (mm; null without a check).
+    pub predicted_mm: Option<f64>,
+    /// The rule's fraction (`campaign.stop_min_gain`).
+    pub stop_min_gain: f64,
+    /// The rule's target (`campaign.target_verify_mm`, mm).
+    pub target_verify_mm: Option<f64>,
+    /// Every check, in order.
+    pub history: Vec<IdentCheck>,
 }
 
 /// The verdict's three levels, ordered by severity.

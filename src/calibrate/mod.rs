@@ -10,7 +10,7 @@ pub mod quality;
 pub mod result;
 pub mod setup;
 
-pub use identify_json::{IdentifyReport, ParamStatus};
+pub use identify_json::{IdentCheck, IdentStop, IdentifyReport, ParamStatus, StopReason};
 pub use quality::{Quality, QualityWarning};
 pub use result::{
     corrected_model, BaseSource, CalibrationResult, CorrectedModel, ModelFileError, ParamValue,
@@ -247,6 +247,7 @@ pub fn calibrate(
         warnings: Vec::new(),
         before_base: Some(id.before_base),
         setup_relative: id.setup_relative.iter().map(NotIdentifiable::of).collect(),
+        ident_stop: None,
     };
     report.judge(&bounds);
     Ok((report, id))

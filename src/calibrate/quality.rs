@@ -472,6 +472,7 @@ mod tests {
             warnings: vec![],
             before_base: None,
             setup_relative: vec![],
+            ident_stop: None,
         }
     }
 

@@ -18,10 +18,12 @@
 
 mod frame;
 mod setup;
+mod stop;
 #[cfg(test)]
 mod tests_fake;
 
 pub use setup::{BaseResult, SetupResult, ToolFrameResult};
+pub use stop::{decide as stop_decision, stop_block};
 
 use std::future::Future;
 use std::time::Duration;
@@ -29,12 +31,13 @@ use std::time::Duration;
 use nalgebra::Vector3;
 
 use super::events::{CampaignEvent, CampaignState, Control};
-use crate::calibrate::{calibrate_result, BaseSource, CalibrateError, IdentifyReport};
+use crate::calibrate::{calibrate_result, BaseSource, CalibrateError, IdentCheck, IdentifyReport};
 use crate::cell::{
     CellError, DeviceKind, FaultKind, PromptContext, Robot, Stage, StagePosition, Tracker,
     TrackerPoint,
 };
 use crate::config::CellConfig;
+use crate::dataset::{Observation, PoseSet};
 use crate::identify::solver::Options;
 use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
 use crate::iso9283::IsoReport;
@@ -1035,11 +1038,40 @@ impl Run<'_> {
         let s1 = self.ctx.cfg.stage.p1_mm;
         let s2 = s1 + self.ctx.cfg.stage.travel_mm;
         let mut since_drift = 0;
+        let mut rule = self.stop_rule().await?;
+        let is_ident = |i: usize| {
+            self.ctx
+                .plan
+                .poses
+                .iter()
+                .any(|p| p.index == i && p.set == PoseSet::Ident)
+        };
+        let mut ident_done = done.iter().filter(|i| is_ident(**i)).count();
+        if let Some(event) = rule.as_ref().and_then(|r| r.stopped_event()) {
+            // a stop stored by a run that ended before it journalled it is journalled now
+            let journalled: Vec<crate::store::JournalEntry<CampaignEvent>> =
+                self.store(move |s| s.events(id)).await?;
+            if journalled.iter().any(|e| e.event.kind() == event.kind()) {
+                self.journal(CampaignEvent::Note {
+                    text: "resuming: the identification poses stay stopped (stop rule); the \
+                           skipped ones are not measured"
+                        .into(),
+                })
+                .await?;
+            } else {
+                self.journal(event).await?;
+            }
+        }
         for entry in self.ctx.plan.poses.clone() {
             if done.contains(&entry.index) {
                 continue;
             }
             self.wait_unpaused().await?;
+            if let (Some(rule), PoseSet::Ident) = (rule.as_mut(), entry.set) {
+                if with_operator!(self, self.ident_stopped(rule, ident_done).await) {
+                    continue;
+                }
+            }
             self.step = Step::Pose(count + 1);
             let m = with_operator!(self, self.measure_sane_pose(&entry, s1, s2).await);
             let p1_mm = [m.p1.x_mm, m.p1.y_mm, m.p1.z_mm];
@@ -1048,6 +1080,7 @@ impl Run<'_> {
             self.store(move |s| s.commit_pose(id, &m)).await?;
             count += 1;
             since_drift += 1;
+            ident_done += usize::from(entry.set == PoseSet::Ident);
             self.journal(CampaignEvent::Measured {
                 pose: entry.index,
                 done: count,
@@ -1065,6 +1098,28 @@ impl Run<'_> {
         with_operator!(self, self.check_drift(&baseline).await);
         Ok(())
     }
+}
+
+impl Run<'_> {
+    /// The stop rule of this campaign with its stored checks (`None` unless a calibration
+    /// campaign with `stop_when = "predicted"`). Cancel-safe in effect, as [`with_store`].
+    async fn stop_rule(&self) -> Result<Option<stop::StopRule>, CampaignError> {
+        stored_stop_rule(self.ctx).await
+    }
+}
+
+/// [`stop::StopRule::of`] the campaign with the checks its store holds. Cancel-safe in
+/// effect, as [`with_store`].
+async fn stored_stop_rule(ctx: &CampaignContext) -> Result<Option<stop::StopRule>, CampaignError> {
+    let id = ctx.campaign_id;
+    let checks: Vec<IdentCheck> = with_store(&ctx.store, move |s| s.ident_checks(id)).await?;
+    Ok(stop::StopRule::of(
+        &ctx.cfg,
+        &ctx.nominal,
+        &ctx.plan,
+        ctx.iso.is_some(),
+        checks,
+    ))
 }
 
 /// Via points from `from` to `q`: the route's, or, with an `approach` pre-pose, the route to
@@ -1145,11 +1200,19 @@ pub fn campaign_identification(
     (nominal, opts, cfg.stage.travel_mm)
 }
 
-/// Identify from the stored measurements and store the typed result
-/// ([`crate::calibrate::CalibrationResult`]: the contract, per-pose residuals, corrected model)
-/// once; returns its contract. Not cancel-safe: one step of the run, ended by the abort token
-/// (every device wait is `guarded`), never by dropping it.
-pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
+/// What a campaign identifies from: the stored rows (every measured pose), the recipe of
+/// [`campaign_identification`] with the stored setup, and the base's source.
+struct IdentificationInput {
+    nominal: RobotModel,
+    rows: Vec<Observation>,
+    opts: IdentifyOptions,
+    travel: f64,
+    base: BaseSource,
+}
+
+/// The campaign's identification input as stored now: the one recipe of the final
+/// identification and of the stop rule's checks. Cancel-safe in effect, as [`with_store`].
+async fn identification_input(ctx: &CampaignContext) -> Result<IdentificationInput, CampaignError> {
     let id = ctx.campaign_id;
     let rows = identification_rows(with_store(&ctx.store, move |s| s.measured(id)).await?);
     let setup = with_store(&ctx.store, move |s| SetupResult::load(s, id)).await?;
@@ -1158,10 +1221,43 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
         opts.identify_base,
         setup.as_ref().is_some_and(|s| s.base.is_some()),
     );
-    let (result, _) =
+    Ok(IdentificationInput {
+        nominal,
+        rows,
+        opts,
+        travel,
+        base,
+    })
+}
+
+/// Identify from the stored measurements and store the typed result
+/// ([`crate::calibrate::CalibrationResult`]: the contract, per-pose residuals, corrected model)
+/// once; returns its contract. With `stop_when = "predicted"` the result's `ident_stop` says
+/// how the identification poses ended. Not cancel-safe: one step of the run, ended by the
+/// abort token (every device wait is `guarded`), never by dropping it.
+pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
+    let id = ctx.campaign_id;
+    let input = identification_input(ctx).await?;
+    let ident_measured = input
+        .rows
+        .iter()
+        .filter(|o| o.set == PoseSet::Ident)
+        .count();
+    let ident_stop = stored_stop_rule(ctx)
+        .await?
+        .map(|r| r.summary(ident_measured));
+    let IdentificationInput {
+        nominal,
+        rows,
+        opts,
+        travel,
+        base,
+    } = input;
+    let (mut result, _) =
         tokio::task::spawn_blocking(move || calibrate_result(&nominal, &rows, &opts, travel, base))
             .await
             .map_err(|e| CampaignError::Task(e.to_string()))??;
+    result.report.ident_stop = ident_stop;
     let model = result.report.model.clone();
     let report = result.report.clone();
     with_store(&ctx.store, move |s| s.save_result_as(id, &model, &result)).await?;

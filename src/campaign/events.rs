@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, watch};
 use tokio_util::sync::CancellationToken;
 
-use crate::calibrate::SetupResult;
+use crate::calibrate::{IdentCheck, SetupResult, StopReason};
 use crate::cell::{Answer, DeviceKind, FaultKind, PromptContext};
 use crate::store::{JournalEntry, JournalEvent, StoreError, StoredState};
 
@@ -185,6 +185,20 @@ pub enum CampaignEvent {
         /// The stage's answer: `stopped`, `manual` (nothing motorised), or why not.
         stage: String,
     },
+    /// The stop rule ended the identification poses (`campaign.stop_when = "predicted"`): the
+    /// rest of them are skipped, never measured; the verification poses are measured in full.
+    IdentStopped {
+        /// Identification poses measured.
+        after_poses: usize,
+        /// Identification poses skipped.
+        skipped: usize,
+        /// Why: `min_gain` or `target`.
+        reason: StopReason,
+        /// The predicted mean verification error of the identification on them (mm).
+        predicted_mm: f64,
+        /// Every check so far, in order.
+        history: Vec<IdentCheck>,
+    },
     /// Free-text progress note.
     Note {
         /// Text.
@@ -331,7 +345,7 @@ impl CampaignEvent {
     }
 
     /// The event's tag (`state`, `measured`, `fault`, `drift`, `setup`, `prompt`, `devices`,
-    /// `stopped`, `note`, `result`; an unknown row's stored kind).
+    /// `stopped`, `ident_stopped`, `note`, `result`; an unknown row's stored kind).
     pub fn kind(&self) -> &str {
         match self {
             CampaignEvent::State { .. } => "state",
@@ -342,6 +356,7 @@ impl CampaignEvent {
             CampaignEvent::Prompt { .. } => "prompt",
             CampaignEvent::Devices { .. } => "devices",
             CampaignEvent::Stopped { .. } => "stopped",
+            CampaignEvent::IdentStopped { .. } => "ident_stopped",
             CampaignEvent::Note { .. } => "note",
             CampaignEvent::Result { .. } => "result",
             CampaignEvent::Other(u) => &u.kind,

@@ -20,7 +20,7 @@ use crate::cell::{
 };
 use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
-use crate::config::{CellConfig, DeviceMode, SimWorldConfig, StageMode};
+use crate::config::{CellConfig, DeviceMode, SimWorldConfig, StageMode, StopWhen};
 use crate::dataset::PoseSet;
 use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
@@ -173,6 +173,17 @@ fn design_setup(cfg: &CellConfig) -> DesignSetup {
     }
 }
 
+/// [`plan_request`] of a campaign of `nominal`: with `campaign.stop_when = "predicted"` (a
+/// calibration campaign) the identification poses come first, in the stop rule's blocks
+/// ([`super::engine::stop_block`]), so each check follows a whole block.
+pub fn campaign_plan_request(cfg: &CellConfig, nominal: &RobotModel) -> PlanRequest {
+    let mut req = plan_request(cfg);
+    if cfg.campaign.stop_when == StopWhen::Predicted && cfg.iso9283.is_none() {
+        req.ident_block = Some(super::engine::stop_block(cfg, nominal));
+    }
+    req
+}
+
 /// Settle time after a move the plan's order assumes (s): the simulated robot's when the robot
 /// is simulated, else [`REAL_SETTLE_S`].
 fn settle_s(cfg: &CellConfig) -> f64 {
@@ -249,7 +260,7 @@ pub async fn open_session_with(
     // before a campaign is stored: no session without the controller's secret
     let robot_secret = crate::cell::controller_secret(&cfg.robot_controller)?;
     let robot_text = std::fs::read_to_string(&cfg.robot).unwrap_or_default();
-    let req = plan_request(&cfg);
+    let req = campaign_plan_request(&cfg, &nominal);
     let prepared = {
         let (store, nominal, req, cfg) = (store.clone(), nominal.clone(), req.clone(), cfg.clone());
         tokio::task::spawn_blocking(move || {

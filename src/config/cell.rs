@@ -294,7 +294,36 @@ pub struct CampaignSection {
     /// (I-optimal selection from a pool of measurable poses; docs/method.md §9). The
     /// verification poses are random either way.
     pub selection: crate::plan::selection::Selection,
+    /// When the campaign stops measuring identification poses.
+    pub stop_when: StopWhen,
+    /// With `stop_when = "predicted"`: stop once the predicted verification error improves by
+    /// less than this fraction from one block of identification poses to the next.
+    pub stop_min_gain: f64,
+    /// With `stop_when = "predicted"`: stop once the predicted verification error (mm) is at or
+    /// below this; unset: only `stop_min_gain` stops.
+    pub target_verify_mm: Option<f64>,
+    /// With `stop_when = "predicted"`: identification poses per block (an identification after
+    /// each); unset: [`CampaignSection::stop_block_for`].
+    pub stop_block: Option<usize>,
 }
+
+/// `campaign.stop_when`: measure every planned identification pose, or stop once the
+/// predicted verification error says more would not help.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopWhen {
+    /// Every planned pose is measured.
+    #[default]
+    Planned,
+    /// Identify after each block of identification poses; stop measuring them once the
+    /// predicted verification error gains less than `stop_min_gain` or reaches
+    /// `target_verify_mm` (the verification poses are always measured).
+    Predicted,
+}
+
+/// Default of `campaign.stop_min_gain`: a block that improves the predicted verification error
+/// by less than 2 % stops the identification poses.
+pub const DEFAULT_STOP_MIN_GAIN: f64 = 0.02;
 
 impl Default for CampaignSection {
     fn default() -> Self {
@@ -315,6 +344,10 @@ impl Default for CampaignSection {
             identify_tool: false,
             tool_mm: [0.0, 0.0, 0.0],
             selection: crate::plan::selection::Selection::Random,
+            stop_when: StopWhen::Planned,
+            stop_min_gain: DEFAULT_STOP_MIN_GAIN,
+            target_verify_mm: None,
+            stop_block: None,
         }
     }
 }
@@ -669,6 +702,13 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
              (or a compensated_model, whose base is used)",
         )
         .map_err(invalid)?;
+        rule(
+            f.campaign.stop_when == StopWhen::Planned,
+            "campaign.stop_when",
+            "an ISO 9283 campaign measures every planned visit: \"predicted\" applies to \
+             calibration campaigns only",
+        )
+        .map_err(invalid)?;
     }
     let dir = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: PathBuf| if p.is_absolute() { p } else { dir.join(p) };
@@ -1002,7 +1042,38 @@ impl CampaignSection {
             "campaign.line_of_sight_max_deg",
             format!("must be in (0, 180], got {}", self.line_of_sight_max_deg),
         )?;
-        positive("campaign.drift_max_mm", self.drift_max_mm)
+        positive("campaign.drift_max_mm", self.drift_max_mm)?;
+        rule(
+            (0.0..1.0).contains(&self.stop_min_gain),
+            "campaign.stop_min_gain",
+            format!("must be a fraction in [0, 1), got {}", self.stop_min_gain),
+        )?;
+        if let Some(t) = self.target_verify_mm {
+            positive("campaign.target_verify_mm", t)?;
+        }
+        if let Some(b) = self.stop_block {
+            rule(
+                b >= 1 && b <= self.ident,
+                "campaign.stop_block",
+                format!(
+                    "must be between 1 and campaign.ident ({}), got {b}",
+                    self.ident
+                ),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Identification poses per block of the stop rule: `stop_block`, or else the fewest poses
+    /// whose independent observations are at least twice the `candidates` parameters (so the
+    /// first identification has as many redundant observations as unknowns), at most `ident`.
+    pub fn stop_block_for(&self, candidates: usize) -> usize {
+        self.stop_block.unwrap_or_else(|| {
+            let per_pose = self.model.observations();
+            (2 * candidates)
+                .div_ceil(per_pose)
+                .clamp(1, self.ident.max(1))
+        })
     }
 }
 
@@ -1046,6 +1117,57 @@ impl SetupSection {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stop_keys_default_to_every_planned_pose_and_their_rules_name_the_key() {
+        let p = Path::new("c.toml");
+        let c = parse_cell_config("", p).unwrap().campaign;
+        assert_eq!(
+            (
+                c.stop_when,
+                c.stop_min_gain,
+                c.target_verify_mm,
+                c.stop_block
+            ),
+            (StopWhen::Planned, 0.02, None, None)
+        );
+        // op, 6 joints and the base: 36 candidates, 5 observations a pose → 15
+        assert_eq!(c.stop_block_for(36), 15);
+        let pos = parse_cell_config("[campaign]\nmodel = \"position\"\n", p).unwrap();
+        assert_eq!(pos.campaign.stop_block_for(36), 24);
+        let c = parse_cell_config(
+            "[campaign]\nstop_when = \"predicted\"\nstop_min_gain = 0.05\n\
+             target_verify_mm = 0.03\nstop_block = 10\n",
+            p,
+        )
+        .unwrap()
+        .campaign;
+        assert_eq!(
+            (
+                c.stop_when,
+                c.stop_min_gain,
+                c.target_verify_mm,
+                c.stop_block_for(36)
+            ),
+            (StopWhen::Predicted, 0.05, Some(0.03), 10)
+        );
+        for (text, key) in [
+            ("[campaign]\nstop_min_gain = 1.0\n", "campaign.stop_min_gain"),
+            ("[campaign]\nstop_min_gain = -0.01\n", "campaign.stop_min_gain"),
+            ("[campaign]\ntarget_verify_mm = 0.0\n", "campaign.target_verify_mm"),
+            ("[campaign]\nstop_block = 0\n", "campaign.stop_block"),
+            ("[campaign]\nident = 20\nstop_block = 21\n", "campaign.stop_block"),
+            (
+                "[campaign]\nstop_when = \"predicted\"\n[iso9283]\ncompensated_model = \"m.toml\"\n",
+                "campaign.stop_when",
+            ),
+        ] {
+            match parse_cell_config(text, p) {
+                Err(ConfigError::Invalid { key: k, .. }) => assert_eq!(k, key, "{text}"),
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+    }
 
     #[test]
     fn iso9283_section_defaults_and_rules() {

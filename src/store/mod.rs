@@ -32,6 +32,7 @@ mod campaigns;
 mod error;
 mod frames;
 mod handle;
+mod ident_checks;
 mod kinds;
 mod locks;
 mod measurements;

@@ -39,6 +39,11 @@
 //! not a calibration (`iso9283`: an ISO 9283 pose accuracy/repeatability campaign) and its
 //! kind's plan (JSON object), written with the campaign in one transaction, append-only. A
 //! campaign without a row is a calibration campaign (every campaign of an older store).
+//!
+//! Version 6 adds `ident_checks(campaign_id, after_poses, json)`: the stop rule's check after
+//! `after_poses` measured identification poses (`campaign.stop_when = "predicted"`: the
+//! predicted verification error and, when it stopped the identification poses, why), one per
+//! count, append-only. A campaign without a row has no check (every campaign of an older store).
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -180,6 +185,20 @@ CREATE TRIGGER campaign_kinds_no_update BEFORE UPDATE ON campaign_kinds
 BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
 CREATE TRIGGER campaign_kinds_no_delete BEFORE DELETE ON campaign_kinds
 BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
+"#,
+    // 5 -> 6: the stop rule's checks of a campaign (`stop_when = "predicted"`).
+    r#"
+CREATE TABLE ident_checks (
+    id          INTEGER PRIMARY KEY,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+    after_poses INTEGER NOT NULL CHECK (after_poses >= 0),
+    json        TEXT    NOT NULL CHECK (json_valid(json) AND json_type(json) = 'object'),
+    UNIQUE (campaign_id, after_poses)
+) STRICT;
+CREATE TRIGGER ident_checks_no_update BEFORE UPDATE ON ident_checks
+BEGIN SELECT RAISE(ABORT, 'identification checks are append-only'); END;
+CREATE TRIGGER ident_checks_no_delete BEFORE DELETE ON ident_checks
+BEGIN SELECT RAISE(ABORT, 'identification checks are append-only'); END;
 "#,
 ];
 

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use crate::common::rust_files;
 
+use cellcal::calibrate::{IdentCheck, StopReason};
 use cellcal::campaign::engine::{BaseResult, SetupResult, ToolFrameResult};
 use cellcal::campaign::events::UnknownEvent;
 use cellcal::campaign::{CampaignEvent, CampaignState};
@@ -156,6 +157,22 @@ fn every_variant() -> Vec<(CampaignEvent, &'static str)> {
                 stage: "manual".into(),
             },
             r#"{"event":"stopped","reason":"abort","robot":"stopped","stage":"manual"}"#,
+        ),
+        (
+            CampaignEvent::IdentStopped {
+                after_poses: 30,
+                skipped: 70,
+                reason: StopReason::MinGain,
+                predicted_mm: 0.03,
+                history: vec![IdentCheck {
+                    after_poses: 30,
+                    predicted_mm: 0.03,
+                    noise_floor_mm: 0.025,
+                    gain: Some(0.01),
+                    stopped: Some(StopReason::MinGain),
+                }],
+            },
+            r#"{"event":"ident_stopped","after_poses":30,"skipped":70,"reason":"min_gain","predicted_mm":0.03,"history":[{"after_poses":30,"predicted_mm":0.03,"noise_floor_mm":0.025,"gain":0.01,"stopped":"min_gain"}]}"#,
         ),
         (
             CampaignEvent::Note {

@@ -22,6 +22,7 @@ mod frames;
 mod hardware_doc;
 mod house;
 mod http_limits;
+mod ident_stop;
 mod identifiability;
 mod iso9283;
 mod journal;
