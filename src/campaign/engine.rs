@@ -1128,8 +1128,8 @@ pub fn campaign_identification(
 }
 
 /// Identify from the stored measurements and store the typed result
-/// ([`crate::calibrate::CalibrationResult`]: the contract, per-pose residuals, corrected model)
-/// once; returns its contract. Not cancel-safe: one step of the run, ended by the abort token
+/// ([`crate::calibrate::CalibrationResult`]: the contract, per-pose residuals, corrected model,
+/// the campaign's planned against actual time) once; returns its contract. Not cancel-safe: one step of the run, ended by the abort token
 /// (every device wait is `guarded`), never by dropping it.
 pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, CampaignError> {
     let id = ctx.campaign_id;
@@ -1140,10 +1140,13 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
         opts.identify_base,
         setup.as_ref().is_some_and(|s| s.base.is_some()),
     );
-    let (result, _) =
+    let (mut result, _) =
         tokio::task::spawn_blocking(move || calibrate_result(&nominal, &rows, &opts, travel, base))
             .await
             .map_err(|e| CampaignError::Task(e.to_string()))??;
+    // planned against actual, from the journal (the last span closed when identifying began)
+    let time = with_store(&ctx.store, move |s| super::time::campaign_time(s, id)).await?;
+    result.campaign_time = time;
     let model = result.report.model.clone();
     let report = result.report.clone();
     with_store(&ctx.store, move |s| s.save_result_as(id, &model, &result)).await?;

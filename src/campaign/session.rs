@@ -585,7 +585,11 @@ fn store_new_campaign(
         robot_toml: robot_text,
     };
     Ok(match iso {
-        None => store.create_campaign(&new, &planned)?,
+        // the estimate is stored with the campaign: shown the same until it is done
+        None => match super::time::estimate_json(&super::time::estimate_of(cfg, plan)) {
+            Some(json) => store.create_campaign_estimated(&new, &planned, None, &json)?,
+            None => store.create_campaign(&new, &planned)?,
+        },
         Some(iso) => {
             let kind = CampaignKind {
                 kind: ISO9283_KIND.to_owned(),

@@ -39,6 +39,10 @@
 //! not a calibration (`iso9283`: an ISO 9283 pose accuracy/repeatability campaign) and its
 //! kind's plan (JSON object), written with the campaign in one transaction, append-only. A
 //! campaign without a row is a calibration campaign (every campaign of an older store).
+//!
+//! Version 6 adds `campaign_estimates(campaign_id, json)`: the planned duration of a campaign
+//! (a JSON object, the planner's estimate by part), written with the campaign in one
+//! transaction, append-only. A campaign without a row was created without one.
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -180,6 +184,17 @@ CREATE TRIGGER campaign_kinds_no_update BEFORE UPDATE ON campaign_kinds
 BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
 CREATE TRIGGER campaign_kinds_no_delete BEFORE DELETE ON campaign_kinds
 BEGIN SELECT RAISE(ABORT, 'campaign kinds are append-only'); END;
+"#,
+    // 5 -> 6: the planned duration of a campaign, stored with it.
+    r#"
+CREATE TABLE campaign_estimates (
+    campaign_id INTEGER PRIMARY KEY REFERENCES campaigns(id),
+    json        TEXT    NOT NULL CHECK (json_valid(json) AND json_type(json) = 'object')
+) STRICT;
+CREATE TRIGGER campaign_estimates_no_update BEFORE UPDATE ON campaign_estimates
+BEGIN SELECT RAISE(ABORT, 'campaign estimates are append-only'); END;
+CREATE TRIGGER campaign_estimates_no_delete BEFORE DELETE ON campaign_estimates
+BEGIN SELECT RAISE(ABORT, 'campaign estimates are append-only'); END;
 "#,
 ];
 
