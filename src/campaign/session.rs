@@ -10,6 +10,7 @@ use robotlink::SharedSecret;
 
 use super::cell_lock::{lock_dir, CellKey, CellLock, CellLockError};
 use super::engine::{CampaignContext, Devices, FaultPolicy};
+use super::estimate::estimate_campaign_time;
 use super::events::Control;
 use super::feasibility;
 use super::lock::CampaignLock;
@@ -359,8 +360,9 @@ fn plan_and_store(
         None if cfg.iso9283.is_some() => {
             let iso = plan_new_iso(cfg, nominal, req, &fresh.drift_reference)?;
             let plan = iso_engine_plan(nominal, req, &iso)?;
-            let id = store
-                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &plan, Some(&iso)))?;
+            let id = store.blocking(|s| {
+                store_new_campaign(s, cfg, (nominal, req), robot_text, &plan, Some(&iso))
+            })?;
             (id, plan, Some(iso), None, Vec::new())
         }
         Some(s) => {
@@ -383,8 +385,9 @@ fn plan_and_store(
             (s.id, plan, None, Some(s.model), s.accepted_changes)
         }
         None => {
-            let id = store
-                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &fresh, None))?;
+            let id = store.blocking(|s| {
+                store_new_campaign(s, cfg, (nominal, req), robot_text, &fresh, None)
+            })?;
             (id, fresh, None, None, Vec::new())
         }
     };
@@ -576,7 +579,7 @@ pub(crate) fn planned_poses(plan: &Plan) -> Vec<PlannedPose> {
 fn store_new_campaign(
     store: &mut Store,
     cfg: &CellConfig,
-    nominal: &RobotModel,
+    (nominal, req): (&RobotModel, &PlanRequest),
     robot_text: String,
     plan: &Plan,
     iso: Option<&IsoPlan>,
@@ -595,10 +598,12 @@ fn store_new_campaign(
     };
     Ok(match iso {
         // the estimate is stored with the campaign: shown the same until it is done
-        None => match super::time::estimate_json(&super::time::estimate_of(cfg, plan)) {
-            Some(json) => store.create_campaign_estimated(&new, &planned, None, &json)?,
-            None => store.create_campaign(&new, &planned)?,
-        },
+        None => {
+            match super::time::estimate_json(&estimate_campaign_time(cfg, nominal, req, plan)) {
+                Some(json) => store.create_campaign_estimated(&new, &planned, None, &json)?,
+                None => store.create_campaign(&new, &planned)?,
+            }
+        }
         Some(iso) => {
             let kind = CampaignKind {
                 kind: ISO9283_KIND.to_owned(),

@@ -23,8 +23,12 @@ pub struct EstimateView {
     pub measure_s: f64,
     /// Stage moves, or the technician's readings of a manual stage (s).
     pub stage_s: f64,
-    /// The whole campaign (s).
+    /// The whole campaign (s): the sum of the parts.
     pub total_s: f64,
+    /// Stage positions a technician sets and reads (0 with a motorised stage).
+    pub technician_readings: usize,
+    /// Robot moves, via points and pre-poses included.
+    pub moves: usize,
 }
 
 impl EstimateView {
@@ -40,6 +44,8 @@ impl EstimateView {
             measure_s: e.measure_s,
             stage_s: e.stage_s,
             total_s: e.total_s,
+            technician_readings: e.technician_readings,
+            moves: e.moves,
         }
     }
 }
