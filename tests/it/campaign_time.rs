@@ -40,7 +40,7 @@ fn seconds(v: &Value, key: &str) -> f64 {
 }
 
 #[test]
-fn the_view_shows_the_stored_estimate_and_the_time_measured_and_paused() {
+fn the_estimate_is_stored_and_measuring_excludes_pauses() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = fast_config(dir.path(), "serial", 60, 30);
     let store = dir.path().join("c.db");
