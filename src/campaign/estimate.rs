@@ -127,10 +127,14 @@ pub fn estimate_campaign_time(
             &cfg.setup.tool_frame_request(),
             home.as_deref(),
         );
-        setup.extend(targets.unwrap_or_default().into_iter().map(|t| Visit {
-            q_rad: t.q_rad,
-            approach: None,
-            stage_mm: if t.measure_p2 { vec![p1, p2] } else { vec![p1] },
+        setup.extend(targets.unwrap_or_default().into_iter().map(|t| {
+            let stage_mm = if t.measure_p2 { vec![p1, p2] } else { vec![p1] };
+            Visit {
+                q_rad: t.q_rad,
+                approach: None,
+                readings: stage_mm.len(),
+                stage_mm,
+            }
         }));
     }
     if cfg.setup.base_registration {
@@ -139,6 +143,7 @@ pub fn estimate_campaign_time(
             q_rad,
             approach: None,
             stage_mm: vec![p1],
+            readings: 1,
         }));
     }
     let start_q = match (cfg.robot_controller.mode, &cfg.sim) {

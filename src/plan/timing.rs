@@ -283,15 +283,17 @@ pub fn stage_time_s(
 }
 
 /// One place the engine moves the robot to and measures at: its joints, an optional
-/// pre-pose it comes in through, and the stage positions it reads at.
+/// pre-pose it comes in through, the stage moves made there and the tracker readings taken.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Visit {
     /// Joints (rad).
     pub q_rad: Vec<f64>,
     /// Pre-pose (the last via point), if any.
     pub approach: Option<Vec<f64>>,
-    /// Stage positions, each with one tracker reading (mm).
+    /// Stage positions the engine asks for there, in order (mm).
     pub stage_mm: Vec<f64>,
+    /// Tracker readings taken there.
+    pub readings: usize,
 }
 
 /// What a campaign does, in the engine's order, for [`estimate_campaign`].
@@ -330,7 +332,9 @@ pub fn campaign_walk(
         q_rad: plan.drift_reference.clone(),
         approach: None,
         stage_mm: vec![p1],
+        readings: 1,
     };
+    let per_pose = if axis { 2 } else { 1 };
     let mut measured = vec![drift()];
     let mut stage_at = Some(p1);
     let total = plan.poses.len();
@@ -341,6 +345,7 @@ pub fn campaign_walk(
             q_rad: p.q_rad.clone(),
             approach: plan.approach.get(&p.index).cloned(),
             stage_mm,
+            readings: per_pose,
         });
         if drift_every > 0 && done % drift_every == 0 && done < total {
             measured.push(drift());
@@ -352,7 +357,7 @@ pub fn campaign_walk(
         setup,
         measured,
         poses: total,
-        readings: total * if axis { 2 } else { 1 },
+        readings: total * per_pose,
         stage_home_mm: 0.0,
         stage_tolerance_mm: tolerance,
     }
@@ -398,7 +403,7 @@ pub fn estimate_campaign(
                 parts.moves += 1;
                 *at = p;
             }
-            parts.measure_s += times.reading_s * v.stage_mm.len() as f64;
+            parts.measure_s += times.reading_s * v.readings as f64;
         }
     };
     let (mut setup, mut measured) = (Parts::default(), Parts::default());
@@ -551,5 +556,81 @@ mod tests {
         );
         assert_eq!(e(56.0).summary(), "300 poses, 600 readings, about 1 min");
         assert_eq!(e(44.0).summary(), "300 poses, 600 readings, about 40 s");
+    }
+    #[test]
+    fn the_stage_is_followed_through_the_sequence_and_a_move_to_where_it_is_is_skipped() {
+        let motor = StageTimes::Motorised {
+            speed_mm_s: 5.0,
+            per_move_s: 0.1,
+        };
+        // after preparation the first move is made even to where it stands; P1 again skipped
+        let seq = [None, Some(0.0), Some(0.0), Some(10.0), Some(0.0)];
+        let (s, n) = stage_time_s(&seq, 0.0, 0.02, &motor);
+        assert!(close(s, 0.1 + (0.1 + 2.0) * 2.0), "{s}");
+        assert_eq!(n, 0);
+        let manual = StageTimes::Manual {
+            per_reading_s: 20.0,
+        };
+        let (s, n) = stage_time_s(&seq, 0.0, 0.02, &manual);
+        assert_eq!((s, n), (60.0, 3));
+        // forgetting the position makes the next move count again
+        let (_, n) = stage_time_s(&[None, Some(0.0), None, Some(0.0)], 0.0, 0.02, &manual);
+        assert_eq!(n, 2);
+    }
+
+    #[test]
+    fn the_walk_measures_each_pose_at_p1_and_p2_with_drift_checks_between_and_at_the_end() {
+        let q = |v: f64| vec![v; 6];
+        let plan = Plan {
+            poses: (0..5)
+                .map(|i| crate::plan::PlanEntry {
+                    index: i,
+                    set: crate::dataset::PoseSet::Ident,
+                    q_rad: q(0.1 * (i + 1) as f64),
+                })
+                .collect(),
+            drift_reference: q(0.0),
+            via_points: 0,
+            approach: Default::default(),
+        };
+        let walk = campaign_walk(&plan, 2, Vec::new(), None, (0.0, 10.0, 0.02), true);
+        // reference, p, p, drift, p, p, drift, p, final drift
+        let drift_at: Vec<usize> = walk
+            .measured
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.q_rad == q(0.0))
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(drift_at, vec![0, 3, 6, 8]);
+        assert_eq!((walk.poses, walk.readings), (5, 10));
+        let times = CellTimes {
+            motion: MotionLimits::uniform(6, 1.0),
+            settle_s: 1.0,
+            reading_s: 0.5,
+            stage: StageTimes::Motorised {
+                speed_mm_s: 10.0,
+                per_move_s: 0.0,
+            },
+            prepare_s: 3.0,
+        };
+        let e = estimate_campaign(&walk, &times, None);
+        // moves: 0 → 0.1 → 0.2 → 0 → 0.3 → 0.4 → 0 → 0.5 → 0 (rad, every joint)
+        let motion = 0.1 + 0.1 + 0.2 + 0.3 + 0.1 + 0.4 + 0.5 + 0.5;
+        assert!(close(e.motion_s, motion), "{e:?}");
+        assert_eq!(
+            e.moves, 9,
+            "the engine moves to the reference where it stands too"
+        );
+        assert!(close(e.settle_s, 9.0));
+        assert!(close(e.measure_s, 0.5 * (10 + 4) as f64));
+        // each pose: P1 → P2 → P1, 1 s each way
+        assert!(close(e.stage_s, 5.0 * 2.0), "{e:?}");
+        assert!(close(e.setup_s, 3.0));
+        let sum = e.setup_s + e.motion_s + e.settle_s + e.measure_s + e.stage_s;
+        assert!(close(e.total_s, sum));
+        // without the axis: P1 only
+        let p1 = campaign_walk(&plan, 0, Vec::new(), None, (0.0, 10.0, 0.02), false);
+        assert_eq!((p1.readings, p1.measured.len()), (5, 7));
     }
 }

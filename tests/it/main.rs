@@ -49,5 +49,6 @@ mod significance;
 mod stop;
 mod store;
 mod terminal;
+mod timing;
 mod validation;
 mod zaber_motion;
