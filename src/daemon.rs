@@ -35,6 +35,7 @@ use crate::campaign::lock::{is_dead, mark_interrupted};
 use crate::campaign::report::{campaign_report, ReportError};
 use crate::campaign::session::{open_session_with, Resume, SessionError, EVENT_CAPACITY};
 use crate::campaign::stored::{load_stored, stored_model_toml, stored_result_json, StoredError};
+use crate::campaign::time::{stored_estimate, CampaignEstimate, Elapsed};
 use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
@@ -49,10 +50,12 @@ use crate::store::{
 
 mod observe;
 mod status;
+mod time;
 use observe::{CellWatch, Observer};
 pub use observe::{Connection, DeviceView, DevicesView, FaultView};
 pub use status::RunOutcome;
 use status::RunWatch;
+pub use time::EstimateView;
 
 /// Why a daemon request failed (the API maps each variant to an HTTP status).
 #[derive(Debug, thiserror::Error)]
@@ -226,6 +229,15 @@ pub struct CampaignView {
     pub has_result: bool,
     /// The stored result's verdict (`ok`, `warning`, `poor`), if any.
     pub quality: Option<String>,
+    /// The planned duration, stored with the campaign when it was created (the same before
+    /// and after a restart); null for a campaign created without one.
+    pub estimate: Option<EstimateView>,
+    /// Time spent measuring so far (s): in the state `running` (setup, moves, readings,
+    /// technician answers, drift checks), pauses excluded; from the journal's times, up to
+    /// now while it runs.
+    pub measuring_s: f64,
+    /// Time spent paused so far (s), by the operator or a fault.
+    pub paused_s: f64,
 }
 
 /// One measured pose as an identification row (what `cellcal export` writes as a CSV row).
@@ -522,6 +534,8 @@ impl Daemon {
             })
         });
         let here = l.is_some_and(Loaded::running);
+        let live = here || v.holder.as_ref().is_some_and(|h| !is_dead(h));
+        let (measuring_s, paused_s) = v.elapsed.seconds(live.then(crate::wall_clock::now_unix_ms));
         let state = match v.holder {
             Some(h) if !is_dead(&h) => v.row.state,
             // no live process runs it: a run's state is history
@@ -548,6 +562,9 @@ impl Daemon {
             prompt,
             has_result: v.has_result,
             quality: v.quality,
+            estimate: v.estimate.as_ref().map(EstimateView::of),
+            measuring_s,
+            paused_s,
         }
     }
 
@@ -1410,14 +1427,20 @@ struct StoredView {
     total: usize,
     has_result: bool,
     quality: Option<String>,
+    estimate: Option<CampaignEstimate>,
+    /// Measuring and paused time from the journal.
+    elapsed: Elapsed,
 }
 
-/// Read the stored part of a campaign's view (counts and the verdict, no plan or result bodies).
+/// Read the stored part of a campaign's view (counts, the verdict, the estimate and the
+/// journal's state times; no plan or result bodies).
 fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
     let (done, total) = s.pose_counts(row.id)?;
     let has_result = s.has_result(row.id)?;
     let quality = s.result_quality(row.id)?;
     let holder = s.campaign_holder(row.id)?;
+    let estimate = stored_estimate(s, row.id)?;
+    let elapsed = Elapsed::stored(s, row.id)?;
     Ok(StoredView {
         row,
         holder,
@@ -1425,6 +1448,8 @@ fn stored_view(s: &Store, row: CampaignRow) -> Result<StoredView, StoreError> {
         total,
         has_result,
         quality,
+        estimate,
+        elapsed,
     })
 }
 

@@ -205,6 +205,7 @@ function renderView(v) {
   $('progress-bar').max = Math.max(total, 1);
   $('progress-bar').value = done;
   $('time-left').textContent = timeLeft(v);
+  renderTime(v);
   if (total !== ui.plotTotal) { ui.plotTotal = total; renderDeviation(); }
   const state = v ? v.state : '';
   const terminal = state === 'done';
@@ -216,6 +217,37 @@ function renderView(v) {
   $('cmd-resume').disabled = !v || state !== 'paused' || !v.armed;
   renderDownloads(v);
   renderPrompt(v);
+}
+
+/** The campaign's planned time (the estimate stored with it) and, once it has run, the time
+ *  it took: elapsed against planned while it runs, planned against actual once identified. */
+function renderTime(v) {
+  const e = v ? v.estimate : null;
+  $('campaign-estimate').textContent = e ? e.summary : (v ? 'not estimated' : '—');
+  $('campaign-time').textContent = campaignTime(v, e);
+}
+
+/** "measuring 12 min 05 s of about 3 h 10 min planned · about 2 h 58 min left by the plan",
+ *  or after: "planned 3 h 10 min, took 3 h 22 min measuring (1.06 × planned)"; pauses apart. */
+function campaignTime(v, e) {
+  if (!v || !(v.measuring_s > 0 || v.paused_s > 0)) return '';
+  const paused = v.paused_s > 0 ? ' · paused ' + human.duration(v.paused_s) : '';
+  const measuring = human.duration(v.measuring_s);
+  if (['identifying', 'done'].includes(v.state)) {
+    if (!e) return 'took ' + measuring + ' measuring' + paused;
+    return 'planned ' + human.duration(e.total_s) + ', took ' + measuring + ' measuring ('
+      + human.ratio(v.measuring_s / e.total_s) + ' × planned)' + paused;
+  }
+  let text = 'measuring ' + measuring;
+  if (e) {
+    text += ' of about ' + human.duration(e.total_s) + ' planned';
+    if (v.poses_total > 0) {
+      // the plan's time per pose (setup apart) for the poses not measured yet
+      const left = ((e.total_s - e.setup_s) / v.poses_total) * (v.poses_total - v.poses_done);
+      text += ' · about ' + human.duration(Math.max(left, 0)) + ' left by the plan';
+    }
+  }
+  return text + paused;
 }
 
 /** "about 3 min left" from the poses measured while this page watched. */

@@ -22,6 +22,8 @@ const human = (() => {
     mrad: (rad) => fixed(finite(rad) ? rad * 1000 : rad, 3),
     /** A large angle given in rad, in degrees: `90.000`. */
     deg: (rad) => fixed(finite(rad) ? (rad * 180) / Math.PI : rad, 3),
+    /** A ratio with 2 decimals: `1.06`. */
+    ratio: (x) => fixed(x, 2),
     /** `value ± sigma` of two formatted numbers; the value alone when σ is not known. */
     withSigma: (value, sigma) => (sigma === '—' || sigma == null ? value : value + ' ± ' + sigma),
     /** A duration (s): `21.8 s` under a minute, `4 min 10 s` under an hour, else `1 h 05 min`. */

@@ -5,11 +5,13 @@
 //! ([`setup`]). Below `report/` (which renders it) and `campaign/` (which stores it); knows no
 //! files, no store, no devices.
 
+pub mod campaign_time;
 pub mod identify_json;
 pub mod quality;
 pub mod result;
 pub mod setup;
 
+pub use campaign_time::CampaignTime;
 pub use identify_json::{IdentCheck, IdentStop, IdentifyReport, ParamStatus, StopReason};
 pub use quality::{Quality, QualityWarning};
 pub use result::{

@@ -9,9 +9,10 @@
 //! identify again.
 //!
 //! Stored as one JSON object: the contract's fields, then `result_layout` ([`RESULT_LAYOUT`]),
-//! `residuals` and `corrected`. A result stored before this layout (layout 0: the contract
-//! alone) reads with `residuals` missing (the report says so) and its corrected model derived
-//! once, on reading, from the contract's parameter names and values ([`CorrectedModel::from_report`]).
+//! `residuals`, `corrected` and, for a campaign's result, `campaign_time` ([`CampaignTime`]).
+//! A result stored before this layout (layout 0: the contract alone) reads with `residuals`
+//! missing (the report says so) and its corrected model derived once, on reading, from the
+//! contract's parameter names and values ([`CorrectedModel::from_report`]).
 //!
 //! Room to grow: a new model term (joint compliance, per-joint harmonics) is a new [`ParamId`]
 //! variant whose estimates and values flow through the same lists; a robot kind other than a
@@ -20,6 +21,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
+use super::campaign_time::CampaignTime;
 use super::identify_json::IdentifyReport;
 use crate::analysis::metrics::pose_errors;
 use crate::dataset::{split, to_measured, ConvertError, Observation};
@@ -47,6 +49,9 @@ pub struct CalibrationResult {
     pub corrected: CorrectedModel,
     /// The layout it was stored in ([`RESULT_LAYOUT`] for a new one).
     pub layout: u32,
+    /// Planned against actual duration of the campaign that measured it; `None` outside a
+    /// campaign and for a result stored before it was kept.
+    pub campaign_time: Option<CampaignTime>,
 }
 
 /// The stored form: the contract's fields, flattened, then the rest.
@@ -57,6 +62,8 @@ struct StoredForm<'a> {
     result_layout: u32,
     residuals: &'a Option<PoseErrors>,
     corrected: &'a CorrectedModel,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    campaign_time: &'a Option<CampaignTime>,
 }
 
 impl CalibrationResult {
@@ -84,6 +91,7 @@ impl CalibrationResult {
             residuals: None,
             corrected,
             layout: RESULT_LAYOUT,
+            campaign_time: None,
         }
     }
 
@@ -114,6 +122,7 @@ impl CalibrationResult {
         let layout = object.remove("result_layout");
         let residuals = object.remove("residuals");
         let corrected = object.remove("corrected");
+        let campaign_time = object.remove("campaign_time");
         let report = IdentifyReport::from_value(value)?;
         let layout = match layout {
             Some(v) => serde_json::from_value(v)?,
@@ -127,11 +136,16 @@ impl CalibrationResult {
             Some(v) => serde_json::from_value(v)?,
             None => CorrectedModel::from_report(&report),
         };
+        let campaign_time = match campaign_time {
+            Some(v) => serde_json::from_value(v)?,
+            None => None,
+        };
         Ok(CalibrationResult {
             report,
             residuals,
             corrected,
             layout,
+            campaign_time,
         })
     }
 
@@ -177,6 +191,7 @@ impl Serialize for CalibrationResult {
             result_layout: RESULT_LAYOUT,
             residuals: &self.residuals,
             corrected: &self.corrected,
+            campaign_time: &self.campaign_time,
         }
         .serialize(s)
     }
@@ -486,6 +501,27 @@ mod tests {
             nominal.dof() * ParamKind::ALL.len()
         );
         assert_eq!(r.corrected.base_source, Some(BaseSource::Nominal));
+        assert_eq!(back.campaign_time, None, "outside a campaign: none");
+        assert!(!text.contains("campaign_time"));
+    }
+
+    #[test]
+    fn a_campaign_s_planned_against_actual_time_reads_back_after_the_contract() {
+        let (mut r, _) = small_op();
+        r.campaign_time = Some(CampaignTime {
+            planned: Some(serde_json::json!({"poses": 20, "total_s": 600.0})),
+            planned_summary: Some("20 poses, 40 readings, about 10 min".into()),
+            planned_s: Some(600.0),
+            measuring_s: 630.0,
+            paused_s: 12.5,
+            ratio: Some(1.05),
+        });
+        let text = serde_json::to_string_pretty(&r).expect("stored form");
+        let contract = r.identify_json().expect("contract");
+        assert!(text.starts_with(contract.trim_end_matches("\n}")));
+        let back = CalibrationResult::from_stored_json(&text).expect("reads");
+        assert_eq!(back.campaign_time, r.campaign_time);
+        assert_eq!(back.identify_json().expect("contract"), contract);
     }
 
     #[test]

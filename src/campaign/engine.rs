@@ -1258,6 +1258,9 @@ pub async fn identify_stored(ctx: &CampaignContext) -> Result<IdentifyReport, Ca
             .await
             .map_err(|e| CampaignError::Task(e.to_string()))??;
     result.report.ident_stop = ident_stop;
+    // planned against actual, from the journal (the last span closed when identifying began)
+    let time = with_store(&ctx.store, move |s| super::time::campaign_time(s, id)).await?;
+    result.campaign_time = time;
     let model = result.report.model.clone();
     let report = result.report.clone();
     with_store(&ctx.store, move |s| s.save_result_as(id, &model, &result)).await?;

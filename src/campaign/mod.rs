@@ -16,6 +16,7 @@ pub mod lock;
 pub mod report;
 pub mod session;
 pub mod stored;
+pub mod time;
 
 pub use engine::{
     journal_event, run_campaign, CampaignContext, CampaignError, Devices, FaultPolicy, Outcome,

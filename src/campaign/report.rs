@@ -94,6 +94,11 @@ pub fn campaign_report(
             "No significance indices: the campaign's nominal model: {e}"
         )),
     }
+    let mut facts = facts;
+    if result.campaign_time.is_some() {
+        // what the result kept when the campaign identified
+        facts.time = result.campaign_time.clone();
+    }
     input.campaign = Some(facts);
     Ok(Some(input))
 }
@@ -129,6 +134,7 @@ pub fn campaign_facts(
             .zip(events.last())
             .map(|(a, b)| (a.at_ms, b.at_ms)),
         journal_entries: events.len(),
+        time: super::time::campaign_time(store, id)?,
     };
     Ok((facts, inputs))
 }

@@ -10,6 +10,7 @@ use robotlink::SharedSecret;
 
 use super::cell_lock::{lock_dir, CellKey, CellLock, CellLockError};
 use super::engine::{identify_options, CampaignContext, Devices, FaultPolicy};
+use super::estimate::estimate_campaign_time;
 use super::events::Control;
 use super::feasibility;
 use super::lock::CampaignLock;
@@ -414,8 +415,9 @@ fn plan_and_store(
         None if cfg.iso9283.is_some() => {
             let iso = plan_new_iso(cfg, nominal, req, &fresh.drift_reference)?;
             let plan = iso_engine_plan(nominal, req, &iso)?;
-            let id = store
-                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &plan, Some(&iso)))?;
+            let id = store.blocking(|s| {
+                store_new_campaign(s, cfg, (nominal, req), robot_text, &plan, Some(&iso))
+            })?;
             (id, plan, Some(iso), None, Vec::new())
         }
         Some(s) => {
@@ -437,8 +439,9 @@ fn plan_and_store(
             (s.id, plan, None, Some(s.model), s.accepted_changes)
         }
         None => {
-            let id = store
-                .blocking(|s| store_new_campaign(s, cfg, nominal, robot_text, &fresh, None))?;
+            let id = store.blocking(|s| {
+                store_new_campaign(s, cfg, (nominal, req), robot_text, &fresh, None)
+            })?;
             (id, fresh, None, None, Vec::new())
         }
     };
@@ -629,7 +632,7 @@ pub(crate) fn planned_poses(plan: &Plan) -> Vec<PlannedPose> {
 fn store_new_campaign(
     store: &mut Store,
     cfg: &CellConfig,
-    nominal: &RobotModel,
+    (nominal, req): (&RobotModel, &PlanRequest),
     robot_text: String,
     plan: &Plan,
     iso: Option<&IsoPlan>,
@@ -647,7 +650,13 @@ fn store_new_campaign(
         robot_toml: robot_text,
     };
     Ok(match iso {
-        None => store.create_campaign(&new, &planned)?,
+        // the estimate is stored with the campaign: shown the same until it is done
+        None => {
+            match super::time::estimate_json(&estimate_campaign_time(cfg, nominal, req, plan)) {
+                Some(json) => store.create_campaign_estimated(&new, &planned, None, &json)?,
+                None => store.create_campaign(&new, &planned)?,
+            }
+        }
         Some(iso) => {
             let kind = CampaignKind {
                 kind: ISO9283_KIND.to_owned(),

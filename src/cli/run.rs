@@ -16,7 +16,7 @@ use cellcal::config::{load_cell_config, CellConfig, DeviceMode, StageMode};
 use cellcal::iso9283::{format_table, IsoReport};
 use cellcal::plan::CampaignEstimate;
 use cellcal::progress::Progress;
-use cellcal::report::summary_text;
+use cellcal::report::{campaign_time_text, summary_text};
 use cellcal::sim::RunningSimCell;
 use cellcal::store::Store;
 use cellcal::units::human::fmt_estimate;
@@ -367,6 +367,7 @@ fn finish(
     match outcome {
         Outcome::Done(report) => {
             print!("{}", summary_text(&report));
+            print_campaign_time(store_path, id)?;
             if let Some(path) = &opts.json {
                 let text = serde_json::to_string_pretty(&*report).map_err(other)?;
                 write_file(path, &text)?;
@@ -425,6 +426,18 @@ fn print_stored_iso(
     Ok(())
 }
 
+/// Print the planned against actual time the stored result of campaign `id` keeps.
+fn print_campaign_time(store_path: &Path, id: i64) -> Result<(), Failure> {
+    let store = Store::open(store_path).map_err(other)?;
+    let result = stored_result(&store, id)
+        .with_context(|| format!("campaign {id}: the stored result"))
+        .map_err(other)?;
+    if let Some(t) = result.and_then(|r| r.campaign_time) {
+        print!("{}", campaign_time_text(&t));
+    }
+    Ok(())
+}
+
 /// Write campaign `id`'s corrected model from the store to `path`.
 fn write_model(store_path: &Path, id: i64, path: &Path) -> Result<(), Failure> {
     let store = Store::open(store_path).map_err(other)?;
@@ -457,6 +470,9 @@ fn print_stored_result(
     let report = &result.report;
     eprintln!("campaign {id} is done: nothing moves. Its stored result:");
     print!("{}", summary_text(report));
+    if let Some(t) = &result.campaign_time {
+        print!("{}", campaign_time_text(t));
+    }
     if let Some(path) = json {
         write_file(path, &result.identify_json().map_err(other)?)?;
     }

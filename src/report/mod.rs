@@ -6,4 +6,4 @@ pub mod model_file;
 pub mod summary;
 
 pub use model_file::corrected_model_toml;
-pub use summary::{setup_summary_lines, summary_text};
+pub use summary::{campaign_time_rows, campaign_time_text, setup_summary_lines, summary_text};

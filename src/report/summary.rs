@@ -2,12 +2,15 @@
 //! parameter-error table (like the paper's Tables 3–5) and the before/after accuracy table.
 
 use std::fmt::Write;
+use std::time::Duration;
 
 use crate::analysis::metrics::Metrics;
 use crate::calibrate::identify_json::ParameterJson;
-use crate::calibrate::{IdentifyReport, ParamStatus, Quality, SetupResult};
+use crate::calibrate::{CampaignTime, IdentifyReport, ParamStatus, Quality, SetupResult};
 use crate::identify::DropKind;
-use crate::units::human::{fmt_deg, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, NO_NUMBER};
+use crate::units::human::{
+    fmt_deg, fmt_duration, fmt_fixed, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, NO_NUMBER,
+};
 
 /// A parameter's value in its unit for people: mm, or mrad for an angle error.
 fn shown(p: &ParameterJson, v: f64) -> String {
@@ -293,6 +296,38 @@ pub fn setup_summary_lines(r: &SetupResult) -> Vec<String> {
         ));
     }
     lines
+}
+
+/// Planned against actual time of a campaign, one `(what, text)` row each for people:
+/// `planned` (the estimate's summary), `measuring` (with its ratio to the plan), `paused`.
+pub fn campaign_time_rows(t: &CampaignTime) -> [(&'static str, String); 3] {
+    let duration = |s: f64| fmt_duration(Duration::from_secs_f64(s.max(0.0)));
+    let planned = match (&t.planned_summary, t.planned_s) {
+        (Some(summary), Some(s)) => format!("{summary} ({})", duration(s)),
+        _ => "not estimated (the campaign was created without an estimate)".to_owned(),
+    };
+    let measuring = match t.ratio {
+        Some(r) => format!(
+            "{} ({} × planned)",
+            duration(t.measuring_s),
+            fmt_fixed(r, 2)
+        ),
+        None => duration(t.measuring_s),
+    };
+    [
+        ("planned", planned),
+        ("measuring", measuring),
+        ("paused", duration(t.paused_s)),
+    ]
+}
+
+/// The campaign time block of `cellcal run`'s summary ([`campaign_time_rows`]).
+pub fn campaign_time_text(t: &CampaignTime) -> String {
+    let mut s = String::from("Campaign time (measuring excludes pauses):\n");
+    for (what, text) in campaign_time_rows(t) {
+        let _ = writeln!(s, "  {what:<10} {text}");
+    }
+    s
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@ use std::collections::HashSet;
 use rusqlite::{params, OptionalExtension, Row, Transaction, TransactionBehavior};
 
 use super::error::{Ctx, StoreError};
+use super::estimates::insert_estimate;
 use super::kinds::{insert_kind, CampaignKind};
 use super::records::{
     decode_joints, encode_joints, from_sql_index, parse_set, to_sql_index, CampaignRow,
@@ -77,16 +78,18 @@ impl Store {
         campaign: &NewCampaign,
         plan: &[PlannedPose],
     ) -> Result<i64, StoreError> {
-        self.create_campaign_as(campaign, plan, None)
+        self.create_campaign_as(campaign, plan, None, None)
     }
 
-    /// [`Store::create_campaign`], with the campaign's `kind` (none: a calibration) in the same
+    /// [`Store::create_campaign`], with the campaign's `kind` (none: a calibration) and its
+    /// planned duration (`estimate_json`, a JSON object; none: not estimated) in the same
     /// transaction.
     pub(crate) fn create_campaign_as(
         &mut self,
         campaign: &NewCampaign,
         plan: &[PlannedPose],
         kind: Option<&CampaignKind>,
+        estimate_json: Option<&str>,
     ) -> Result<i64, StoreError> {
         let encoded = check_plan(plan)?;
         let tx = self
@@ -96,6 +99,9 @@ impl Store {
         let id = insert_campaign(&tx, campaign, plan, &encoded)?;
         if let Some(k) = kind {
             insert_kind(&tx, id, k)?;
+        }
+        if let Some(json) = estimate_json {
+            insert_estimate(&tx, id, json)?;
         }
         tx.commit().ctx("commit create campaign")?;
         Ok(id)

@@ -41,7 +41,7 @@ impl Store {
         plan: &[PlannedPose],
         kind: &CampaignKind,
     ) -> Result<i64, StoreError> {
-        self.create_campaign_as(campaign, plan, Some(kind))
+        self.create_campaign_as(campaign, plan, Some(kind), None)
     }
 
     /// The kind of campaign `id`; `None` for a calibration campaign.

@@ -30,6 +30,7 @@
 
 mod campaigns;
 mod error;
+mod estimates;
 mod frames;
 mod handle;
 mod ident_checks;
@@ -52,6 +53,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension};
 
 pub use campaigns::INITIAL_STATE;
 pub use error::StoreError;
+pub use estimates::EntryAfter;
 pub use frames::{map_point, to_first_frame, FrameRef, FrameTransform, JointPoint};
 pub use handle::{ReaderPool, StoreHandle};
 pub use kinds::{CampaignKind, ISO9283_KIND};

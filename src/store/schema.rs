@@ -44,6 +44,10 @@
 //! `after_poses` measured identification poses (`campaign.stop_when = "predicted"`: the
 //! predicted verification error and, when it stopped the identification poses, why), one per
 //! count, append-only. A campaign without a row has no check (every campaign of an older store).
+//!
+//! Version 7 adds `campaign_estimates(campaign_id, json)`: the planned duration of a campaign
+//! (a JSON object, the planner's estimate by part), written with the campaign in one
+//! transaction, append-only. A campaign without a row was created without one.
 
 use rusqlite::{Connection, TransactionBehavior};
 
@@ -199,6 +203,17 @@ CREATE TRIGGER ident_checks_no_update BEFORE UPDATE ON ident_checks
 BEGIN SELECT RAISE(ABORT, 'identification checks are append-only'); END;
 CREATE TRIGGER ident_checks_no_delete BEFORE DELETE ON ident_checks
 BEGIN SELECT RAISE(ABORT, 'identification checks are append-only'); END;
+"#,
+    // 6 -> 7: the planned duration of a campaign, stored with it.
+    r#"
+CREATE TABLE campaign_estimates (
+    campaign_id INTEGER PRIMARY KEY REFERENCES campaigns(id),
+    json        TEXT    NOT NULL CHECK (json_valid(json) AND json_type(json) = 'object')
+) STRICT;
+CREATE TRIGGER campaign_estimates_no_update BEFORE UPDATE ON campaign_estimates
+BEGIN SELECT RAISE(ABORT, 'campaign estimates are append-only'); END;
+CREATE TRIGGER campaign_estimates_no_delete BEFORE DELETE ON campaign_estimates
+BEGIN SELECT RAISE(ABORT, 'campaign estimates are append-only'); END;
 "#,
 ];
 

@@ -15,7 +15,7 @@ mod sections;
 use sha2::{Digest, Sha256};
 
 use crate::analysis::significance::{significance, Significance};
-use crate::calibrate::{CalibrationResult, IdentifyReport, SetupResult};
+use crate::calibrate::{CalibrationResult, CampaignTime, IdentifyReport, SetupResult};
 pub use crate::calibrate::{PoseError, PoseErrors, SetErrors};
 use crate::model::RobotModel;
 use crate::units::human::TimeZone;
@@ -117,6 +117,8 @@ pub struct CampaignFacts {
     pub journal_span_ms: Option<(i64, i64)>,
     /// Number of journal entries.
     pub journal_entries: usize,
+    /// Planned against actual time (the stored result's, else from the store).
+    pub time: Option<CampaignTime>,
 }
 
 /// One drift check at the reference pose.

@@ -15,6 +15,7 @@ use crate::calibrate::identify_json::{
     BeforeAfter as MetricsPair, IdentifyReport, NotIdentifiable, ParamStatus, ParameterJson,
 };
 use crate::calibrate::{BaseResult, ToolFrameResult};
+use crate::report::summary::campaign_time_rows;
 use crate::units::human::{fmt_deg, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, fmt_time_in, TimeZone};
 
 /// `(id, heading)` of every section, in order (the table of contents).
@@ -838,6 +839,16 @@ fn provenance(input: &ReportInput) -> String {
             format!("{} / {}", c.poses_done, c.poses_total),
         ));
         rows.push(("plan seed", c.seed.to_string()));
+        if let Some(t) = &c.time {
+            for (what, text) in campaign_time_rows(t) {
+                let label = match what {
+                    "planned" => "campaign time planned",
+                    "measuring" => "campaign time measuring (pauses excluded)",
+                    _ => "campaign time paused",
+                };
+                rows.push((label, text));
+            }
+        }
     }
     let mut s = kv_table(&rows);
     s.push_str("<h3>Inputs</h3>\n");
