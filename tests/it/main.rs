@@ -30,6 +30,7 @@ mod model_out;
 mod paper;
 mod paths;
 mod practical;
+mod predict;
 mod progress;
 mod quality;
 mod realdata;
