@@ -7,6 +7,7 @@ pub mod order;
 pub mod path;
 pub mod route;
 pub mod sampling;
+pub mod selection;
 pub mod workspace;
 
 pub use campaign::{count_via_points, plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};

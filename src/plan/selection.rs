@@ -1,0 +1,524 @@
+//! Optimal selection of identification poses, and the one prediction of a calibration's
+//! verification error (docs/method.md §9).
+//!
+//! **The prediction.** The campaign's verification figure is the mean, over the verification
+//! poses, of ‖e‖ with `e = P1 − p_model` (`Metrics::position_mean_mm`, docs/method.md §6). For
+//! a model identified with parameter error `δ ~ N(0, C)` the error at one verification pose is
+//! `e = J_v δ + ε_v`: `J_v` the ball position's Jacobian over the identified parameters, `ε_v`
+//! the verification reading's own noise (the tracker's per-axis σ at that range, plus the
+//! arm's joint jitter). So `e ~ N(0, J_v C J_vᵀ + Σ_v)`, and its expected norm is computed
+//! exactly (a one-dimensional integral over the three eigenvalues, [`expected_norm`]), not by
+//! `√trace`. [`predicted_verification`] averages it over the verification joints; its noise
+//! floor is the same with `C = 0` (a perfect model still reads noise).
+//!
+//! **The covariance of a design.** The campaign identifies by unweighted least squares on the
+//! solver's rows (position, and the stage direction times its weight `w`); the rows' noise is
+//! not independent: `P1` enters the position rows and the direction `(P2 − P1)/s`, so their
+//! perpendicular parts correlate (−1/√2 at `w = s/√2`), and the jitter of the arm moves both.
+//! [`Design::covariance`] is that estimator's exact (linearised) covariance, the sandwich
+//! `A⁻¹ B A⁻¹` with `A = Σ JᵢᵀJᵢ`, `B = Σ Jᵢᵀ Σᵢ Jᵢ`, `Σᵢ` each pose's row noise.
+//!
+//! **The criterion** (I-optimality): minimise `tr(W·C)`, the mean squared error the
+//! parameters add at random workspace poses, `W` = the mean of `J_vᵀJ_v` over a separate
+//! random draw of workspace poses (never the campaign's verification poses). The figure
+//! is a verification error, and I-optimality minimises exactly its parameter part, weighting
+//! each direction of parameter space by how much it moves the ball where the robot works; a
+//! D-optimal design maximises the volume of information, in mixed units (mm and rad), and
+//! spends poses on parameter combinations the verification barely sees (the base rotation
+//! against joint offsets at long lever arms). For the search, `C` is the covariance with each
+//! row independent at its pose's tracker σ (the predicted σ of the identifiability analysis,
+//! range-dependent), so one pose is a rank-`r` update of the information (`r` = rows per pose)
+//! and Woodbury's identity prices every candidate in O(p²r). Greedy forward selection from a
+//! weak prior (10 mm, 10 mrad per parameter: it only orders the first picks), then exchange
+//! passes (Fedorov: the best swap of a selected pose for a candidate, until none improves);
+//! then the selection is re-ranked greedily among itself, so every prefix is a good design
+//! (blocks of a campaign that stops early). The figures reported are always the exact
+//! sandwich covariance above.
+
+use nalgebra::{DMatrix, Matrix3, Vector3};
+
+use crate::identify::identifiability::{analyze_linearized, PracticalBounds};
+use crate::identify::observation::{predict, residual_jacobian, Measured, ObsConfig, ObsModel};
+use crate::identify::params::{all_params, ParamId};
+use crate::identify::problem::JointTrig;
+use crate::identify::TrackerNoise;
+use crate::model::{ParamKind, RobotModel};
+
+/// How the identification poses of a campaign are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Selection {
+    /// The first poses drawn (joint-space sampling with rejection).
+    #[default]
+    Random,
+    /// Chosen from a pool of measurable poses by the I-optimal criterion ([`select`]).
+    Optimal,
+}
+
+impl Selection {
+    /// Contract name: `random`, `optimal`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Selection::Random => "random",
+            Selection::Optimal => "optimal",
+        }
+    }
+}
+
+/// Predicted mean verification error (mm) and what it is made of.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PredictedError {
+    /// Expected mean ‖P1 − p_model‖ over the verification poses (mm), as
+    /// `Metrics::position_mean_mm` measures it: parameter error and reading noise together.
+    pub mean_mm: f64,
+    /// The same with a perfect model: the verification readings' own noise (mm).
+    pub noise_floor_mm: f64,
+}
+
+/// Measurement noise of the cell: the tracker's range-dependent per-axis σ and the arm's joint
+/// jitter (the arm sits a little off the joints the controller reports).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseModel {
+    /// Tracker model (its position in the measurement frame gives the range).
+    pub tracker: TrackerNoise,
+    /// σ of each joint's jitter (rad), drawn once per move: the same for P1 and P2.
+    pub joint_jitter_rad: f64,
+}
+
+impl NoiseModel {
+    /// An AT960 at `tracker_mm` scaled so that its per-axis σ at 2.5 m range is `noise_mm`
+    /// (0.015 mm: the AT960 itself, [`crate::identify::identifiability::DEFAULT_NOISE_MM`]),
+    /// no joint jitter.
+    pub fn at960_scaled(tracker_mm: Vector3<f64>, noise_mm: f64) -> NoiseModel {
+        let mut t = TrackerNoise::at960(tracker_mm);
+        let at_ref = t.sigma_mm(&(tracker_mm + Vector3::new(REFERENCE_RANGE_MM, 0.0, 0.0)));
+        t.k *= at_ref / noise_mm;
+        NoiseModel {
+            tracker: t,
+            joint_jitter_rad: 0.0,
+        }
+    }
+}
+
+/// The range at which `--noise-mm` gives the tracker's per-axis σ (mm).
+pub const REFERENCE_RANGE_MM: f64 = 2500.0;
+
+/// An identification to design for: the nominal model in the measurement frame (base, and the
+/// ball as its tool), the observation model, the noise and the identified parameters.
+#[derive(Debug, Clone)]
+pub struct Design {
+    /// Nominal model; `base_*` map the robot base into the measurement frame, `tool` is the
+    /// ball in the flange frame.
+    pub model: RobotModel,
+    /// Observation model, stage axis and direction weight, as the identification uses them.
+    pub obs: ObsConfig,
+    /// Stage travel P1 → P2 (mm): the direction's noise is the points' noise over it.
+    pub stage_travel_mm: f64,
+    /// The cell's noise.
+    pub noise: NoiseModel,
+    /// The identified parameters (structurally and practically identifiable, held-back ones
+    /// excluded), in the identification's order.
+    pub params: Vec<ParamId>,
+}
+
+/// Why a design or a selection cannot be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SelectionError {
+    /// No candidate to choose from.
+    #[error("the pool of candidate poses is empty")]
+    EmptyPool,
+    /// Fewer poses than the identification needs.
+    #[error("{count} poses cannot identify {parameters} parameters with {rows} equations per pose: at least {needed} are needed")]
+    TooFew {
+        /// Poses asked for.
+        count: usize,
+        /// Parameters identified.
+        parameters: usize,
+        /// Rows per pose.
+        rows: usize,
+        /// Least number of poses.
+        needed: usize,
+    },
+    /// More poses asked for than the pool holds.
+    #[error("{count} poses asked for, but the pool holds only {pool}")]
+    PoolTooSmall {
+        /// Poses asked for.
+        count: usize,
+        /// Candidates.
+        pool: usize,
+    },
+    /// A value that is not usable (NaN, infinite, out of range).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl Design {
+    /// The design of an identification of `model` with `obs`: the parameters are those the
+    /// identification keeps on the poses `poses` (structural and practical test with the
+    /// default bounds, as a campaign identifies; base and tool as asked).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        model: RobotModel,
+        obs: ObsConfig,
+        stage_travel_mm: f64,
+        noise: NoiseModel,
+        identify_base: bool,
+        identify_tool: bool,
+        poses: &[Vec<f64>],
+    ) -> Result<Design, SelectionError> {
+        if poses.is_empty() {
+            return Err(SelectionError::EmptyPool);
+        }
+        for (what, v) in [
+            ("stage travel (mm)", stage_travel_mm),
+            ("joint jitter (rad)", noise.joint_jitter_rad),
+            ("tracker noise", noise.tracker.k),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SelectionError::Invalid(format!(
+                    "{what} {v}: must be a finite number ≥ 0"
+                )));
+            }
+        }
+        let measured: Vec<Measured> = poses.iter().cloned().map(Measured::joints_only).collect();
+        let candidates = all_params(model.dof(), identify_base, identify_tool);
+        let (ident, _) = analyze_linearized(
+            &model,
+            &measured,
+            &JointTrig::of(&measured),
+            &obs,
+            &candidates,
+            Some(&PracticalBounds::default()),
+        );
+        Ok(Design {
+            model,
+            obs,
+            stage_travel_mm,
+            noise,
+            params: ident.identified,
+        })
+    }
+
+    /// Rows per pose of the observation model.
+    pub fn rows(&self) -> usize {
+        self.obs.model.rows()
+    }
+
+    /// Least number of poses the identification accepts (as `identify` counts them).
+    pub fn min_poses(&self) -> usize {
+        (self.params.len().div_ceil(self.rows()) + 1).max(3)
+    }
+
+    /// The identification's rows at `q` (rows × params, row-major, solver weights, pose
+    /// weight 1).
+    fn rows_at(&self, q: &[f64], params: &[ParamId]) -> DMatrix<f64> {
+        let rows = self.rows();
+        let mut res = vec![0.0; rows];
+        let mut jac = vec![0.0; rows * params.len()];
+        residual_jacobian(
+            &self.model,
+            &Measured::joints_only(q.to_vec()),
+            &self.obs,
+            params,
+            &mut res,
+            &mut jac,
+        );
+        DMatrix::from_row_slice(rows, params.len(), &jac)
+    }
+
+    /// The identification rows at `q` over [`Design::params`].
+    pub fn jacobian(&self, q: &[f64]) -> DMatrix<f64> {
+        self.rows_at(q, &self.params)
+    }
+
+    /// Ball position Jacobian at `q` (3 × params): how each parameter moves the ball.
+    pub fn position_jacobian(&self, q: &[f64]) -> DMatrix<f64> {
+        self.jacobian(q).rows(0, 3).into_owned()
+    }
+
+    /// The tracker's per-axis σ (mm) of the ball at `q`.
+    pub fn tracker_sigma_mm(&self, q: &[f64]) -> f64 {
+        self.noise.tracker.sigma_mm(&predict(&self.model, q).p)
+    }
+
+    /// The joint-jitter Jacobian of the identification rows at `q` (rows × dof): a joint's
+    /// jitter moves the arm as its θ offset does.
+    fn jitter_rows(&self, q: &[f64]) -> DMatrix<f64> {
+        let thetas: Vec<ParamId> = (0..self.model.dof())
+            .map(|joint| ParamId::Mdh {
+                joint,
+                kind: ParamKind::Theta,
+            })
+            .collect();
+        self.rows_at(q, &thetas)
+    }
+
+    /// Covariance of the noise of the identification rows at `q` (rows × rows): the reading
+    /// P1 in the position rows; for np/op the direction `(P2 − P1)/s` perpendicular to the
+    /// stage direction, correlated with P1; for the full model each rotation row as noisy as
+    /// a unit-weight position row (no 1D stage measures it; an assumption); plus the joint
+    /// jitter moving all of them.
+    pub fn row_noise(&self, q: &[f64]) -> DMatrix<f64> {
+        let rows = self.rows();
+        let pr = predict(&self.model, q);
+        let s1 = self.noise.tracker.sigma_mm(&pr.p);
+        let mut c = DMatrix::zeros(rows, rows);
+        for i in 0..3 {
+            c[(i, i)] = s1 * s1;
+        }
+        match self.obs.model {
+            ObsModel::Position => {}
+            ObsModel::Np | ObsModel::Op => {
+                let l = pr.r * self.obs.stage_axis;
+                let s = self.stage_travel_mm.max(1e-9);
+                let s2 = self.noise.tracker.sigma_mm(&(pr.p + s * l));
+                let perp = Matrix3::identity() - l * l.transpose();
+                let g = self.obs.direction_weight_mm / s;
+                let dir = perp * (g * g * (s1 * s1 + s2 * s2));
+                // residual rows: −ε1 and −g·P⊥(ε2 − ε1): their covariance is −g·σ1²·P⊥
+                let cross = perp * (-g * s1 * s1);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        c[(3 + a, 3 + b)] = dir[(a, b)];
+                        c[(a, 3 + b)] = cross[(a, b)];
+                        c[(3 + a, b)] = cross[(b, a)];
+                    }
+                }
+            }
+            ObsModel::Full => {
+                for i in 3..rows {
+                    c[(i, i)] = s1 * s1;
+                }
+            }
+        }
+        let sq = self.noise.joint_jitter_rad;
+        if sq > 0.0 {
+            let g = self.jitter_rows(q);
+            c += (&g * g.transpose()) * (sq * sq);
+        }
+        c
+    }
+
+    /// Covariance (3 × 3, mm²) of one verification reading at `q`: the tracker's σ per axis
+    /// and the joint jitter.
+    pub fn reading_noise(&self, q: &[f64]) -> Matrix3<f64> {
+        let s = self.tracker_sigma_mm(q);
+        let mut c = Matrix3::identity() * (s * s);
+        let sq = self.noise.joint_jitter_rad;
+        if sq > 0.0 {
+            let g = self.jitter_rows(q);
+            let gp = g.rows(0, 3);
+            let gg = &gp * gp.transpose() * (sq * sq);
+            c += Matrix3::from_fn(|a, b| gg[(a, b)]);
+        }
+        c
+    }
+
+    /// Predicted covariance of the identified parameters (over [`Design::params`]) from the
+    /// identification poses `ident_q`: the campaign's unweighted least squares under this
+    /// design's noise, `A⁻¹ B A⁻¹` (module doc); `None` when the poses do not determine every
+    /// parameter.
+    pub fn covariance(&self, ident_q: &[Vec<f64>]) -> Option<DMatrix<f64>> {
+        let p = self.params.len();
+        let mut a = DMatrix::zeros(p, p);
+        let mut b = DMatrix::zeros(p, p);
+        for q in ident_q {
+            let j = self.jacobian(q);
+            let jt = j.transpose();
+            a += &jt * &j;
+            b += &jt * self.row_noise(q) * &j;
+        }
+        let ai = a.cholesky()?.inverse();
+        let c = &ai * b * &ai;
+        Some((&c + c.transpose()) * 0.5)
+    }
+}
+
+/// Expected norm `E‖x‖` of a zero-mean Gaussian 3-vector with covariance `cov` (mm), from its
+/// eigenvalues λ: `E‖x‖ = (1/2√π) ∫₀^∞ (1 − Π(1 + 2tλᵢ)^(−1/2)) t^(−3/2) dt`, integrated in
+/// `ln t` by the trapezoid rule (exponentially convergent here; relative error < 1e-9).
+pub fn expected_norm(cov: &Matrix3<f64>) -> f64 {
+    let sym = (cov + cov.transpose()) * 0.5;
+    let ev = sym.symmetric_eigenvalues();
+    let lam: Vec<f64> = ev.iter().map(|l| l.max(0.0)).collect();
+    let total: f64 = lam.iter().sum();
+    if !(total > 0.0) || !total.is_finite() {
+        return if total.is_finite() { 0.0 } else { f64::NAN };
+    }
+    let rel: Vec<f64> = lam.iter().map(|l| l / total).collect();
+    // the integrand in u = ln t, of the normalised eigenvalues (Σ = 1): e^(u/2) as u → −∞,
+    // ≤ e^(−u/2)/√(min λ) as u → ∞; the floor keeps a degenerate direction from a long tail
+    let min = rel.iter().copied().fold(f64::INFINITY, f64::min).max(1e-12);
+    let (lo, hi) = (-44.0, 44.0 - min.ln());
+    let h = 0.05;
+    let n = ((hi - lo) / h).ceil() as usize;
+    let f = |u: f64| {
+        let t = u.exp();
+        let log_prod: f64 = rel.iter().map(|l| (2.0 * t * l).ln_1p()).sum();
+        -(-0.5 * log_prod).exp_m1() * (-0.5 * u).exp()
+    };
+    let mut sum = 0.5 * (f(lo) + f(lo + n as f64 * h));
+    for i in 1..n {
+        sum += f(lo + i as f64 * h);
+    }
+    total.sqrt() * sum * h / (2.0 * std::f64::consts::PI.sqrt())
+}
+
+/// Predicted verification error of a model identified with parameter covariance `cov` (over
+/// `design.params`) at the verification joints `verify_q`, under the design's noise model.
+pub fn predicted_verification(
+    design: &Design,
+    cov: &DMatrix<f64>,
+    verify_q: &[Vec<f64>],
+) -> PredictedError {
+    let n = verify_q.len().max(1) as f64;
+    let (mut mean, mut floor) = (0.0, 0.0);
+    for q in verify_q {
+        let jv = design.position_jacobian(q);
+        let noise = design.reading_noise(q);
+        let par = &jv * cov * jv.transpose();
+        let total = noise + Matrix3::from_fn(|a, b| par[(a, b)]);
+        mean += expected_norm(&total);
+        floor += expected_norm(&noise);
+    }
+    PredictedError {
+        mean_mm: mean / n,
+        noise_floor_mm: floor / n,
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use nalgebra::DVector;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::StandardNormal;
+
+    /// `E‖x‖` against closed forms: isotropic `σ·2√(2/π)`, one axis `σ√(2/π)`, two equal axes
+    /// `σ√(π/2)`.
+    #[test]
+    fn expected_norm_matches_closed_forms() {
+        let s = 0.013;
+        let iso = expected_norm(&(Matrix3::identity() * s * s));
+        assert!((iso / (s * 2.0 * (2.0 / std::f64::consts::PI).sqrt()) - 1.0).abs() < 1e-9);
+        let one = expected_norm(&Matrix3::from_diagonal(&Vector3::new(s * s, 0.0, 0.0)));
+        assert!((one / (s * (2.0 / std::f64::consts::PI).sqrt()) - 1.0).abs() < 1e-9);
+        let two = expected_norm(&Matrix3::from_diagonal(&Vector3::new(s * s, s * s, 0.0)));
+        assert!((two / (s * (std::f64::consts::PI / 2.0).sqrt()) - 1.0).abs() < 1e-9);
+        assert_eq!(expected_norm(&Matrix3::zeros()), 0.0);
+    }
+
+    /// The paper's TX60 setup: OP, stage +y 10 mm, ball at the flange origin, base identified,
+    /// an AT960 at (2550, 0, 0) mm, the simulated cell's joint jitter.
+    pub(crate) fn paper_design(poses: &[Vec<f64>]) -> Design {
+        let mut noise = NoiseModel::at960_scaled(Vector3::new(2550.0, 0.0, 0.0), 0.015);
+        noise.joint_jitter_rad = 1.2746e-5;
+        Design::new(
+            crate::model::tx60(),
+            ObsConfig::new(ObsModel::Op, 10.0),
+            10.0,
+            noise,
+            true,
+            false,
+            poses,
+        )
+        .unwrap()
+    }
+
+    pub(crate) fn random_poses(n: usize, seed: u64) -> Vec<Vec<f64>> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        crate::plan::sample_poses(
+            &crate::model::tx60(),
+            &crate::plan::Workspace::default(),
+            n,
+            &mut rng,
+        )
+        .unwrap()
+    }
+
+    fn gauss3(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+        Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal))
+    }
+
+    /// The prediction against a Monte Carlo of the campaign's least squares, linearised in
+    /// the parameters but with the physical noise: P1 and P2 read with the tracker's σ at
+    /// their range, the direction normalised from them, the arm jittered once per pose, the
+    /// verification readings with their own noise.
+    #[test]
+    fn predicted_verification_matches_a_monte_carlo_of_the_least_squares() {
+        let ident = random_poses(40, 1);
+        let verify = random_poses(30, 2);
+        let d = paper_design(&random_poses(200, 3));
+        let p = d.params.len();
+        assert_eq!(
+            p, 28,
+            "OP with the base: 24 + 6 − 2 (base_tz ≡ d1, base_rz ≡ θ1)"
+        );
+        let cov = d.covariance(&ident).unwrap();
+        let predicted = predicted_verification(&d, &cov, &verify);
+        let js: Vec<DMatrix<f64>> = ident.iter().map(|q| d.jacobian(q)).collect();
+        let a = js
+            .iter()
+            .fold(DMatrix::zeros(p, p), |a, j| a + j.transpose() * j);
+        let solve = a.cholesky().unwrap();
+        let jitter = |q: &[f64]| d.jitter_rows(q);
+        let gi: Vec<DMatrix<f64>> = ident.iter().map(|q| jitter(q)).collect();
+        let gv: Vec<DMatrix<f64>> = verify.iter().map(|q| jitter(q)).collect();
+        let jv: Vec<DMatrix<f64>> = verify.iter().map(|q| d.position_jacobian(q)).collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (mut sum, mut floor, draws) = (0.0, 0.0, 400);
+        let sq = d.noise.joint_jitter_rad;
+        let s = d.stage_travel_mm;
+        for _ in 0..draws {
+            let mut rhs = DVector::zeros(p);
+            for (k, q) in ident.iter().enumerate() {
+                let pr = predict(&d.model, q);
+                let l = pr.r * d.obs.stage_axis;
+                let p2 = pr.p + s * l;
+                let e1 = gauss3(&mut rng) * d.noise.tracker.sigma_mm(&pr.p);
+                let e2 = gauss3(&mut rng) * d.noise.tracker.sigma_mm(&p2);
+                let dq = DVector::from_fn(6, |_, _| rng.sample::<f64, _>(StandardNormal) * sq);
+                // the arm sits at q + dq: its rows move as the θ columns say
+                let moved = &gi[k] * dq;
+                let m1 = pr.p + Vector3::new(moved[0], moved[1], moved[2]) + e1;
+                let lm = l + Vector3::new(moved[3], moved[4], moved[5]) / d.obs.direction_weight_mm;
+                let m2 = m1 - e1 + s * lm + e2;
+                let dir = (m2 - m1).normalize();
+                let mut r = DVector::zeros(6);
+                for i in 0..3 {
+                    r[i] = pr.p[i] - m1[i];
+                    r[3 + i] = d.obs.direction_weight_mm * (l[i] - dir[i]);
+                }
+                rhs += js[k].transpose() * r;
+            }
+            // the residual is model − measurement: the fitted correction is −(JᵀJ)⁻¹Jᵀr,
+            // and the model's error after it is its negative
+            let delta = solve.solve(&rhs);
+            let (mut m, mut f) = (0.0, 0.0);
+            for (k, q) in verify.iter().enumerate() {
+                let dq = DVector::from_fn(6, |_, _| rng.sample::<f64, _>(StandardNormal) * sq);
+                let moved = gv[k].rows(0, 3) * dq;
+                let noise = Vector3::new(moved[0], moved[1], moved[2])
+                    + gauss3(&mut rng) * d.tracker_sigma_mm(q);
+                let par = &jv[k] * &delta;
+                m += (Vector3::new(par[0], par[1], par[2]) + noise).norm();
+                f += noise.norm();
+            }
+            sum += m / verify.len() as f64;
+            floor += f / verify.len() as f64;
+        }
+        let (mc, mc_floor) = (sum / draws as f64, floor / draws as f64);
+        assert!(
+            (predicted.mean_mm / mc - 1.0).abs() < 0.02,
+            "predicted {} mm, Monte Carlo {mc} mm",
+            predicted.mean_mm
+        );
+        assert!(
+            (predicted.noise_floor_mm / mc_floor - 1.0).abs() < 0.02,
+            "predicted floor {} mm, Monte Carlo {mc_floor} mm",
+            predicted.noise_floor_mm
+        );
+        assert!(predicted.mean_mm > 1.05 * predicted.noise_floor_mm);
+    }
+}
