@@ -25,6 +25,7 @@ use crate::identify::{IdentifyOptions, TrackerNoise};
 use crate::model::RobotModel;
 use crate::plan::campaign::line_of_sight_ok;
 use crate::plan::sampling::sample_poses_where;
+use crate::plan::selection::{Design, NoiseModel, SelectionError};
 use crate::plan::{PlanError, PlanRequest};
 use crate::simulate::truth::{apply_errors, random_errors_of};
 use crate::simulate::{simulate_at, SimConfig};
@@ -120,6 +121,30 @@ impl Setup {
             errors: ErrorSpread::default(),
             verify: cfg.campaign.poses.saturating_sub(cfg.campaign.ident),
         }
+    }
+}
+
+impl Setup {
+    /// The selection's [`Design`] of this setup (the same nominal model, options and noise),
+    /// its parameters those the identification keeps on `poses`.
+    pub fn design(&self, poses: &[Vec<f64>]) -> Result<Design, SelectionError> {
+        let tracker = self.tracker.unwrap_or(TrackerNoise {
+            a_um: 0.0,
+            b_um_per_m: 0.0,
+            ..TrackerNoise::at960(self.request.tracker_mm)
+        });
+        Design::new(
+            self.nominal.clone(),
+            self.opts.obs,
+            self.stage_travel_mm,
+            NoiseModel {
+                tracker,
+                joint_jitter_rad: self.joint_jitter_rad,
+            },
+            self.opts.identify_base,
+            self.opts.identify_tool,
+            poses,
+        )
     }
 }
 

@@ -2,6 +2,8 @@
 //! near the noise floor, the verification-set precision formula against a direct simulation.
 
 use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 use super::*;
 use crate::identify::observation::{ObsConfig, ObsModel};
@@ -124,4 +126,27 @@ fn bad_settings_are_refused() {
         monte_carlo(&paper_setup(0), IdentPoses::Random(30), 2, 1, 1),
         Err(PredictError::Invalid(_))
     ));
+}
+
+/// The Monte Carlo (simulate, identify the campaign's way, measure) and the selection's
+/// analytic prediction ([`crate::plan::selection::predicted_verification`]) agree on the
+/// verification error of one design of identification poses.
+#[test]
+fn the_monte_carlo_agrees_with_the_analytic_prediction() {
+    use crate::plan::selection::predicted_verification;
+    let setup = paper_setup(100);
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let ident = random_poses(&setup, 30, &mut rng).expect("sampled");
+    let verify = random_poses(&setup, 400, &mut rng).expect("sampled");
+    let design = setup.design(&ident).expect("design");
+    let cov = design.covariance(&ident).expect("determined");
+    let analytic = predicted_verification(&design, &cov, &verify);
+    let mc = monte_carlo(&setup, IdentPoses::Given(&ident), 24, 4, 2).expect("runs");
+    let (m, a) = (mc.mean_mm(), analytic.mean_mm);
+    assert!((m / a - 1.0).abs() < 0.1, "Monte Carlo {m} vs analytic {a}");
+    let (mf, af) = (mc.floor_mm(), analytic.noise_floor_mm);
+    assert!((mf / af - 1.0).abs() < 0.1, "floor: Monte Carlo {mf} vs analytic {af}");
+    // what the parameters add over the floor agrees too, if less closely (24 trials)
+    let (me, ae) = (m - mf, a - af);
+    assert!(me > 0.0 && (me / ae - 1.0).abs() < 0.5, "excess {me} vs {ae}");
 }
