@@ -87,6 +87,9 @@ pub struct CampaignContext {
     /// An ISO 9283 campaign's plan (then the run ends with the ISO figures, not an
     /// identification); `None` for a calibration campaign.
     pub iso: Option<IsoPlan>,
+    /// The planned duration of the whole plan on this cell, measured afresh
+    /// ([`crate::campaign::estimate::estimate_campaign_time`]); `None` when not estimated.
+    pub estimate: Option<crate::plan::CampaignEstimate>,
 }
 
 /// How a run ended.

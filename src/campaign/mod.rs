@@ -8,6 +8,7 @@
 
 pub mod cell_lock;
 pub mod engine;
+pub mod estimate;
 pub mod events;
 pub mod feasibility;
 pub mod iso;

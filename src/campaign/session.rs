@@ -248,6 +248,14 @@ pub async fn open_session_with(
         // identify with the model the campaign was created with
         cfg.campaign.model = model;
     }
+    let estimate = {
+        let (cfg, nominal, req, plan) = (cfg.clone(), nominal.clone(), req.clone(), plan.clone());
+        tokio::task::spawn_blocking(move || {
+            super::estimate::estimate_campaign_time(&cfg, &nominal, &req, &plan)
+        })
+        .await
+        .ok()
+    };
     Ok(Session {
         ctx: CampaignContext {
             cfg,
@@ -259,6 +267,7 @@ pub async fn open_session_with(
             control: Control::new(capacity),
             on_fault: FaultPolicy::default(),
             iso,
+            estimate,
         },
         devices,
         sim,

@@ -14,10 +14,12 @@ use cellcal::campaign::{run_campaign, CampaignCommand, Control, Devices, FaultPo
 use cellcal::cell::Prompter;
 use cellcal::config::{load_cell_config, CellConfig, DeviceMode, StageMode};
 use cellcal::iso9283::{format_table, IsoReport};
+use cellcal::plan::CampaignEstimate;
 use cellcal::progress::Progress;
 use cellcal::report::summary_text;
 use cellcal::sim::RunningSimCell;
 use cellcal::store::Store;
+use cellcal::units::human::fmt_estimate;
 
 use super::identify::{poor_is_exit_3, write_file};
 use super::{input, other, runtime, Failure};
@@ -286,6 +288,11 @@ fn announce(session: &Session, store_path: &Path) {
             store_path.display()
         );
     }
+    if let Some(e) = &session.ctx.estimate {
+        for line in estimate_lines(e) {
+            eprintln!("{line}");
+        }
+    }
     if let Some(sim) = &session.sim {
         eprintln!(
             "simulated cell: tracker {}, robot {}, stage {}",
@@ -294,6 +301,26 @@ fn announce(session: &Session, store_path: &Path) {
             sim.stage_path.as_deref().unwrap_or("manual")
         );
     }
+}
+
+/// The campaign time estimate for people: the summary, then where the time goes (the
+/// technician's readings with a manual stage).
+fn estimate_lines(e: &CampaignEstimate) -> [String; 2] {
+    let technician = match e.technician_readings {
+        0 => String::new(),
+        n => format!(" ({n} technician readings)"),
+    };
+    [
+        format!("estimated time: {}", e.summary()),
+        format!(
+            "  setup {}, robot motion {}, settling {}, tracker {}, stage {}{technician}",
+            fmt_estimate(e.setup_s),
+            fmt_estimate(e.motion_s),
+            fmt_estimate(e.settle_s),
+            fmt_estimate(e.measure_s),
+            fmt_estimate(e.stage_s),
+        ),
+    ]
 }
 
 /// Progress: none with `--progress none`; a line per pose with `lines`; with `bar`, a line per

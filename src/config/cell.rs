@@ -121,6 +121,10 @@ pub struct RobotSection {
     pub request_timeout_ms: Option<u64>,
     /// Extra client-side time granted to WAIT beyond `settle_timeout_ms` (ms); unset: 2000.
     pub wait_margin_ms: Option<u64>,
+    /// Expected settling time after a move (ms), for the campaign time estimate only (the
+    /// controller decides when the arm has settled); unset: 500 (the simulated cell: its
+    /// `sim.settle_ms`).
+    pub settle_ms: Option<u64>,
 }
 
 impl Default for RobotSection {
@@ -136,6 +140,7 @@ impl Default for RobotSection {
             connect_timeout_ms: None,
             request_timeout_ms: None,
             wait_margin_ms: None,
+            settle_ms: None,
         }
     }
 }
@@ -200,6 +205,12 @@ pub struct StageSection {
     pub move_timeout_ms: Option<u64>,
     /// Timeout of Zaber homing (ms); unset: 60000 (the simulated cell: from its stage speed).
     pub home_timeout_ms: Option<u64>,
+    /// Speed of the motorised stage (mm/s), for the campaign time estimate only (the device
+    /// moves at its own setting); unset: 5 (the simulated cell: its `sim.stage_speed_mm_s`).
+    pub speed_mm_s: Option<f64>,
+    /// Manual stages: the technician's time per reading (s): setting the micrometer, typing
+    /// the reading and confirming the cell clear; for the campaign time estimate.
+    pub technician_s_per_reading: f64,
 }
 
 impl Default for StageSection {
@@ -225,6 +236,8 @@ impl Default for StageSection {
             poll_interval_ms: None,
             move_timeout_ms: None,
             home_timeout_ms: None,
+            speed_mm_s: None,
+            technician_s_per_reading: 20.0,
         }
     }
 }
@@ -863,6 +876,13 @@ impl RobotSection {
         ] {
             device_ms(key, v)?;
         }
+        if let Some(ms) = self.settle_ms {
+            rule(
+                ms <= MAX_DEVICE_MS,
+                "robot_controller.settle_ms",
+                format!("must be in 0..={MAX_DEVICE_MS} ms, got {ms}"),
+            )?;
+        }
         Ok(())
     }
 }
@@ -922,6 +942,17 @@ impl StageSection {
         ] {
             device_ms(key, v)?;
         }
+        if let Some(v) = self.speed_mm_s {
+            positive("stage.speed_mm_s", v)?;
+        }
+        rule(
+            self.technician_s_per_reading >= 0.0,
+            "stage.technician_s_per_reading",
+            format!(
+                "must be zero or more seconds, got {}",
+                self.technician_s_per_reading
+            ),
+        )?;
         Ok(())
     }
 }

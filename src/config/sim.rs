@@ -8,7 +8,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::rules::{positive, rule, InvalidKey};
-use crate::model::SignedAxis;
+use crate::model::{RobotModel, SignedAxis};
+use crate::plan::MotionLimits;
 
 /// How the target-ball stage is simulated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -27,7 +28,8 @@ pub enum StageMode {
 pub struct SimWorldConfig {
     /// Demo timings for every timing field not given explicitly.
     pub realistic: bool,
-    /// Joint speed at 100 % (deg/s); fast default 3600, realistic 60.
+    /// Every joint's speed at 100 % (deg/s), reached at once (a constant-speed move); unset:
+    /// 3600 in fast mode, the robot file's joint speeds and accelerations when realistic.
     pub move_speed_deg_s: Option<f64>,
     /// Settle time after a move (ms); fast default 0, realistic 1500.
     pub settle_ms: Option<u64>,
@@ -149,10 +151,16 @@ impl Default for SimWorldConfig {
 }
 
 impl SimWorldConfig {
-    /// Effective joint speed (deg/s).
-    pub fn effective_move_speed_deg_s(&self) -> f64 {
-        self.move_speed_deg_s
-            .unwrap_or(if self.realistic { 60.0 } else { 3600.0 })
+    /// How the simulated robot's joints move at 100 % (the controller's speed setting scales
+    /// the speeds): every joint at `move_speed_deg_s` with instant acceleration when it is
+    /// given or in fast mode (3600 deg/s), else (realistic) the robot file's
+    /// `max_speed_deg_s` and `max_accel_deg_s2` ([`MotionLimits::of`], with its fallback).
+    pub fn motion_limits(&self, model: &RobotModel) -> MotionLimits {
+        match (self.move_speed_deg_s, self.realistic) {
+            (Some(v), _) => MotionLimits::uniform(model.dof(), v.to_radians()),
+            (None, false) => MotionLimits::uniform(model.dof(), 3600f64.to_radians()),
+            (None, true) => MotionLimits::of(model, 100.0),
+        }
     }
     /// Effective settle time (ms).
     pub fn effective_settle_ms(&self) -> u64 {

@@ -114,6 +114,17 @@ impl JointLimit {
     }
 }
 
+/// A joint's motion limits from the robot file (`max_speed_deg_s`, `max_accel_deg_s2`), in
+/// rad/s and rad/s²; `None` where the file gives none (the planner's timing model then uses
+/// its stated fallback).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct JointMotion {
+    /// Largest joint speed at 100 % (rad/s).
+    pub max_speed: Option<f64>,
+    /// Largest joint acceleration (rad/s²).
+    pub max_accel: Option<f64>,
+}
+
 /// A serial robot: MDH chain, joint limits, base and tool transforms.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RobotModel {
@@ -123,6 +134,8 @@ pub struct RobotModel {
     pub joints: Vec<Mdh>,
     /// Joint limits per joint.
     pub limits: Vec<JointLimit>,
+    /// Speed and acceleration limits per joint (empty or `None`: the fallback).
+    pub motion: Vec<JointMotion>,
     /// Rotation of the base transform (robot base → measurement frame).
     pub base_rotation: Matrix3<f64>,
     /// Translation of the base transform (mm).

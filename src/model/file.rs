@@ -9,6 +9,8 @@
 //! alpha_deg = 90        # or alpha_rad
 //! beta_deg = 0          # or beta_rad; optional, default 0
 //! limits_deg = [-180, 180]  # or limits_rad
+//! max_speed_deg_s = 435     # optional: joint speed at 100 % (deg/s)
+//! max_accel_deg_s2 = 870    # optional: joint acceleration (deg/s²)
 //! [base]                # optional: robot base -> measurement frame
 //! translation_mm = [0, 0, 0]
 //! rotation_vector_rad = [0, 0, 0]
@@ -21,7 +23,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::chain::{JointLimit, Mdh, RobotModel};
+use super::chain::{JointLimit, JointMotion, Mdh, RobotModel};
 use super::checked_toml::parse_checked;
 pub use super::checked_toml::FileError;
 use super::rotation::{from_rotation_vector, log_so3};
@@ -48,6 +50,8 @@ struct JointEntry {
     beta_rad: Option<f64>,
     limits_deg: Option<[f64; 2]>,
     limits_rad: Option<[f64; 2]>,
+    max_speed_deg_s: Option<f64>,
+    max_accel_deg_s2: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -109,7 +113,19 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
     };
     let mut joints = Vec::new();
     let mut limits = Vec::new();
+    let mut motion = Vec::new();
     for (i, j) in file.joints.iter().enumerate() {
+        let rate = |stem: &str, v: Option<f64>| match v {
+            Some(v) if v <= 0.0 => Err(invalid(
+                format!("joints[{}].{stem}", i + 1),
+                &format!("must be greater than 0, got {v}"),
+            )),
+            v => Ok(v.map(f64::to_radians)),
+        };
+        motion.push(JointMotion {
+            max_speed: rate("max_speed_deg_s", j.max_speed_deg_s)?,
+            max_accel: rate("max_accel_deg_s2", j.max_accel_deg_s2)?,
+        });
         joints.push(Mdh {
             theta: angle(i, "theta", j.theta_deg, j.theta_rad, true)?,
             d: j.d_mm,
@@ -149,6 +165,7 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
         name: file.name,
         joints,
         limits,
+        motion,
         base_rotation,
         base_translation,
         tool,
@@ -194,7 +211,7 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
         let _ = writeln!(out, "{}", format!("# {line}").trim_end());
     }
     let _ = writeln!(out, "name = {}", toml::Value::String(model.name.clone()));
-    for (m, l) in model.joints.iter().zip(&model.limits) {
+    for (i, (m, l)) in model.joints.iter().zip(&model.limits).enumerate() {
         let angle =
             |stem: &str, v: f64| format!("{stem}_rad = {}  # {:.6} deg", exact(v), v.to_degrees());
         let _ = writeln!(out, "\n[[joints]]");
@@ -204,6 +221,16 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
         let _ = writeln!(out, "{}", angle("alpha", m.alpha));
         let _ = writeln!(out, "{}", angle("beta", m.beta));
         let _ = writeln!(out, "{}", limits_line(l));
+        let motion = model.motion.get(i).copied().unwrap_or_default();
+        for (key, v) in [
+            ("max_speed_deg_s", motion.max_speed),
+            ("max_accel_deg_s2", motion.max_accel),
+        ] {
+            if let Some(rad) = v {
+                let deg = exact_degrees(rad).unwrap_or_else(|| rad.to_degrees());
+                let _ = writeln!(out, "{key} = {}", exact(deg));
+            }
+        }
     }
     let rv = log_so3(&model.base_rotation);
     let _ = writeln!(out, "\n[base]");
@@ -305,6 +332,49 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("joints[1].limits_deg"), "{e}");
+    }
+
+    #[test]
+    fn joint_speed_and_acceleration_are_read_checked_and_written_back() {
+        let given = ONE.replace(
+            "limits_deg = [-10, 10]",
+            "limits_deg = [-10, 10]\nmax_speed_deg_s = 435\nmax_accel_deg_s2 = 870.5",
+        );
+        let m = parse_robot(&given, Path::new("r.toml")).unwrap();
+        assert_eq!(m.motion[0].max_speed, Some(435f64.to_radians()));
+        assert_eq!(m.motion[0].max_accel, Some(870.5f64.to_radians()));
+        let text = write_robot(&m, &[]);
+        assert!(text.contains("max_speed_deg_s = 435.0\n"), "{text}");
+        assert!(text.contains("max_accel_deg_s2 = 870.5\n"), "{text}");
+        assert_eq!(parse_robot(&text, Path::new("w.toml")).unwrap(), m);
+        // optional: absent stays absent, also when written back
+        let none = parse_robot(ONE, Path::new("r.toml")).unwrap();
+        assert_eq!(none.motion[0], JointMotion::default());
+        assert!(!write_robot(&none, &[]).contains("max_speed"));
+        for (line, want) in [
+            (
+                "max_speed_deg_s = 0",
+                "r.toml: joints[1].max_speed_deg_s: must be greater than 0, got 0",
+            ),
+            (
+                "max_accel_deg_s2 = -5",
+                "r.toml: joints[1].max_accel_deg_s2: must be greater than 0, got -5",
+            ),
+            (
+                "max_speed_deg_s = nan",
+                "r.toml: joints[1].max_speed_deg_s: nan is not a finite number",
+            ),
+            (
+                "max_accel_deg_s2 = inf",
+                "r.toml: joints[1].max_accel_deg_s2: inf is not a finite number",
+            ),
+        ] {
+            let text = ONE.replace("d_mm = 0", &format!("d_mm = 0\n{line}"));
+            let e = parse_robot(&text, Path::new("r.toml"))
+                .unwrap_err()
+                .to_string();
+            assert_eq!(e, want, "{line}");
+        }
     }
 
     #[test]

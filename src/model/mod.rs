@@ -13,7 +13,7 @@ pub mod pose;
 pub mod rotation;
 
 pub use axis::{AxisError, SignedAxis};
-pub use chain::{JointLimit, Mdh, ParamKind, RobotModel};
+pub use chain::{JointLimit, JointMotion, Mdh, ParamKind, RobotModel};
 pub use file::{load_robot, parse_robot, FileError, RobotFileError};
 pub use ik::{solve_flange, solve_motion, FlangeMotion, IkError, IkOptions, IkSolution};
 pub use kinematics::{forward, Frames, Pose};

@@ -8,10 +8,13 @@ pub mod path;
 pub mod route;
 pub mod sampling;
 pub mod selection;
+pub mod setup;
+pub mod timing;
 pub mod workspace;
 
 pub use campaign::{count_via_points, plan_campaign, target_ok, Plan, PlanEntry, PlanRequest};
 pub use path::{BoxFace, CheckedPoint, PathCheck, PathChecker, PathFault, PATH_STEP_MM};
 pub use route::{RouteError, Router};
 pub use sampling::{sample_poses, PlanError};
+pub use timing::{CampaignEstimate, MotionLimits};
 pub use workspace::Workspace;

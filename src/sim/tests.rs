@@ -83,7 +83,11 @@ fn the_true_model_takes_the_configured_base_and_tool_and_refuses_unknown_errors(
 #[test]
 fn timings_are_fast_by_default_realistic_on_request_and_explicit_values_win() {
     let fast = SimWorldConfig::default();
-    assert_eq!(fast.effective_move_speed_deg_s(), 3600.0);
+    let tx60 = crate::model::tx60();
+    assert_eq!(
+        fast.motion_limits(&tx60),
+        crate::plan::MotionLimits::uniform(6, 3600f64.to_radians())
+    );
     assert_eq!(fast.effective_settle_ms(), 0);
     assert_eq!(fast.effective_measure_ms(), 5);
     assert_eq!(fast.effective_stage_speed_mm_s(), 1000.0);
@@ -92,7 +96,19 @@ fn timings_are_fast_by_default_realistic_on_request_and_explicit_values_win() {
         settle_ms: Some(10),
         ..SimWorldConfig::default()
     };
-    assert_eq!(real.effective_move_speed_deg_s(), 60.0);
+    // realistic: the robot file's joint limits; an explicit speed still wins
+    assert_eq!(
+        real.motion_limits(&tx60),
+        crate::plan::MotionLimits::of(&tx60, 100.0)
+    );
+    let given = SimWorldConfig {
+        move_speed_deg_s: Some(60.0),
+        ..real.clone()
+    };
+    assert_eq!(
+        given.motion_limits(&tx60),
+        crate::plan::MotionLimits::uniform(6, 60f64.to_radians())
+    );
     assert_eq!(real.effective_settle_ms(), 10);
     assert_eq!(real.effective_measure_ms(), 1000);
     assert_eq!(real.effective_stage_speed_mm_s(), 5.0);

@@ -23,6 +23,7 @@ use super::SimError;
 use crate::model::kinematics::{forward, Pose};
 use crate::model::rotation::from_rotation_vector;
 use crate::model::RobotModel;
+use crate::plan::timing::{MotionLimits, MoveProfile};
 use crate::simulate::TrackerNoise;
 
 /// The world shared by the backends and the test/handle side.
@@ -81,6 +82,8 @@ struct Motion {
     arrival: Vec<f64>,
     start: Instant,
     duration: Duration,
+    /// The synchronised trapezoid along the straight joint line.
+    profile: MoveProfile,
 }
 
 impl Motion {
@@ -88,7 +91,8 @@ impl Motion {
         let t = if self.duration.is_zero() {
             1.0
         } else {
-            ((now - self.start).as_secs_f64() / self.duration.as_secs_f64()).clamp(0.0, 1.0)
+            self.profile
+                .fraction_at(now.saturating_duration_since(self.start).as_secs_f64())
         };
         self.from
             .iter()
@@ -107,7 +111,8 @@ pub struct World {
     noise_scale: f64,
     rng: ChaCha8Rng,
     start: Instant,
-    move_speed_deg_s: f64,
+    /// Joint limits at 100 % (the move's speed setting scales the speeds).
+    limits: MotionLimits,
     settle: Duration,
     joint_jitter_rad: f64,
     commanded: Vec<f64>,
@@ -192,7 +197,7 @@ impl World {
             noise_scale: cfg.tracker_noise_scale.max(0.0),
             rng: ChaCha8Rng::seed_from_u64(cfg.seed),
             start: now,
-            move_speed_deg_s: cfg.effective_move_speed_deg_s().max(1e-6),
+            limits: cfg.motion_limits(&nominal),
             settle: Duration::from_millis(cfg.effective_settle_ms()),
             joint_jitter_rad: cfg.joint_jitter_rad.max(0.0),
             commanded: q0.clone(),
@@ -415,13 +420,17 @@ impl World {
         self.moves = n;
         let now = Instant::now();
         let from = self.commanded.clone();
-        let dist_deg = from
-            .iter()
-            .zip(&q)
-            .map(|(a, b)| (b - a).abs().to_degrees())
-            .fold(0.0, f64::max);
-        let speed = self.move_speed_deg_s * (vel_pct.clamp(0.01, 100.0) / 100.0);
-        let duration = Duration::from_secs_f64((dist_deg / speed).min(3600.0));
+        let profile = self
+            .limits
+            .at_speed_pct(vel_pct.clamp(0.01, 100.0))
+            .profile(&from, &q);
+        let secs = profile.duration_s();
+        let secs = if secs.is_finite() {
+            secs.clamp(0.0, 3600.0)
+        } else {
+            3600.0
+        };
+        let duration = Duration::from_secs_f64(secs);
         let jitter = self.joint_jitter_rad;
         let arrival: Vec<f64> = q
             .iter()
@@ -434,6 +443,7 @@ impl World {
             arrival,
             start: now,
             duration,
+            profile,
         });
         if self.faults.estop_after_moves == n {
             self.estop_at = Some(now + self.faults.estop_delay);

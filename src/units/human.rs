@@ -86,6 +86,28 @@ pub fn fmt_duration(d: Duration) -> String {
     format!("{} h {:02} min", mins / 60, mins % 60)
 }
 
+/// A planned duration (s), as precise as a plan can be: whole minutes above 10 min (`3 h 10
+/// min`, `43 min`), else to 10 s (`4 min 10 s`, `1 min`, `40 s`); `—` when not a number.
+pub fn fmt_estimate(secs: f64) -> String {
+    if !secs.is_finite() || secs < 0.0 {
+        return NO_NUMBER.to_owned();
+    }
+    if secs > 600.0 {
+        let mins = (secs / 60.0).round() as u64;
+        return if mins >= 60 {
+            format!("{} h {:02} min", mins / 60, mins % 60)
+        } else {
+            format!("{mins} min")
+        };
+    }
+    let tens = (secs / 10.0).round() as u64 * 10;
+    match (tens / 60, tens % 60) {
+        (0, s) => format!("{s} s"),
+        (m, 0) => format!("{m} min"),
+        (m, s) => format!("{m} min {s:02} s"),
+    }
+}
+
 /// `unix_ms` (ms since the Unix epoch) in the system's time zone (`TZ`, else /etc/localtime,
 /// else UTC), ISO 8601 to the second with the offset: `2026-11-26T12:05:07+01:00`.
 pub fn fmt_local_time(unix_ms: i64) -> String {
@@ -181,6 +203,24 @@ mod tests {
         assert_eq!(fmt_duration(s(3599.6)), "1 h 00 min");
         assert_eq!(fmt_duration(s(3900.0)), "1 h 05 min");
         assert_eq!(fmt_duration(s(26.0 * 3600.0 + 59.0 * 60.0)), "26 h 59 min");
+    }
+
+    #[test]
+    fn estimates_give_minutes_from_ten_minutes_on_else_tens_of_seconds() {
+        assert_eq!(
+            fmt_estimate(3.0 * 3600.0 + 10.0 * 60.0 + 29.0),
+            "3 h 10 min"
+        );
+        assert_eq!(fmt_estimate(3.0 * 3600.0 + 5.0 * 60.0), "3 h 05 min");
+        assert_eq!(fmt_estimate(3599.0), "1 h 00 min");
+        assert_eq!(fmt_estimate(600.5), "10 min");
+        assert_eq!(fmt_estimate(600.0), "10 min");
+        assert_eq!(fmt_estimate(596.0), "10 min");
+        assert_eq!(fmt_estimate(594.0), "9 min 50 s");
+        assert_eq!(fmt_estimate(254.0), "4 min 10 s");
+        assert_eq!(fmt_estimate(44.9), "40 s");
+        assert_eq!(fmt_estimate(3.0), "0 s");
+        assert_eq!(fmt_estimate(f64::NAN), "—");
     }
 
     #[test]

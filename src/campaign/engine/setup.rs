@@ -17,7 +17,8 @@ use crate::measure::{
     plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
 };
-use crate::model::{forward, RobotModel};
+use crate::model::RobotModel;
+use crate::plan::setup::home_tool_frame_targets;
 use crate::store::{PointKind, SetupPoint, Store, StoreError};
 
 pub use crate::calibrate::setup::{BaseResult, SetupResult, ToolFrameResult};
@@ -302,27 +303,14 @@ impl Run<'_> {
     }
 
     /// The tool-frame targets from the planned pose nearest the box centre whose every target
-    /// solves and passes the safety checks (a pose near a singularity or a box face cannot
-    /// carry the jogs and rotations).
+    /// solves and passes the safety checks ([`home_tool_frame_targets`]).
     fn home_targets(&self, req: &ToolFramePlanRequest) -> Result<Vec<SetupTarget>, Stop> {
-        let centre = self.ctx.plan_request.workspace.center_mm;
-        let model = &self.ctx.nominal;
-        let mut homes: Vec<(f64, &Vec<f64>)> = std::iter::once(&self.ctx.plan.drift_reference)
-            .chain(self.ctx.plan.poses.iter().map(|p| &p.q_rad))
-            .map(|q| ((forward(model, q).flange().p - centre).norm(), q))
-            .collect();
-        homes.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut last = String::from("no planned pose");
-        for (_, q0) in homes.into_iter().take(100) {
-            match plan_tool_frame(model, q0, req) {
-                Ok(t) if t.iter().all(|t| self.target_safe(&t.q_rad)) => return Ok(t),
-                Ok(_) => last = "a target fails the joint-limit/workspace check".into(),
-                Err(e) => last = e.to_string(),
-            }
-        }
-        Err(Stop::Failed(format!(
-            "setup: no planned pose near the box centre can carry the tool-frame jogs and rotations ({last}); set setup.home_deg"
-        )))
+        let ctx = self.ctx;
+        home_tool_frame_targets(&ctx.nominal, &ctx.plan, &ctx.plan_request, req).map_err(|last| {
+            Stop::Failed(format!(
+                "setup: no planned pose near the box centre can carry the tool-frame jogs and rotations ({last}); set setup.home_deg"
+            ))
+        })
     }
 
     /// Tracker ← robot base from spread planned poses on `model` (nominal + measured tool).

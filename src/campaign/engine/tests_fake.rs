@@ -134,6 +134,7 @@ impl Bench {
                 control: Control::new(4096),
                 on_fault: FaultPolicy::Fail,
                 iso: None,
+                estimate: None,
             },
             cell,
             devices,
