@@ -9,7 +9,7 @@ use anyhow::{anyhow, Context};
 
 use cellcal::config::load_cell_config;
 use cellcal::model::load_robot;
-use cellcal::predict::{monte_carlo, IdentPoses, PredictError, Prediction, Setup};
+use cellcal::predict::{campaign_time, monte_carlo, IdentPoses, PredictError, Prediction, Setup};
 use cellcal::units::human::{fmt_fixed, fmt_mm, fmt_mrad};
 
 use super::{input, other, Failure};
@@ -151,7 +151,11 @@ pub fn run(a: PredictArgs) -> Result<(), Failure> {
         );
         results.push((label, p));
     }
-    println!("campaign time: not available on this build (plan::timing is not in it yet)");
+    let time = campaign_time(&cfg, &nominal, poses, setup.verify).map_err(input)?;
+    println!(
+        "campaign time: {} (the configured cell; the same for random and selected poses of this count)",
+        time.summary()
+    );
     if let Some((_, p)) = results.first() {
         let sizes: Vec<String> = SET_SIZES
             .iter()
@@ -166,7 +170,8 @@ pub fn run(a: PredictArgs) -> Result<(), Failure> {
         );
     }
     if let Some(path) = &a.json {
-        let doc = json_doc(&setup, poses, a.trials, seed, &results);
+        let mut doc = json_doc(&setup, poses, a.trials, seed, &results);
+        doc["campaign_time"] = serde_json::to_value(&time).map_err(other)?;
         std::fs::write(path, serde_json::to_string_pretty(&doc).map_err(other)?)
             .with_context(|| format!("{}: cannot write", path.display()))
             .map_err(other)?;

@@ -17,6 +17,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::analysis::metrics::pose_errors;
 use crate::calibrate::{calibrate, CalibrateError};
 use crate::campaign::engine::identify_options;
+use crate::campaign::estimate::estimate_campaign_time;
 use crate::campaign::session::plan_request;
 use crate::config::{CellConfig, DeviceMode};
 use crate::dataset::{to_measured, Observation, PoseSet};
@@ -26,7 +27,7 @@ use crate::model::RobotModel;
 use crate::plan::campaign::line_of_sight_ok;
 use crate::plan::sampling::sample_poses_where;
 use crate::plan::selection::{Design, NoiseModel, SelectionError};
-use crate::plan::{PlanError, PlanRequest};
+use crate::plan::{plan_campaign, CampaignEstimate, PlanError, PlanRequest};
 use crate::simulate::truth::{apply_errors, random_errors_of};
 use crate::simulate::{simulate_at, SimConfig};
 
@@ -146,6 +147,24 @@ impl Setup {
             poses,
         )
     }
+}
+
+/// The planned duration of the campaign `cfg` describes with `ident` identification and
+/// `verify` verification poses (everything else as configured): its plan made as a campaign
+/// makes it, walked by the time model ([`estimate_campaign_time`]). `nominal`: the robot file.
+pub fn campaign_time(
+    cfg: &CellConfig,
+    nominal: &RobotModel,
+    ident: usize,
+    verify: usize,
+) -> Result<CampaignEstimate, PredictError> {
+    let mut nominal = nominal.clone();
+    nominal.tool = Vector3::from(cfg.campaign.tool_mm);
+    let mut req = plan_request(cfg);
+    req.ident = ident;
+    req.poses = ident + verify;
+    let plan = plan_campaign(&nominal, &req)?;
+    Ok(estimate_campaign_time(cfg, &nominal, &req, &plan))
 }
 
 /// Which identification poses a trial measures.

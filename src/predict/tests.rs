@@ -145,8 +145,14 @@ fn the_monte_carlo_agrees_with_the_analytic_prediction() {
     let (m, a) = (mc.mean_mm(), analytic.mean_mm);
     assert!((m / a - 1.0).abs() < 0.1, "Monte Carlo {m} vs analytic {a}");
     let (mf, af) = (mc.floor_mm(), analytic.noise_floor_mm);
-    assert!((mf / af - 1.0).abs() < 0.1, "floor: Monte Carlo {mf} vs analytic {af}");
+    assert!(
+        (mf / af - 1.0).abs() < 0.1,
+        "floor: Monte Carlo {mf} vs analytic {af}"
+    );
     // what the parameters add over the floor agrees too, if less closely (24 trials)
     let (me, ae) = (m - mf, a - af);
-    assert!(me > 0.0 && (me / ae - 1.0).abs() < 0.5, "excess {me} vs {ae}");
+    assert!(
+        me > 0.0 && (me / ae - 1.0).abs() < 0.5,
+        "excess {me} vs {ae}"
+    );
 }
