@@ -26,6 +26,7 @@ use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
+use crate::plan::selection::DesignSetup;
 use crate::plan::{
     count_via_points, plan_campaign, Plan, PlanEntry, PlanError, PlanRequest, Router, Workspace,
 };
@@ -149,6 +150,21 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         line_of_sight_max_rad: c.line_of_sight_max_deg.to_radians(),
         tool_mm: Vector3::from(c.tool_mm),
         drift_every: c.drift_every,
+        selection: c.selection,
+        design: design_setup(cfg),
+    }
+}
+
+/// What optimal selection designs a campaign's identification for: its observation model and
+/// stage as the identification uses them, its base and tool choice, the AT960's noise.
+fn design_setup(cfg: &CellConfig) -> DesignSetup {
+    let opts = super::engine::identify_options(cfg);
+    DesignSetup {
+        obs: opts.obs,
+        stage_travel_mm: cfg.stage.travel_mm,
+        identify_base: opts.identify_base,
+        identify_tool: opts.identify_tool,
+        ..DesignSetup::default()
     }
 }
 

@@ -290,6 +290,10 @@ pub struct CampaignSection {
     pub identify_tool: bool,
     /// Known ball position in the flange frame (mm).
     pub tool_mm: [f64; 3],
+    /// How the identification poses are chosen: `random` (the first drawn) or `optimal`
+    /// (I-optimal selection from a pool of measurable poses; docs/method.md §9). The
+    /// verification poses are random either way.
+    pub selection: crate::plan::selection::Selection,
 }
 
 impl Default for CampaignSection {
@@ -310,6 +314,7 @@ impl Default for CampaignSection {
             identify_base: true,
             identify_tool: false,
             tool_mm: [0.0, 0.0, 0.0],
+            selection: crate::plan::selection::Selection::Random,
         }
     }
 }
@@ -1104,6 +1109,7 @@ mod tests {
             ("[stage]\naxis = \"nan,1,0\"\n", "stage.axis"),
             ("[stage]\naxis = \"0,1,0\"\n", "stage.axis"),
             ("[campaign]\nmodel = \"NP\"\n", "campaign.model"),
+            ("[campaign]\nselection = \"best\"\n", "campaign.selection"),
             (
                 "[robot_controller]\nspeed_pct = 150\n",
                 "robot_controller.speed_pct",

@@ -10,6 +10,7 @@ use super::order::{nearest_neighbour_order, travel};
 use super::path::{wrist_side, PathChecker};
 use super::route::{RouteError, Router};
 use super::sampling::{sample_poses_where, PlanError};
+use super::selection::{select, Design, DesignSetup, NoiseModel, Selection, SelectionError};
 use super::workspace::Workspace;
 use crate::dataset::PoseSet;
 use crate::model::kinematics::{forward, Pose};
@@ -35,6 +36,10 @@ pub struct PlanRequest {
     /// The drift reference is measured again every this many poses (0 = start and end only);
     /// the return moves count in [`Plan::via_points`].
     pub drift_every: usize,
+    /// How the identification poses are chosen (the verification poses are always random).
+    pub selection: Selection,
+    /// What [`Selection::Optimal`] designs the identification for.
+    pub design: DesignSetup,
 }
 
 /// One planned pose.
@@ -104,41 +109,16 @@ pub fn target_ok(model: &RobotModel, q: &[f64], req: &PlanRequest) -> bool {
 /// the end). O(n log n) for the order, O(n) path checks otherwise.
 pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, PlanError> {
     let mut rng = ChaCha8Rng::seed_from_u64(req.seed);
-    let wanted = req.poses + 1;
-    let first = candidates(model, req, wanted, None, &mut rng)?;
-    let side = preferred_wrist_side(&first);
-    let mut found: Vec<Candidate> = first.into_iter().filter(|c| c.side == side).collect();
-    let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
-    let hub_i = choose_hub(&mut checker, &found).ok_or(PlanError::Unreachable {
-        found: 0,
-        wanted,
-        tried: wanted,
-    })?;
-    let drift_reference = found.remove(hub_i).q;
-    let mut drawn = wanted;
-    let mut kept: Vec<Vec<f64>> = Vec::with_capacity(req.poses);
-    loop {
-        let need = req.poses - kept.len();
-        kept.extend(
-            found
-                .drain(..)
-                .map(|c| c.q)
-                .filter(|q| checker.check_move(q, &drift_reference).is_ok())
-                .take(need),
-        );
-        let need = req.poses - kept.len();
-        if need == 0 {
-            break;
+    let Pool {
+        hub: drift_reference,
+        side,
+        poses: mut kept,
+    } = measurable_pool(model, req, req.poses, &mut rng)?;
+    if req.selection == Selection::Optimal {
+        let ident = choose_ident(model, req, &drift_reference, side, &mut rng)?;
+        for (slot, q) in kept.iter_mut().zip(ident) {
+            *slot = q;
         }
-        if drawn > 200 * wanted {
-            return Err(PlanError::Unreachable {
-                found: kept.len() + 1,
-                wanted,
-                tried: drawn,
-            });
-        }
-        found = candidates(model, req, need, side, &mut rng)?;
-        drawn += need;
     }
     let order = nearest_neighbour_order(&drift_reference, &kept);
     let poses: Vec<PlanEntry> = order
@@ -162,6 +142,150 @@ pub fn plan_campaign(model: &RobotModel, req: &PlanRequest) -> Result<Plan, Plan
         approach: Default::default(),
     })
 }
+
+/// Configurations a campaign can measure: each passes [`target_ok`], has its wrist bent to
+/// `side` and a direct move to and from `hub` that passes the path check (so a route).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pool {
+    /// The hub of every route, the drift reference (rad).
+    pub hub: Vec<f64>,
+    /// The wrist side every pose keeps ([`wrist_side`]; `None`: no wrist check).
+    pub side: Option<bool>,
+    /// The poses, in sampling order (rad).
+    pub poses: Vec<Vec<f64>>,
+}
+
+/// `n` measurable configurations and their hub, drawn from `rng` as [`plan_campaign`] draws
+/// them (the same seed, the same poses).
+pub fn measurable_pool(
+    model: &RobotModel,
+    req: &PlanRequest,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<Pool, PlanError> {
+    let wanted = n + 1;
+    let first = candidates(model, req, wanted, None, rng)?;
+    let side = preferred_wrist_side(&first);
+    let mut found: Vec<Candidate> = first.into_iter().filter(|c| c.side == side).collect();
+    let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
+    let hub_i = choose_hub(&mut checker, &found).ok_or(PlanError::Unreachable {
+        found: 0,
+        wanted,
+        tried: wanted,
+    })?;
+    let hub = found.remove(hub_i).q;
+    let poses = fill(model, req, &mut checker, &hub, side, found, n, rng)?;
+    Ok(Pool { hub, side, poses })
+}
+
+/// `n` more measurable configurations around a pool's `hub` and `side`.
+pub fn more_measurable(
+    model: &RobotModel,
+    req: &PlanRequest,
+    hub: &[f64],
+    side: Option<bool>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Vec<f64>>, PlanError> {
+    let mut checker = PathChecker::new(model, &req.workspace, &req.tool_mm);
+    fill(model, req, &mut checker, hub, side, Vec::new(), n, rng)
+}
+
+/// `n` configurations with a passing direct move to `hub`: those of `found` first, then new
+/// draws (at most 200 × (n + 1) in all).
+#[allow(clippy::too_many_arguments)]
+fn fill(
+    model: &RobotModel,
+    req: &PlanRequest,
+    checker: &mut PathChecker,
+    hub: &[f64],
+    side: Option<bool>,
+    mut found: Vec<Candidate>,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Vec<f64>>, PlanError> {
+    let wanted = n + 1;
+    let mut drawn = wanted;
+    let mut kept: Vec<Vec<f64>> = Vec::with_capacity(n);
+    loop {
+        let need = n - kept.len();
+        kept.extend(
+            found
+                .drain(..)
+                .map(|c| c.q)
+                .filter(|q| checker.check_move(q, hub).is_ok())
+                .take(need),
+        );
+        let need = n - kept.len();
+        if need == 0 {
+            return Ok(kept);
+        }
+        if drawn > 200 * wanted {
+            return Err(PlanError::Unreachable {
+                found: kept.len() + 1,
+                wanted,
+                tried: drawn,
+            });
+        }
+        found = candidates(model, req, need, side, rng)?;
+        drawn += need;
+    }
+}
+
+/// Candidate poses per identification pose in a campaign's pool ([`Selection::Optimal`]).
+pub const POOL_PER_IDENT: usize = 20;
+/// Least and largest pool of a campaign (poses).
+pub const POOL_RANGE: (usize, usize) = (500, 2000);
+/// Random workspace poses the criterion's weight `W` is the mean over.
+pub const REFERENCE_POSES: usize = 300;
+
+/// The design a plan's identification is selected for: the nominal model in the robot base
+/// frame (the criterion does not depend on the frame) with the ball as its tool, the tracker
+/// at `req.tracker_mm`, parameters identifiable on `poses`.
+pub fn plan_design(
+    model: &RobotModel,
+    req: &PlanRequest,
+    poses: &[Vec<f64>],
+) -> Result<Design, SelectionError> {
+    let mut m = model.clone();
+    m.base_rotation = nalgebra::Matrix3::identity();
+    m.base_translation = Vector3::zeros();
+    m.tool = req.tool_mm;
+    let d = &req.design;
+    let mut noise = NoiseModel::at960_scaled(req.tracker_mm, d.noise_mm);
+    noise.joint_jitter_rad = d.joint_jitter_rad;
+    Design::new(
+        m,
+        d.obs,
+        d.stage_travel_mm,
+        noise,
+        d.identify_base,
+        d.identify_tool,
+        poses,
+    )
+}
+
+/// The identification poses of an optimal plan, in rank order: selected from a pool drawn
+/// around the plan's hub, weighed by a reference draw of its own seed (never the plan's
+/// verification poses).
+fn choose_ident(
+    model: &RobotModel,
+    req: &PlanRequest,
+    hub: &[f64],
+    side: Option<bool>,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Vec<f64>>, PlanError> {
+    let size = (POOL_PER_IDENT * req.ident).clamp(POOL_RANGE.0, POOL_RANGE.1);
+    let pool = more_measurable(model, req, hub, side, size, rng)?;
+    let mut ref_rng = ChaCha8Rng::seed_from_u64(req.seed ^ REFERENCE_SEED);
+    let reference = more_measurable(model, req, hub, side, REFERENCE_POSES, &mut ref_rng)?;
+    let design = plan_design(model, req, &pool).map_err(PlanError::Selection)?;
+    let chosen = select(&design, &pool, req.ident, &reference).map_err(PlanError::Selection)?;
+    Ok(chosen.indices.iter().map(|&k| pool[k].clone()).collect())
+}
+
+/// Mixed into the plan's seed for the criterion's reference draw.
+const REFERENCE_SEED: u64 = 0x5e1e_c7ed_0f_u64;
 
 /// A sampled configuration that passes [`target_ok`], with what planning needs of its frames.
 struct Candidate {
@@ -292,6 +416,8 @@ mod tests {
             line_of_sight_max_rad: 80f64.to_radians(),
             tool_mm: Vector3::zeros(),
             drift_every: 20,
+            selection: Selection::Random,
+            design: DesignSetup::default(),
         }
     }
 

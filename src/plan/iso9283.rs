@@ -440,6 +440,8 @@ mod tests {
             tracker_mm: Vector3::new(2500.0, 400.0, 200.0),
             line_of_sight_max_rad: std::f64::consts::PI,
             tool_mm: Vector3::new(0.0, 0.0, 60.0),
+            selection: crate::plan::selection::Selection::Random,
+            design: crate::plan::selection::DesignSetup::default(),
             drift_every: 50,
         };
         let hub = plan_campaign(&m, &req).unwrap().drift_reference;

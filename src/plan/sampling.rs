@@ -25,6 +25,9 @@ pub enum PlanError {
     /// A move of the plan has no route (see [`super::route`]).
     #[error("no route: {0}")]
     Route(super::route::RouteError),
+    /// Optimal selection of the identification poses failed.
+    #[error("pose selection: {0}")]
+    Selection(super::selection::SelectionError),
 }
 
 from_cause!(super::route::RouteError => PlanError::Route);

@@ -174,6 +174,8 @@ fn campaign_request(cell: &Cell, tool: &Vector3<f64>) -> PlanRequest {
         tracker_mm: cell.truth.base_rotation.transpose() * (-cell.truth.base_translation),
         line_of_sight_max_rad: 0.6,
         tool_mm: *tool,
+        selection: cellcal::plan::selection::Selection::Random,
+        design: cellcal::plan::selection::DesignSetup::default(),
         drift_every: 0,
     }
 }
