@@ -9,7 +9,11 @@ use anyhow::{anyhow, Context};
 
 use cellcal::config::load_cell_config;
 use cellcal::model::load_robot;
-use cellcal::predict::{campaign_time, monte_carlo, IdentPoses, PredictError, Prediction, Setup};
+use cellcal::plan::plan_campaign;
+use cellcal::plan::selection::Selection;
+use cellcal::predict::{
+    campaign_time, ident_poses, monte_carlo, IdentPoses, PredictError, Prediction, Setup,
+};
 use cellcal::units::human::{fmt_fixed, fmt_mm, fmt_mrad};
 
 use super::{input, other, Failure};
@@ -115,27 +119,25 @@ pub fn run(a: PredictArgs) -> Result<(), Failure> {
         fmt_fixed(setup.joint_jitter_rad * 1e3, 4),
     );
     let mut results = Vec::new();
+    let mut times = Vec::new();
     for &s in which {
-        let label = match s {
-            SelectionArg::Random => "random",
-            SelectionArg::Optimal => "optimal",
+        let selection = match s {
+            SelectionArg::Random => Selection::Random,
+            SelectionArg::Optimal => Selection::Optimal,
         };
-        let design = match s {
-            SelectionArg::Random => IdentPoses::Random(poses),
-            SelectionArg::Optimal => {
-                println!(
-                    "{label} poses: not available on this build (plan::selection is not in it yet)"
-                );
-                continue;
-            }
-        };
-        let p = monte_carlo(&setup, design, a.trials, seed, threads).map_err(|e| match e {
-            PredictError::Identify(_) => input(anyhow!(
-                "{e} (are {poses} identification poses enough for model {}?)",
-                setup.opts.obs.model.name()
-            )),
-            e => input(e),
-        })?;
+        let label = selection.name();
+        let req = setup.plan_request(selection, poses, cfg.campaign.seed);
+        let plan = plan_campaign(&setup.nominal, &req).map_err(input)?;
+        let ident = ident_poses(&plan);
+        let p = monte_carlo(&setup, IdentPoses::Given(&ident), a.trials, seed, threads).map_err(
+            |e| match e {
+                PredictError::Identify(_) => input(anyhow!(
+                    "{e} (are {poses} identification poses enough for model {}?)",
+                    setup.opts.obs.model.name()
+                )),
+                e => input(e),
+            },
+        )?;
         println!(
             "{label} poses: verification mean error {} ± {} over trials, {} × the noise floor {} (model error {}){}",
             mm4(p.mean_mm()),
@@ -149,13 +151,13 @@ pub fn run(a: PredictArgs) -> Result<(), Failure> {
                 String::new()
             }
         );
+        let time = campaign_time(&cfg, &setup, &req, &plan);
         results.push((label, p));
+        times.push((label, time));
     }
-    let time = campaign_time(&cfg, &nominal, poses, setup.verify).map_err(input)?;
-    println!(
-        "campaign time: {} (the configured cell; the same for random and selected poses of this count)",
-        time.summary()
-    );
+    for (label, time) in &times {
+        println!("campaign time, {label} poses: {}", time.summary());
+    }
     if let Some((_, p)) = results.first() {
         let sizes: Vec<String> = SET_SIZES
             .iter()
@@ -171,7 +173,9 @@ pub fn run(a: PredictArgs) -> Result<(), Failure> {
     }
     if let Some(path) = &a.json {
         let mut doc = json_doc(&setup, poses, a.trials, seed, &results);
-        doc["campaign_time"] = serde_json::to_value(&time).map_err(other)?;
+        for (label, time) in &times {
+            doc["designs"][*label]["campaign_time"] = serde_json::to_value(time).map_err(other)?;
+        }
         std::fs::write(path, serde_json::to_string_pretty(&doc).map_err(other)?)
             .with_context(|| format!("{}: cannot write", path.display()))
             .map_err(other)?;

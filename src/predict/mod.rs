@@ -24,10 +24,10 @@ use crate::dataset::{to_measured, Observation, PoseSet};
 use crate::identify::observation::predict;
 use crate::identify::{IdentifyOptions, TrackerNoise};
 use crate::model::RobotModel;
-use crate::plan::campaign::line_of_sight_ok;
-use crate::plan::sampling::sample_poses_where;
+use crate::plan::campaign::measurable_pool;
+use crate::plan::selection::Selection;
 use crate::plan::selection::{Design, NoiseModel, SelectionError};
-use crate::plan::{plan_campaign, CampaignEstimate, PlanError, PlanRequest};
+use crate::plan::{plan_campaign, CampaignEstimate, Plan, PlanEntry, PlanError, PlanRequest};
 use crate::simulate::truth::{apply_errors, random_errors_of};
 use crate::simulate::{simulate_at, SimConfig};
 
@@ -149,22 +149,48 @@ impl Setup {
     }
 }
 
-/// The planned duration of the campaign `cfg` describes with `ident` identification and
-/// `verify` verification poses (everything else as configured): its plan made as a campaign
-/// makes it, walked by the time model ([`estimate_campaign_time`]). `nominal`: the robot file.
+impl Setup {
+    /// The plan of this setup's campaign with `ident` identification poses chosen by
+    /// `selection` and [`Setup::verify`] random verification poses, seeded `seed`: what
+    /// [`plan_campaign`] plans for the configured campaign with these counts.
+    pub fn plan(&self, selection: Selection, ident: usize, seed: u64) -> Result<Plan, PlanError> {
+        let req = self.plan_request(selection, ident, seed);
+        plan_campaign(&self.nominal, &req)
+    }
+
+    /// The planning request of [`Setup::plan`].
+    pub fn plan_request(&self, selection: Selection, ident: usize, seed: u64) -> PlanRequest {
+        PlanRequest {
+            ident,
+            poses: ident + self.verify,
+            seed,
+            selection,
+            ..self.request.clone()
+        }
+    }
+}
+
+/// The identification poses of `plan` in their rank order (pose index: an optimal plan's
+/// best prefix first).
+pub fn ident_poses(plan: &Plan) -> Vec<Vec<f64>> {
+    let mut ident: Vec<&PlanEntry> = plan
+        .poses
+        .iter()
+        .filter(|p| p.set == PoseSet::Ident)
+        .collect();
+    ident.sort_by_key(|p| p.index);
+    ident.into_iter().map(|p| p.q_rad.clone()).collect()
+}
+
+/// The planned duration of `plan` (planned by `setup` as [`Setup::plan`] with `req`) on the
+/// cell `cfg` configures: the time model's walk of it ([`estimate_campaign_time`]).
 pub fn campaign_time(
     cfg: &CellConfig,
-    nominal: &RobotModel,
-    ident: usize,
-    verify: usize,
-) -> Result<CampaignEstimate, PredictError> {
-    let mut nominal = nominal.clone();
-    nominal.tool = Vector3::from(cfg.campaign.tool_mm);
-    let mut req = plan_request(cfg);
-    req.ident = ident;
-    req.poses = ident + verify;
-    let plan = plan_campaign(&nominal, &req)?;
-    Ok(estimate_campaign_time(cfg, &nominal, &req, &plan))
+    setup: &Setup,
+    req: &PlanRequest,
+    plan: &Plan,
+) -> CampaignEstimate {
+    estimate_campaign_time(cfg, &setup.nominal, req, plan)
 }
 
 /// Which identification poses a trial measures.
@@ -277,19 +303,15 @@ pub fn standard_error_mm(pose_sd_mm: f64, v: usize) -> f64 {
     pose_sd_mm / (v.max(1) as f64).sqrt()
 }
 
-/// `n` random poses a campaign could measure: in the workspace box (joint limits, floor,
-/// wrist margin) with the ball facing the tracker, as [`crate::plan::plan_campaign`] samples
-/// them.
+/// `n` random poses a campaign could measure, drawn as [`plan_campaign`] draws them
+/// ([`measurable_pool`]: in the workspace box, the ball facing the tracker, one wrist side, a
+/// checked move to and from the drift reference).
 pub fn random_poses(
     setup: &Setup,
     n: usize,
     rng: &mut ChaCha8Rng,
 ) -> Result<Vec<Vec<f64>>, PlanError> {
-    let (model, req) = (&setup.nominal, &setup.request);
-    let max_tries = 1000 * n.max(1) + 100_000;
-    sample_poses_where(model, &req.workspace, n, rng, max_tries, |q, _| {
-        line_of_sight_ok(model, q, req)
-    })
+    Ok(measurable_pool(&setup.nominal, &setup.request, n, rng)?.poses)
 }
 
 /// The seed of trial `t` of a run seeded `seed`.

@@ -68,8 +68,13 @@ fn predict_on_the_simulated_cell_prints_accuracy_time_and_the_verification_set_s
     assert!((0.015..0.04).contains(&floor), "{random}");
     assert!((1.0..1.1).contains(&ratio), "{random}");
     assert!((mean / floor - ratio).abs() < 0.01, "{random}");
-    line(&text, "optimal poses: ");
-    line(&text, "campaign time: ");
+    let optimal = line(&text, "optimal poses: verification mean error ");
+    let ratio_optimal = number_after(optimal, "over trials,");
+    assert!((1.0..1.1).contains(&ratio_optimal), "{optimal}");
+    for label in ["random", "optimal"] {
+        let time = line(&text, &format!("campaign time, {label} poses: "));
+        assert!(time.contains("300 poses, 600 readings, about "), "{time}");
+    }
     let set = line(
         &text,
         "verification set: 200 poses measure the mean error to ± ",
@@ -84,6 +89,10 @@ fn predict_on_the_simulated_cell_prints_accuracy_time_and_the_verification_set_s
     let r = &doc["designs"]["random"];
     assert!((r["verify_mean_mm"].as_f64().expect("mean") - mean).abs() < 1e-4);
     assert!((r["standard_error_mm"]["200"].as_f64().expect("se") - se200).abs() < 1e-4);
+    assert_eq!(r["campaign_time"]["readings"], 600);
+    assert!(doc["designs"]["optimal"]["verify_mean_mm"]
+        .as_f64()
+        .is_some());
 
     // seeded: the same run prints the same
     let again = cellcal()
