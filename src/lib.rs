@@ -38,6 +38,7 @@ pub mod measure;
 pub mod metrics;
 pub mod model;
 pub mod plan;
+pub mod predict;
 pub mod progress;
 pub mod report;
 pub mod sim;

@@ -74,6 +74,9 @@ enum Command {
     Iso9283(cli::iso9283::Iso9283Args),
     /// Import an identify CSV as a new, fully measured campaign.
     Import(cli::import::ImportArgs),
+    /// Dry run of a campaign: predicted verification error (Monte Carlo) for random and
+    /// selected identification poses, campaign time, and the precision of the verification set.
+    Predict(cli::predict::PredictArgs),
 }
 
 /// Log to stderr: `serve` at `info` unless `RUST_LOG` says otherwise (text or JSON lines),
@@ -113,6 +116,7 @@ fn main() -> ExitCode {
         Command::Report(args) => cli::report::run(args),
         Command::Iso9283(args) => cli::iso9283::run(args),
         Command::Import(args) => cli::import::run(args),
+        Command::Predict(args) => cli::predict::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

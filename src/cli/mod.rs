@@ -10,6 +10,7 @@ pub mod identify;
 pub mod import;
 pub mod iso9283;
 pub mod practical;
+pub mod predict;
 pub mod report;
 pub mod run;
 pub mod select_poses;

@@ -104,12 +104,20 @@ pub fn simulate(
 ) -> Result<SimData, PlanError> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let qs = sample_poses(nominal, &cfg.workspace, cfg.poses, &mut rng)?;
+    Ok(simulate_at(truth, cfg, &qs))
+}
+
+/// [`simulate`] at the given joints `qs` (rad; the first `cfg.ident` identify) instead of
+/// sampled ones: `cfg.poses` and `cfg.workspace` are not used, every noise draw is seeded by
+/// `cfg.seed` as in [`simulate`] (which is this at its sampled joints).
+pub fn simulate_at(truth: &RobotModel, cfg: &SimConfig, qs: &[Vec<f64>]) -> SimData {
+    let poses = qs.len();
     let mut noise_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x9E37_79B9_7F4A_7C15);
-    let n_out = (cfg.outlier_fraction * cfg.poses as f64).round() as usize;
+    let n_out = (cfg.outlier_fraction * poses as f64).round() as usize;
     // deterministic, spread-out outlier choice
     let mut outliers: Vec<usize> = Vec::new();
-    while outliers.len() < n_out.min(cfg.poses) {
-        let i = noise_rng.random_range(0..cfg.poses);
+    while outliers.len() < n_out.min(poses) {
+        let i = noise_rng.random_range(0..poses);
         if !outliers.contains(&i) {
             outliers.push(i);
         }
@@ -129,7 +137,7 @@ pub fn simulate(
         Some(t) => p + gauss3(rng) * t.sigma_mm(&p),
         None => p,
     };
-    let mut observations = Vec::with_capacity(cfg.poses);
+    let mut observations = Vec::with_capacity(poses);
     for (i, q) in qs.iter().enumerate() {
         let qa: Vec<f64> = q
             .iter()
@@ -189,8 +197,8 @@ pub fn simulate(
             rotation: Some(Box::new(rot)),
         });
     }
-    Ok(SimData {
+    SimData {
         observations,
         outliers,
-    })
+    }
 }

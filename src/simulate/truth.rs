@@ -32,11 +32,26 @@ pub fn paper_errors() -> ErrorTable {
         .collect()
 }
 
+/// σ of the lengths (mm) of [`random_errors`].
+pub const RANDOM_LENGTH_SIGMA_MM: f64 = 0.2;
+/// σ of the angles (rad) of [`random_errors`].
+pub const RANDOM_ANGLE_SIGMA_RAD: f64 = 5e-4;
+
 /// Seeded random errors: lengths σ = 0.2 mm, angles σ = 0.5 mrad, for every MDH parameter.
 pub fn random_errors(dof: usize, seed: u64) -> ErrorTable {
+    random_errors_of(dof, seed, RANDOM_LENGTH_SIGMA_MM, RANDOM_ANGLE_SIGMA_RAD)
+}
+
+/// [`random_errors`] of stated σ: lengths `length_mm`, angles `angle_rad` (finite, ≥ 0; a
+/// σ that is not is taken as 0).
+pub fn random_errors_of(dof: usize, seed: u64, length_mm: f64, angle_rad: f64) -> ErrorTable {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let len = Normal::new(0.0, 0.2).unwrap_or_else(|_| unreachable!("valid σ"));
-    let ang = Normal::new(0.0, 5e-4).unwrap_or_else(|_| unreachable!("valid σ"));
+    let normal = |s: f64| {
+        Normal::new(0.0, if s.is_finite() && s >= 0.0 { s } else { 0.0 })
+            .unwrap_or_else(|_| unreachable!("valid σ"))
+    };
+    let len = normal(length_mm);
+    let ang = normal(angle_rad);
     all_params(dof, false, false)
         .iter()
         .map(|p| {

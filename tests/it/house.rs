@@ -251,6 +251,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("devices", &["cell"]),
     ("simulated cell", &["sim"]),
     ("campaign", &["campaign"]),
+    ("dry run", &["predict"]),
     ("service metrics, progress", &["metrics", "progress"]),
     ("service", &["daemon"]),
     ("HTTP", &["api"]),

@@ -34,6 +34,7 @@ mod order;
 mod paper;
 mod paths;
 mod practical;
+mod predict;
 mod progress;
 mod quality;
 mod realdata;
