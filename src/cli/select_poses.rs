@@ -17,6 +17,7 @@ use cellcal::plan::campaign::{measurable_pool, more_measurable, plan_design, REF
 use cellcal::plan::selection::{
     predicted_verification, select, DesignSetup, PredictedError, Selection,
 };
+use cellcal::config::RobotSection;
 use cellcal::plan::{PlanRequest, Workspace};
 
 use super::{input, other, Failure};
@@ -157,6 +158,11 @@ impl SelectPosesArgs {
             line_of_sight_max_rad: self.line_of_sight_max_deg.to_radians(),
             tool_mm: self.tool_mm,
             drift_every: 0,
+            ident_block: None,
+            speed_pct: RobotSection::default().speed_pct,
+            settle_s: 0.0,
+            // the robot moves with the ball at P1 or P2: both are checked
+            stage_offset_mm: obs.stage_axis * self.stage_travel_mm,
             selection: Selection::Optimal,
             design: DesignSetup {
                 obs,
