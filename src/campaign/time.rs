@@ -5,8 +5,9 @@
 //! How the journal's time is counted: every `state` entry opens a span of that state, which
 //! ends at the next `state` entry. A span the next run opened after a process died without a
 //! final state (a `running` or `paused` span followed by `idle` or `armed`, the first states of
-//! a run) ends at the last entry the dead process wrote. The span still open at the end of the
-//! journal ends now while a live process runs the campaign, else at its last entry. Measuring
+//! a run) ends at the last entry the dead process wrote (other than a note: the next process
+//! notes what it found before its first state). The span still open at the end of the journal
+//! ends now while a live process runs the campaign, else at its last entry other than a note. Measuring
 //! time is the sum of the `running` spans, paused time that of the `paused` spans.
 
 use serde_json::Value;
@@ -24,6 +25,11 @@ pub fn stored_estimate(store: &Store, id: i64) -> Result<Option<CampaignEstimate
         .campaign_estimate(id)?
         .and_then(|t| serde_json::from_str(&t).ok()))
 }
+
+/// The journal kind of a state change (`CampaignEvent::State`).
+const STATE_KIND: &str = "state";
+/// The journal kind of a note (`CampaignEvent::Note`).
+const NOTE_KIND: &str = "note";
 
 /// The time a campaign spent measuring and paused, from its journal (module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -69,10 +75,12 @@ impl Elapsed {
         e
     }
 
-    /// Campaign `id`'s, from its stored journal.
+    /// Campaign `id`'s, from its stored journal. Where a dead process stopped is its last
+    /// entry other than a note: the next process journals notes (interrupted, taken over,
+    /// resumed with changes) before its first state.
     pub fn stored(store: &Store, id: i64) -> Result<Elapsed, StoreError> {
-        let states = store.entries_of_kind::<CampaignEvent>(id, "state")?;
-        Ok(Elapsed::of(&states, store.last_event_at(id)?))
+        let states = store.entries_of_kind::<CampaignEvent>(id, STATE_KIND, NOTE_KIND)?;
+        Ok(Elapsed::of(&states, store.last_event_at(id, NOTE_KIND)?))
     }
 
     fn add(&mut self, running: bool, ms: i64) {

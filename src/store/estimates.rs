@@ -10,13 +10,15 @@ use super::kinds::CampaignKind;
 use super::records::{JournalEntry, JournalEvent, NewCampaign, PlannedPose};
 use super::Store;
 
-/// A journal entry with the time of the campaign's entry just before it (`None`: the first).
+/// A journal entry with the time of the campaign's entry before it (`None`: the first), entries
+/// of an ignored kind skipped ([`Store::entries_of_kind`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EntryAfter<E> {
     /// The entry.
     pub entry: JournalEntry<E>,
-    /// When the campaign's previous journal entry was written (ms since the Unix epoch): where
-    /// a process that died without a last word stopped, when this entry starts a new one.
+    /// When the campaign's previous journal entry (not of the ignored kind) was written (ms
+    /// since the Unix epoch): where a process that died without a last word stopped, when this
+    /// entry starts a new one.
     pub previous_at_ms: Option<i64>,
 }
 
@@ -59,11 +61,13 @@ impl Store {
     }
 
     /// The campaign's journal entries of `kind`, oldest first, each with the time of the
-    /// campaign's entry before it; typed as [`Store::events_after`].
+    /// campaign's entry before it that is not of `ignored` kind; typed as
+    /// [`Store::events_after`].
     pub fn entries_of_kind<E: JournalEvent>(
         &self,
         id: i64,
         kind: &str,
+        ignored: &str,
     ) -> Result<Vec<EntryAfter<E>>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         let mut st = self
@@ -71,12 +75,12 @@ impl Store {
             .prepare(
                 "SELECT e.id, e.at_ms, e.kind, e.message, \
                         (SELECT p.at_ms FROM events p WHERE p.campaign_id = ?1 AND p.id < e.id \
-                         ORDER BY p.id DESC LIMIT 1) \
+                         AND p.kind <> ?3 ORDER BY p.id DESC LIMIT 1) \
                  FROM events e WHERE e.campaign_id = ?1 AND e.kind = ?2 ORDER BY e.id",
             )
             .ctx("read events of a kind")?;
         let rows = st
-            .query_map(params![id, kind], |r| {
+            .query_map(params![id, kind, ignored], |r| {
                 Ok(EntryAfter {
                     entry: JournalEntry {
                         seq: r.get(0)?,
@@ -92,14 +96,15 @@ impl Store {
         Ok(rows)
     }
 
-    /// When the campaign's newest journal entry was written (ms since the Unix epoch); `None`
-    /// without one.
-    pub fn last_event_at(&self, id: i64) -> Result<Option<i64>, StoreError> {
+    /// When the campaign's newest journal entry not of `ignored` kind was written (ms since the
+    /// Unix epoch); `None` without one.
+    pub fn last_event_at(&self, id: i64, ignored: &str) -> Result<Option<i64>, StoreError> {
         Store::ensure_campaign(&self.conn, id)?;
         self.conn
             .query_row(
-                "SELECT at_ms FROM events WHERE campaign_id = ?1 ORDER BY id DESC LIMIT 1",
-                [id],
+                "SELECT at_ms FROM events WHERE campaign_id = ?1 AND kind <> ?2 \
+                 ORDER BY id DESC LIMIT 1",
+                params![id, ignored],
                 |r| r.get(0),
             )
             .optional()
@@ -171,17 +176,27 @@ mod tests {
         let mut s = Store::open_in_memory().unwrap();
         let (c, plan) = new();
         let id = s.create_campaign(&c, &plan).unwrap();
-        assert_eq!(s.last_event_at(id).unwrap(), None);
-        for (at, kind) in [(10, "state"), (20, "measured"), (25, "note"), (40, "state")] {
+        assert_eq!(s.last_event_at(id, "note").unwrap(), None);
+        for (at, kind) in [
+            (10, "state"),
+            (20, "measured"),
+            (25, "fault"),
+            (30, "note"),
+            (40, "state"),
+            (50, "note"),
+        ] {
             s.add_event(id, at, &Raw(kind.into(), "{}".into())).unwrap();
         }
-        let got: Vec<_> = s
-            .entries_of_kind::<Raw>(id, "state")
-            .unwrap()
-            .into_iter()
-            .map(|e| (e.entry.at_ms, e.previous_at_ms))
-            .collect();
-        assert_eq!(got, [(10, None), (40, Some(25))]);
-        assert_eq!(s.last_event_at(id).unwrap(), Some(40));
+        let got = |ignored: &str| -> Vec<_> {
+            s.entries_of_kind::<Raw>(id, "state", ignored)
+                .unwrap()
+                .into_iter()
+                .map(|e| (e.entry.at_ms, e.previous_at_ms))
+                .collect()
+        };
+        assert_eq!(got("note"), [(10, None), (40, Some(25))]);
+        assert_eq!(got("fault"), [(10, None), (40, Some(30))]);
+        assert_eq!(s.last_event_at(id, "note").unwrap(), Some(40));
+        assert_eq!(s.last_event_at(id, "fault").unwrap(), Some(50));
     }
 }

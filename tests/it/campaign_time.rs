@@ -192,3 +192,51 @@ fn run_prints_planned_against_actual_after_its_summary() {
     let again = String::from_utf8(again.stdout).expect("UTF-8");
     assert!(again.contains(&lines.join("\n")), "{again}");
 }
+
+#[test]
+fn a_dead_daemon_s_downtime_is_neither_measuring_nor_paused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = fast_config(dir.path(), "serial", 300, 100);
+    let store = dir.path().join("c.db");
+    let s = start(&cfg, &store);
+    let id = create(&s, "{}");
+    let view = format!("/api/campaigns/{id}");
+    let started = Instant::now();
+    arm_and_start(&s, id);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while get(&s, &view).1["poses_done"].as_u64() < Some(3) {
+        assert!(Instant::now() < deadline, "three poses never measured");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // killed (SIGKILL) while running: no final state; down for 2 s
+    drop(s);
+    let alive_s = started.elapsed().as_secs_f64();
+    std::thread::sleep(Duration::from_millis(2000));
+    let s = start(&cfg, &store);
+    let (_, v) = get(&s, &view);
+    assert_eq!(v["state"], "interrupted", "{v}");
+    let measured = seconds(&v, "measuring_s");
+    assert!(
+        measured > 0.0 && measured <= alive_s,
+        "measuring {measured} s, but the run lived {alive_s:.2} s: {v}"
+    );
+    assert_eq!(seconds(&v, "paused_s"), 0.0, "{v}");
+    std::thread::sleep(Duration::from_millis(500));
+    let (_, again) = get(&s, &view);
+    assert_eq!(
+        seconds(&again, "measuring_s"),
+        measured,
+        "nothing runs it: nothing grows"
+    );
+    // resumed to the end: the downtime is still not counted
+    let resumed = Instant::now();
+    arm_and_start(&s, id);
+    let done = wait_for_state(&s, id, "done");
+    let total = seconds(&done, "measuring_s");
+    let lived = alive_s + resumed.elapsed().as_secs_f64();
+    assert!(
+        total > measured && total <= lived,
+        "measuring {total} s over runs that lived {lived:.2} s (2 s down between): {done}"
+    );
+    eprintln!("killed after {alive_s:.2} s (measuring {measured:.2} s); done: {total:.2} s");
+}
