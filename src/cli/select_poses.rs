@@ -10,6 +10,7 @@ use nalgebra::{DMatrix, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use cellcal::config::RobotSection;
 use cellcal::dataset::parse_vec3;
 use cellcal::identify::{ObsConfig, ObsModel};
 use cellcal::model::{load_robot, SignedAxis};
@@ -17,7 +18,6 @@ use cellcal::plan::campaign::{measurable_pool, more_measurable, plan_design, REF
 use cellcal::plan::selection::{
     predicted_verification, select, DesignSetup, PredictedError, Selection,
 };
-use cellcal::config::RobotSection;
 use cellcal::plan::{PlanRequest, Workspace};
 
 use super::{input, other, Failure};

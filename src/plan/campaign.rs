@@ -6,11 +6,11 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::motion::MotionLimits;
 use super::order::{order_by_time, tour_s, travel, Legs};
 use super::path::{wrist_side, PathChecker};
 use super::route::{RouteError, Router};
 use super::sampling::{sample_poses_where, PlanError};
-use super::timing::MotionLimits;
 use super::selection::{select, Design, DesignSetup, NoiseModel, Selection, SelectionError};
 use super::workspace::Workspace;
 use crate::dataset::PoseSet;
@@ -867,6 +867,10 @@ mod selection_tests {
             line_of_sight_max_rad: std::f64::consts::PI,
             tool_mm: Vector3::zeros(),
             drift_every: 0,
+            ident_block: None,
+            speed_pct: 20.0,
+            settle_s: 0.0,
+            stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
             selection: Selection::Random,
             design: DesignSetup::default(),
         };

@@ -3,6 +3,7 @@
 
 pub mod campaign;
 pub mod iso9283;
+pub mod motion;
 pub mod order;
 pub mod path;
 pub mod route;

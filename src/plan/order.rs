@@ -21,8 +21,8 @@
 
 use std::collections::{HashMap, VecDeque};
 
+use super::motion::MotionLimits;
 use super::route::Router;
-use super::timing::MotionLimits;
 
 /// Largest joint travel between two configurations (rad).
 pub fn travel(a: &[f64], b: &[f64]) -> f64 {

@@ -1,161 +1,13 @@
-//! How long a campaign takes: the synchronised trapezoidal joint move ([`MotionLimits`]), and
-//! the planned duration of a campaign by part ([`CampaignEstimate`], walked by
-//! [`estimate_campaign`] the way the engine measures).
-//!
-//! A joint move goes along the straight line in joint space (as the path check assumes), every
-//! joint starting and finishing together. Along that line the fraction covered follows one
-//! trapezoidal profile whose speed and acceleration are the largest every joint allows: joint
-//! `j`, which covers `d_j` rad, allows `v_j / d_j` and `a_j / d_j` (1/s, 1/s²). The move time
-//! is then that of a trapezoid (or a triangle, when full speed is never reached) over 1.
+//! How long a campaign takes: the planned duration of a campaign by part
+//! ([`CampaignEstimate`], walked by [`estimate_campaign`] the way the engine measures), its
+//! moves timed by [`MotionLimits`] (`plan::motion`).
 
 use serde::{Deserialize, Serialize};
 
 use super::campaign::Plan;
+pub use super::motion::{MotionLimits, MoveProfile, FALLBACK_RAMP_S, FALLBACK_SPEED_DEG_S};
 use super::route::Router;
-use crate::model::RobotModel;
 use crate::units::human::fmt_estimate;
-
-/// Joint speed at 100 % when the robot file gives none (deg/s).
-pub const FALLBACK_SPEED_DEG_S: f64 = 180.0;
-/// How long a joint takes to reach its speed when the robot file gives no acceleration (s):
-/// the fallback acceleration is the joint's speed at 100 % divided by this.
-pub const FALLBACK_RAMP_S: f64 = 0.5;
-
-/// Per-joint speed and acceleration of a robot at a speed setting (rad/s, rad/s²).
-#[derive(Debug, Clone, PartialEq)]
-pub struct MotionLimits {
-    /// Joint speeds at the speed setting (rad/s).
-    pub speed_rad_s: Vec<f64>,
-    /// Joint accelerations (rad/s²; infinite: speed is reached at once).
-    pub accel_rad_s2: Vec<f64>,
-}
-
-/// One move's timing along the straight joint line: the fraction of the line covered follows
-/// a trapezoid with this peak rate and acceleration.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MoveProfile {
-    /// Peak rate of the fraction (1/s).
-    rate: f64,
-    /// Acceleration of the fraction (1/s²; may be infinite).
-    accel: f64,
-    /// Total time (s).
-    duration_s: f64,
-}
-
-impl MoveProfile {
-    /// The move's duration (s).
-    pub fn duration_s(&self) -> f64 {
-        self.duration_s
-    }
-
-    /// Fraction of the line covered `t_s` after the start (0 before, 1 from the end on).
-    pub fn fraction_at(&self, t_s: f64) -> f64 {
-        let total = self.duration_s;
-        if total.is_nan() || total <= 0.0 || t_s >= total {
-            return 1.0;
-        }
-        if t_s <= 0.0 {
-            return 0.0;
-        }
-        let ramp = (self.rate / self.accel).min(total / 2.0);
-        if ramp.is_nan() || ramp <= 0.0 {
-            // instant acceleration: constant speed
-            return (t_s / total).clamp(0.0, 1.0);
-        }
-        let peak = self.accel * ramp;
-        let s = if t_s < ramp {
-            0.5 * self.accel * t_s * t_s
-        } else if t_s <= total - ramp {
-            0.5 * self.accel * ramp * ramp + peak * (t_s - ramp)
-        } else {
-            let left = total - t_s;
-            1.0 - 0.5 * self.accel * left * left
-        };
-        s.clamp(0.0, 1.0)
-    }
-}
-
-impl MotionLimits {
-    /// The robot file's limits at `speed_pct` (percent of full speed): the speeds scale with
-    /// it, the accelerations do not (the controller's speed setting caps the velocity, as
-    /// VAL3's `mdesc.vel`; acceleration and deceleration stay). A joint without
-    /// `max_speed_deg_s` moves at [`FALLBACK_SPEED_DEG_S`]; without `max_accel_deg_s2` it
-    /// reaches its full speed in [`FALLBACK_RAMP_S`].
-    pub fn of(model: &RobotModel, speed_pct: f64) -> MotionLimits {
-        let k = speed_pct / 100.0;
-        let (speed, accel) = (0..model.dof())
-            .map(|i| {
-                let m = model.motion.get(i).copied().unwrap_or_default();
-                let full = m
-                    .max_speed
-                    .unwrap_or_else(|| FALLBACK_SPEED_DEG_S.to_radians());
-                let accel = m.max_accel.unwrap_or(full / FALLBACK_RAMP_S);
-                (full * k, accel)
-            })
-            .unzip();
-        MotionLimits {
-            speed_rad_s: speed,
-            accel_rad_s2: accel,
-        }
-    }
-
-    /// Every one of `dof` joints at `speed_rad_s` with infinite acceleration (a constant-speed
-    /// move, as the fast simulated cell moves).
-    pub fn uniform(dof: usize, speed_rad_s: f64) -> MotionLimits {
-        MotionLimits {
-            speed_rad_s: vec![speed_rad_s; dof],
-            accel_rad_s2: vec![f64::INFINITY; dof],
-        }
-    }
-
-    /// These limits with the speeds scaled by `speed_pct` / 100 (accelerations kept).
-    pub fn at_speed_pct(&self, speed_pct: f64) -> MotionLimits {
-        MotionLimits {
-            speed_rad_s: self
-                .speed_rad_s
-                .iter()
-                .map(|v| v * speed_pct / 100.0)
-                .collect(),
-            accel_rad_s2: self.accel_rad_s2.clone(),
-        }
-    }
-
-    /// The synchronised trapezoidal profile of the straight joint move `from` → `to` (rad).
-    pub fn profile(&self, from: &[f64], to: &[f64]) -> MoveProfile {
-        let mut rate = f64::INFINITY;
-        let mut accel = f64::INFINITY;
-        for (j, (a, b)) in from.iter().zip(to).enumerate() {
-            let d = (b - a).abs();
-            if d.is_nan() || d <= 0.0 {
-                continue;
-            }
-            let v = self.speed_rad_s.get(j).copied().unwrap_or(f64::NAN);
-            let acc = self.accel_rad_s2.get(j).copied().unwrap_or(f64::INFINITY);
-            rate = rate.min(v / d);
-            accel = accel.min(acc / d);
-        }
-        let duration_s = if rate.is_infinite() {
-            0.0
-        } else if rate * rate >= accel {
-            // triangle: full speed is never reached
-            2.0 / accel.sqrt()
-        } else {
-            1.0 / rate + rate / accel
-        };
-        MoveProfile {
-            rate,
-            accel,
-            duration_s,
-        }
-    }
-
-    /// Time of the synchronised trapezoidal joint move `from` → `to` (rad): every joint
-    /// finishes together, the time set by the joints whose speed and acceleration limit the
-    /// move (s).
-    pub fn move_time_s(&self, from: &[f64], to: &[f64]) -> f64 {
-        self.profile(from, to).duration_s()
-    }
-}
 
 /// The planned duration of a campaign by part (s); stored, shown, compared with the actual.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -240,13 +92,14 @@ pub struct CellTimes {
 /// engine asks for (skipped when the last one already put it there).
 pub type StageSequence = Vec<Option<f64>>;
 
-/// The stage positions one pose is measured at (P1, P2 and back to P1, as the engine
-/// measures today; P1 only without the axis), given where the stage is.
-pub fn pose_stage_targets(_at: Option<f64>, p1_mm: f64, p2_mm: f64, axis: bool) -> Vec<f64> {
-    if axis {
-        vec![p1_mm, p2_mm, p1_mm]
-    } else {
-        vec![p1_mm]
+/// The stage positions one pose is measured at, given where the stage is: where it stands
+/// first (P2 then P1 after a pose that ended at P2, else P1 then P2), as the engine measures;
+/// P1 only without the axis.
+pub fn pose_stage_targets(at: Option<f64>, p1_mm: f64, p2_mm: f64, axis: bool) -> Vec<f64> {
+    match (axis, at) {
+        (false, _) => vec![p1_mm],
+        (true, Some(mm)) if mm == p2_mm => vec![p2_mm, p1_mm],
+        (true, _) => vec![p1_mm, p2_mm],
     }
 }
 
@@ -353,6 +206,7 @@ pub fn campaign_walk(
         });
         if drift_every > 0 && done % drift_every == 0 && done < total {
             measured.push(drift());
+            stage_at = Some(p1);
         }
     }
     measured.push(drift());
@@ -598,6 +452,8 @@ mod tests {
             drift_reference: q(0.0),
             via_points: 0,
             approach: Default::default(),
+            sampling_order_s: 0.0,
+            planned_order_s: 0.0,
         };
         let walk = campaign_walk(&plan, 2, Vec::new(), None, (0.0, 10.0, 0.02), true);
         // reference, p, p, drift, p, p, drift, p, final drift
@@ -630,8 +486,9 @@ mod tests {
         );
         assert!(close(e.settle_s, 9.0));
         assert!(close(e.measure_s, 0.5 * (10 + 4) as f64));
-        // each pose: P1 → P2 → P1, 1 s each way
-        assert!(close(e.stage_s, 5.0 * 2.0), "{e:?}");
+        // one move per pose, where the stage stands first (P1 P2 | P2 P1 | drift at P1 |
+        // P1 P2 | P2 P1 | drift | P1 P2), and back to P1 for the final drift check: 1 s each
+        assert!(close(e.stage_s, 6.0), "{e:?}");
         assert!(close(e.setup_s, 3.0));
         let sum = e.setup_s + e.motion_s + e.settle_s + e.measure_s + e.stage_s;
         assert!(close(e.total_s, sum));

@@ -39,6 +39,10 @@ pub(crate) fn paper_setup(verify: usize) -> Setup {
             line_of_sight_max_rad: 80f64.to_radians(),
             tool_mm: Vector3::zeros(),
             drift_every: 0,
+            ident_block: None,
+            speed_pct: 20.0,
+            settle_s: 0.0,
+            stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
             selection: crate::plan::selection::Selection::Random,
             design: crate::plan::selection::DesignSetup {
                 obs,

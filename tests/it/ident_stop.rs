@@ -116,9 +116,11 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
     )
     .expect("stored result");
     assert_eq!(stored.report.ident_stop.as_ref(), Some(&stop));
-    // and the verification error is within a few % of the full campaign's
+    // and the verification error is within a few % of the full campaign's: the rule stops at
+    // a 2 % gain, and one campaign's mean over 200 verification poses is itself known to about
+    // ±3 % (σ/√V, docs/design.md), so two single campaigns are compared within 10 %
     assert!(
-        after <= 1.05 * before,
+        after <= 1.10 * before,
         "verification {after:.5} mm with {ident_done} ident poses vs {before:.5} mm with all"
     );
 }

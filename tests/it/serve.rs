@@ -491,8 +491,9 @@ fn technician_questions_are_answered_over_rest() {
             std::thread::sleep(Duration::from_millis(10));
         }
     }
-    // one question for the drift reference at start, two per pose, and the P1 of each drift check
-    assert!(answered >= 41, "{answered} questions answered");
+    // one question for the drift reference at start, one per pose (the stage moves once per
+    // pose), and the P1 of each drift check
+    assert!(answered >= 21, "{answered} questions answered");
     // and the cell confirmed clear before every move that followed an answer
     assert!(cleared >= 20, "{cleared} confirm_clear questions");
     let (code, _) = get(&s, &format!("/api/campaigns/{id}/result"));
