@@ -101,7 +101,12 @@ fn errors_of<const N: usize>(
             };
             for k in 0..N {
                 let f = &mut frames[k];
-                forward_from(&bases[k], &models[k].joints, &m.q, Some(q_trig), f);
+                if models[k].has_terms() {
+                    let angles = models[k].link_angles(&m.q);
+                    forward_from(&bases[k], &models[k].joints, &angles, None, f);
+                } else {
+                    forward_from(&bases[k], &models[k].joints, &m.q, Some(q_trig), f);
+                }
                 let fl = f.flange();
                 let e = m.p1 - fl.transform_point(&models[k].tool);
                 out[k].push((e, attitude(m, &fl.r, cfg)));

@@ -12,7 +12,7 @@ use std::cell::RefCell;
 
 use super::params::ParamId;
 use crate::model::kinematics::{forward, forward_from, Frames, Pose};
-use crate::model::{ParamKind, RobotModel};
+use crate::model::{gravity_torques, ParamKind, RobotModel, TermKind};
 
 thread_local! {
     /// Per-thread frames of the chain, so the hot loop does not allocate.
@@ -205,10 +205,11 @@ pub fn residual_jacobian(
     );
 }
 
-/// Whether a parameter can turn the measured directions: rotations can; the direction rows of
-/// a translation (MDH d and a, base translation, tool) are zero.
+/// Whether a parameter can turn the measured directions: rotations (and the non-geometric
+/// terms, which turn a joint) can; the direction rows of a translation (MDH d and a, base
+/// translation, tool) are zero.
 pub fn turns_directions(p: &ParamId) -> bool {
-    p.is_angle()
+    p.is_rotation()
 }
 
 /// Receives the weighted Jacobian of one pose, column by column.
@@ -262,12 +263,53 @@ pub fn residual_into<S: JacobianSink>(
             r: model.base_rotation,
             p: model.base_translation,
         };
-        forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
-        residual_jacobian_with(model, meas, cfg, params, res, sink, f);
+        let wants_torque = |p: &ParamId| {
+            matches!(
+                p,
+                ParamId::Term {
+                    kind: TermKind::Compliance,
+                    ..
+                }
+            )
+        };
+        let tau = (model.has_compliance() || (sink.wanted() && params.iter().any(wants_torque)))
+            .then(|| gravity_torques(model, &meas.q));
+        if model.has_terms() {
+            let angles: Vec<f64> = meas
+                .q
+                .iter()
+                .zip(model.joint_corrections_with(&meas.q, tau.as_deref()))
+                .map(|(q, d)| q + d)
+                .collect();
+            forward_from(&base, &model.joints, &angles, None, f);
+        } else {
+            forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
+        }
+        let basis = TermBasis {
+            q: &meas.q,
+            tau: tau.as_deref(),
+        };
+        residual_jacobian_with(model, meas, cfg, params, res, sink, f, &basis);
     });
 }
 
+/// What the non-geometric terms' columns multiply the joint's θ column by at one pose: the
+/// commanded joint values and, when a compliance is wanted, the gravity torques.
+struct TermBasis<'a> {
+    q: &'a [f64],
+    tau: Option<&'a [f64]>,
+}
+
+impl TermBasis<'_> {
+    /// The basis of term `kind` of joint `joint`.
+    fn of(&self, joint: usize, kind: TermKind) -> f64 {
+        let tau = self.tau.and_then(|t| t.get(joint)).copied().unwrap_or(0.0);
+        kind.basis(self.q[joint], tau)
+    }
+}
+
 /// [`residual_into`] once `f` holds the pose's frames in the measurement frame.
+#[allow(clippy::too_many_arguments)]
 fn residual_jacobian_with<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
@@ -276,6 +318,7 @@ fn residual_jacobian_with<S: JacobianSink>(
     res: &mut [f64],
     sink: &mut S,
     f: &Frames,
+    basis: &TermBasis,
 ) {
     let fl = f.flange(); // measurement frame
     let p = fl.transform_point(&model.tool); // ball, measurement frame
@@ -319,6 +362,7 @@ fn residual_jacobian_with<S: JacobianSink>(
         p: &p,
         w,
         wd,
+        basis,
     };
     // the number of directions as a constant: the column loop unrolls over them
     let models = [dirs[0].0, dirs[1].0, dirs[2].0];
@@ -341,6 +385,8 @@ struct Columns<'a> {
     /// Weight of position rows and of direction rows.
     w: f64,
     wd: f64,
+    /// The bases of the non-geometric terms.
+    basis: &'a TermBasis<'a>,
 }
 
 impl Columns<'_> {
@@ -376,6 +422,15 @@ impl Columns<'_> {
                     turn(&self.frames.flange().r.column(*i).into_owned()),
                 ),
                 ParamId::StageAxis(_) => (Vector3::zeros(), [Vector3::zeros(); N]),
+                // Δθ_j = coefficient · basis: the joint's θ column times the basis
+                ParamId::Term { joint, kind } => {
+                    let j = self.frames.joint_axes(*joint);
+                    let b = self.basis.of(*joint, *kind);
+                    (
+                        b * j.z.cross(&(self.p - j.origin)),
+                        turn(&j.z).map(|d| b * d),
+                    )
+                }
             };
             sink.column(c, &(self.w * dp), &dd);
         }
@@ -385,7 +440,7 @@ impl Columns<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::identify::params::{all_params, retract};
+    use crate::identify::params::{all_params, retract, term_params};
 
     #[test]
     fn model_names_parse_once_and_unknown_ones_are_refused_clearly() {
@@ -421,9 +476,46 @@ mod tests {
         m
     }
 
-    fn check(model: ObsModel, q: Vec<f64>) {
-        let m = tx60_with_frames();
-        let params = all_params(6, true, true);
+    /// [`tx60_with_frames`] with two masses and every non-geometric term non-zero (the
+    /// compliances small: the Jacobian takes the gravity torque as fixed, so an MDH column
+    /// leaves out `c·∂τ/∂p`, below the tolerance here).
+    fn tx60_with_terms() -> RobotModel {
+        let mut m = tx60_with_frames();
+        m.masses = vec![
+            crate::model::Mass {
+                frame: 2,
+                at: Vector3::new(-150.0, 0.0, 120.0),
+                kg: 8.4,
+            },
+            crate::model::Mass {
+                frame: 5,
+                at: Vector3::new(0.0, 20.0, 60.0),
+                kg: 3.0,
+            },
+        ];
+        for (i, (j, k)) in (0..6)
+            .flat_map(|j| TermKind::ALL.map(|k| (j, k)))
+            .enumerate()
+        {
+            let scale = if k == TermKind::Compliance {
+                1e-11
+            } else {
+                1e-4
+            };
+            *m.term_mut(j, k) =
+                scale * (1.0 + (i % 7) as f64) * if i % 2 == 0 { 1.0 } else { -1.0 };
+        }
+        m
+    }
+
+    fn check(model: ObsModel, q: Vec<f64>, with_terms: bool) {
+        let (m, params) = if with_terms {
+            let mut p = all_params(6, true, true);
+            p.extend(term_params(6, &crate::model::TermFamily::ALL));
+            (tx60_with_terms(), p)
+        } else {
+            (tx60_with_frames(), all_params(6, true, true))
+        };
         let cfg = ObsConfig {
             stage_axis: Vector3::new(0.6, 0.8, 0.0),
             direction_weight_mm: 7.0,
@@ -530,9 +622,10 @@ mod tests {
         fn jacobian_matches_central_differences(
             q in proptest::collection::vec(-3.0f64..3.0, 6),
             which in 0usize..4,
+            with_terms: bool,
         ) {
             let model = [ObsModel::Position, ObsModel::Np, ObsModel::Op, ObsModel::Full][which];
-            check(model, q);
+            check(model, q, with_terms);
         }
     }
 }

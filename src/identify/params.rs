@@ -7,7 +7,7 @@
 use nalgebra::Vector3;
 
 use crate::model::rotation::from_rotation_vector;
-use crate::model::{ParamKind, RobotModel};
+use crate::model::{ParamKind, RobotModel, TermFamily, TermKind};
 
 /// One identifiable parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -31,6 +31,13 @@ pub enum ParamId {
     /// ([`crate::identify::identifiability::setup_relative`]) takes its column. The robot model
     /// holds no stage axis, so [`retract`] leaves the model as it is for it.
     StageAxis(usize),
+    /// A non-geometric coefficient of joint `joint` (0-based, §10): compliance or a harmonic.
+    Term {
+        /// Joint index (0-based).
+        joint: usize,
+        /// Which coefficient.
+        kind: TermKind,
+    },
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
@@ -44,6 +51,7 @@ impl ParamId {
             ParamId::BaseRotation(i) => format!("base_r{}", AXES[*i]),
             ParamId::Tool(i) => format!("tool_{}", AXES[*i]),
             ParamId::StageAxis(i) => format!("stage_axis_r{}", AXES[*i]),
+            ParamId::Term { joint, kind } => format!("{}{}", kind.name(), joint + 1),
         }
     }
 
@@ -64,30 +72,42 @@ impl ParamId {
         }
     }
 
-    /// Whether the parameter is an angle (rad).
+    /// Whether the parameter is an angle (rad); a compliance is not (rad/(N·m)).
     pub fn is_angle(&self) -> bool {
         match self {
             ParamId::Mdh { kind, .. } => kind.is_angle(),
             ParamId::BaseRotation(_) | ParamId::StageAxis(_) => true,
+            ParamId::Term { kind, .. } => *kind != TermKind::Compliance,
             _ => false,
         }
     }
 
-    /// Unit (`mm` or `rad`).
+    /// Whether the parameter turns the chain (its column moves directions): every angle and
+    /// every non-geometric term.
+    pub fn is_rotation(&self) -> bool {
+        self.is_angle() || matches!(self, ParamId::Term { .. })
+    }
+
+    /// Unit: `mm`, `rad` or, for a compliance, `rad/(N·m)`.
     pub fn unit(&self) -> &'static str {
-        if self.is_angle() {
-            "rad"
-        } else {
-            "mm"
+        match self {
+            ParamId::Term { kind, .. } => kind.unit(),
+            _ if self.is_angle() => "rad",
+            _ => "mm",
         }
     }
 
-    /// Joint number (1-based) for MDH parameters.
+    /// Joint number (1-based) for MDH parameters and non-geometric terms.
     pub fn joint_number(&self) -> Option<usize> {
         match self {
-            ParamId::Mdh { joint, .. } => Some(joint + 1),
+            ParamId::Mdh { joint, .. } | ParamId::Term { joint, .. } => Some(joint + 1),
             _ => None,
         }
+    }
+
+    /// Whether the parameter is a non-geometric term (§10).
+    pub fn is_term(&self) -> bool {
+        matches!(self, ParamId::Term { .. })
     }
 
     /// Kind label for reports: `theta`, `d`, `a`, `alpha`, `beta`, `base_translation`, ….
@@ -98,6 +118,7 @@ impl ParamId {
             ParamId::BaseRotation(_) => "base_rotation",
             ParamId::Tool(_) => "tool_translation",
             ParamId::StageAxis(_) => "stage_axis_rotation",
+            ParamId::Term { kind, .. } => kind.name(),
         }
     }
 
@@ -116,6 +137,14 @@ impl ParamId {
         if let Some(t) = name.strip_prefix("stage_axis_r") {
             return axis(t).map(ParamId::StageAxis);
         }
+        // longest names first: `sin_2q` before `sin_q` would not matter, `compliance` is unique
+        for kind in TermKind::ALL {
+            if let Some(number) = name.strip_prefix(kind.name()) {
+                let joint = number.parse::<usize>().ok()?.checked_sub(1)?;
+                let id = ParamId::Term { joint, kind };
+                return (id.name() == name).then_some(id);
+            }
+        }
         let digits = name.find(|c: char| c.is_ascii_digit())?;
         let (stem, number) = name.split_at(digits);
         let kind = ParamKind::ALL.into_iter().find(|k| k.stem() == stem)?;
@@ -133,6 +162,7 @@ impl ParamId {
             ParamId::BaseTranslation(i) => m.base_translation[*i],
             ParamId::BaseRotation(_) | ParamId::StageAxis(_) => 0.0,
             ParamId::Tool(i) => m.tool[*i],
+            ParamId::Term { joint, kind } => m.term(*joint, *kind),
         }
     }
 }
@@ -167,6 +197,20 @@ pub fn all_params(dof: usize, base: bool, tool: bool) -> Vec<ParamId> {
     v
 }
 
+/// The non-geometric terms of `families` for every joint of a chain of `dof` joints (joint by
+/// joint, in [`TermKind::ALL`] order); the identifiability analysis holds back those the poses
+/// do not determine.
+pub fn term_params(dof: usize, families: &[TermFamily]) -> Vec<ParamId> {
+    (0..dof)
+        .flat_map(|joint| {
+            TermKind::ALL
+                .into_iter()
+                .filter(|k| families.contains(&k.family()))
+                .map(move |kind| ParamId::Term { joint, kind })
+        })
+        .collect()
+}
+
 /// Apply a step `delta` (one entry per `params`) to a model.
 pub fn retract(model: &RobotModel, params: &[ParamId], delta: &[f64]) -> RobotModel {
     let mut m = model.clone();
@@ -178,6 +222,7 @@ pub fn retract(model: &RobotModel, params: &[ParamId], delta: &[f64]) -> RobotMo
             ParamId::BaseRotation(i) => rot[*i] += d,
             ParamId::Tool(i) => m.tool[*i] += d,
             ParamId::StageAxis(_) => {}
+            ParamId::Term { joint, kind } => *m.term_mut(*joint, *kind) += d,
         }
     }
     if rot != Vector3::zeros() {
@@ -195,11 +240,24 @@ mod tests {
         for p in all_params(7, true, true)
             .into_iter()
             .chain((0..3).map(ParamId::StageAxis))
+            .chain(term_params(7, &TermFamily::ALL))
         {
             assert_eq!(ParamId::from_name(&p.name()), Some(p), "{}", p.name());
         }
         for bad in [
-            "", "theta", "theta0", "theta01", "theta+1", "base_tw", "tool_", "gamma1",
+            "",
+            "theta",
+            "theta0",
+            "theta01",
+            "theta+1",
+            "base_tw",
+            "tool_",
+            "gamma1",
+            "compliance",
+            "compliance0",
+            "sin_q01",
+            "cos_2q",
+            "sin_3q1",
         ] {
             assert_eq!(ParamId::from_name(bad), None, "{bad}");
         }

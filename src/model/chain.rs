@@ -142,6 +142,12 @@ pub struct RobotModel {
     pub base_translation: Vector3<f64>,
     /// Target ball position in the flange frame (mm).
     pub tool: Vector3<f64>,
+    /// Lumped masses of the gravity model (empty: no gravity torques).
+    pub masses: Vec<super::gravity::Mass>,
+    /// Direction of gravity in the robot base frame (unit; default −z).
+    pub gravity: Vector3<f64>,
+    /// Non-geometric terms per joint (empty or all zero: none, §10).
+    pub terms: Vec<super::terms::JointTerms>,
 }
 
 impl RobotModel {
@@ -167,6 +173,31 @@ impl RobotModel {
     /// Whether every joint value lies inside its limits.
     pub fn within_limits(&self, q: &[f64]) -> bool {
         q.len() == self.dof() && q.iter().zip(&self.limits).all(|(v, l)| l.contains(*v))
+    }
+
+    /// Whether any non-geometric coefficient is non-zero.
+    pub fn has_terms(&self) -> bool {
+        self.terms.iter().any(|t| !t.is_zero())
+    }
+
+    /// Whether any joint has a non-zero compliance (the gravity torques are needed).
+    pub fn has_compliance(&self) -> bool {
+        self.terms.iter().any(|t| t.compliance != 0.0)
+    }
+
+    /// The coefficient `kind` of joint `joint` (0-based; 0 when the model has none).
+    pub fn term(&self, joint: usize, kind: super::terms::TermKind) -> f64 {
+        self.terms.get(joint).map_or(0.0, |t| t.get(kind))
+    }
+
+    /// The coefficient `kind` of joint `joint` (0-based), to change (the terms grow to one per
+    /// joint).
+    pub fn term_mut(&mut self, joint: usize, kind: super::terms::TermKind) -> &mut f64 {
+        if self.terms.len() < self.dof() {
+            self.terms
+                .resize(self.dof(), super::terms::JointTerms::default());
+        }
+        self.terms[joint].get_mut(kind)
     }
 
     /// The same model with the base set to identity and the tool at the flange origin.

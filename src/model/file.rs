@@ -17,6 +17,11 @@
 //! [tool]                # optional: ball position in the flange frame
 //! translation_mm = [0, 0, 0]
 //! ```
+//!
+//! The gravity model and the non-geometric terms (§10), all optional: a top-level
+//! `gravity = [x, y, z]` (unit vector, robot base frame, default `[0, 0, -1]`), lumped masses
+//! `[[masses]] frame = k, at_mm = [x, y, z], kg = m` (k = 1..n, the MDH frame the mass is fixed
+//! in), and per joint `compliance_rad_per_nm` and `harmonics_rad = [sin_q, cos_q, sin_2q, cos_2q]`.
 
 use std::path::Path;
 
@@ -26,13 +31,18 @@ use serde::{Deserialize, Serialize};
 use super::chain::{JointLimit, JointMotion, Mdh, RobotModel};
 use super::checked_toml::parse_checked;
 pub use super::checked_toml::FileError;
+use super::gravity::{default_gravity, Mass};
 use super::rotation::{from_rotation_vector, log_so3};
+use super::terms::JointTerms;
 
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RobotFile {
     name: String,
+    gravity: Option<[f64; 3]>,
     joints: Vec<JointEntry>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    masses: Vec<MassEntry>,
     base: Option<BaseEntry>,
     tool: Option<ToolEntry>,
 }
@@ -52,6 +62,16 @@ struct JointEntry {
     limits_rad: Option<[f64; 2]>,
     max_speed_deg_s: Option<f64>,
     max_accel_deg_s2: Option<f64>,
+    compliance_rad_per_nm: Option<f64>,
+    harmonics_rad: Option<[f64; 4]>,
+}
+
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+struct MassEntry {
+    frame: usize,
+    at_mm: [f64; 3],
+    kg: f64,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -114,7 +134,12 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
     let mut joints = Vec::new();
     let mut limits = Vec::new();
     let mut motion = Vec::new();
+    let mut terms = Vec::new();
     for (i, j) in file.joints.iter().enumerate() {
+        terms.push(JointTerms {
+            compliance: j.compliance_rad_per_nm.unwrap_or(0.0),
+            harmonics: j.harmonics_rad.unwrap_or([0.0; 4]),
+        });
         let rate = |stem: &str, v: Option<f64>| match v {
             Some(v) if v <= 0.0 => Err(invalid(
                 format!("joints[{}].{stem}", i + 1),
@@ -161,6 +186,44 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
         .tool
         .as_ref()
         .map_or_else(Vector3::zeros, |t| Vector3::from(t.translation_mm));
+    let gravity = match file.gravity {
+        None => default_gravity(),
+        Some(g) => {
+            let g = Vector3::from(g);
+            if (g.norm() - 1.0).abs() > 1e-6 {
+                return Err(invalid(
+                    "gravity".into(),
+                    &format!("must be a unit vector, got length {}", g.norm()),
+                ));
+            }
+            g
+        }
+    };
+    let n = joints.len();
+    let mut masses = Vec::new();
+    for (i, m) in file.masses.iter().enumerate() {
+        let key = |k: &str| format!("masses[{}].{k}", i + 1);
+        if !(1..=n).contains(&m.frame) {
+            return Err(invalid(
+                key("frame"),
+                &format!("must be an MDH frame 1..={n}, got {}", m.frame),
+            ));
+        }
+        if m.kg <= 0.0 {
+            return Err(invalid(
+                key("kg"),
+                &format!("must be greater than 0, got {}", m.kg),
+            ));
+        }
+        masses.push(Mass {
+            frame: m.frame,
+            at: Vector3::from(m.at_mm),
+            kg: m.kg,
+        });
+    }
+    if terms.iter().all(JointTerms::is_zero) {
+        terms.clear();
+    }
     Ok(RobotModel {
         name: file.name,
         joints,
@@ -169,6 +232,9 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
         base_rotation,
         base_translation,
         tool,
+        masses,
+        gravity,
+        terms,
     })
 }
 
@@ -211,6 +277,9 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
         let _ = writeln!(out, "{}", format!("# {line}").trim_end());
     }
     let _ = writeln!(out, "name = {}", toml::Value::String(model.name.clone()));
+    if model.gravity != default_gravity() {
+        let _ = writeln!(out, "gravity = {}", exact_array(model.gravity.as_slice()));
+    }
     for (i, (m, l)) in model.joints.iter().zip(&model.limits).enumerate() {
         let angle =
             |stem: &str, v: f64| format!("{stem}_rad = {}  # {:.6} deg", exact(v), v.to_degrees());
@@ -231,6 +300,19 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
                 let _ = writeln!(out, "{key} = {}", exact(deg));
             }
         }
+        let terms = model.terms.get(i).copied().unwrap_or_default();
+        if terms.compliance != 0.0 {
+            let _ = writeln!(out, "compliance_rad_per_nm = {}", exact(terms.compliance));
+        }
+        if terms.harmonics != [0.0; 4] {
+            let _ = writeln!(out, "harmonics_rad = {}", exact_array(&terms.harmonics));
+        }
+    }
+    for m in &model.masses {
+        let _ = writeln!(out, "\n[[masses]]");
+        let _ = writeln!(out, "frame = {}", m.frame);
+        let _ = writeln!(out, "at_mm = {}", exact_array(m.at.as_slice()));
+        let _ = writeln!(out, "kg = {}", exact(m.kg));
     }
     let rv = log_so3(&model.base_rotation);
     let _ = writeln!(out, "\n[base]");
@@ -402,6 +484,74 @@ mod tests {
         m.tool = Vector3::new(0.1, -35.7, 60.0 + 1.0 / 3.0);
         m.limits[3].min = 1.0 / 7.0 - 3.0;
         m
+    }
+
+    #[test]
+    fn masses_gravity_and_terms_are_read_checked_and_written_back() {
+        let mut m = perturbed();
+        m.gravity = Vector3::new(0.6, 0.0, -0.8);
+        m.masses = vec![
+            Mass {
+                frame: 2,
+                at: Vector3::new(-150.0, 0.0, 120.0 + 1.0 / 3.0),
+                kg: 8.4,
+            },
+            Mass {
+                frame: 6,
+                at: Vector3::new(0.0, 0.0, 30.0),
+                kg: 0.35,
+            },
+        ];
+        *m.term_mut(1, crate::model::TermKind::Compliance) = 1.0 / 3.0 * 1e-6;
+        *m.term_mut(4, crate::model::TermKind::Cos2Q) = -2.5e-5;
+        let text = write_robot(&m, &[]);
+        let back = parse_robot(&text, Path::new("w.toml")).unwrap();
+        assert_eq!(back.masses, m.masses, "{text}");
+        assert_eq!(back.gravity, m.gravity, "{text}");
+        assert_eq!(back.terms, m.terms, "{text}");
+        assert_eq!(back.joints, m.joints, "{text}");
+        // a model without them writes none of the keys
+        let plain = write_robot(&perturbed(), &[]);
+        for key in ["gravity", "masses", "compliance", "harmonics"] {
+            assert!(!plain.contains(key), "{plain}");
+        }
+        for (from, to, want) in [
+            (
+                "name = \"x\"\n",
+                "name = \"x\"\ngravity = [0, 0, -2]\n",
+                "gravity: must be a unit vector",
+            ),
+            (
+                "",
+                "[[masses]]\nframe = 2\nat_mm = [0, 0, 0]\nkg = 1\n",
+                "masses[1].frame: must be an MDH frame 1..=1, got 2",
+            ),
+            (
+                "",
+                "[[masses]]\nframe = 1\nat_mm = [0, 0, 0]\nkg = 0\n",
+                "masses[1].kg: must be greater than 0",
+            ),
+            (
+                "",
+                "[[masses]]\nframe = 1\nat_mm = [0, nan, 0]\nkg = 1\n",
+                "masses[1].at_mm[1]: nan is not a finite number",
+            ),
+            (
+                "limits_deg = [-10, 10]\n",
+                "limits_deg = [-10, 10]\nharmonics_rad = [0, 1]\n",
+                "harmonics_rad",
+            ),
+        ] {
+            let text = if from.is_empty() {
+                format!("{ONE}{to}")
+            } else {
+                ONE.replace(from, to)
+            };
+            let e = parse_robot(&text, Path::new("r.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{e} (wanted {want})");
+        }
     }
 
     #[test]

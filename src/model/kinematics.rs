@@ -9,6 +9,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::chain::{Mdh, RobotModel};
+use super::gravity::STANDARD_GRAVITY_M_S2;
 pub use super::pose::Pose;
 
 /// Link transform `A = RotZ(θ+q) · TransZ(d) · TransX(a) · RotX(α) · RotY(β)` in closed form.
@@ -221,9 +222,15 @@ pub struct JointAxes {
     pub next: Vector3<f64>,
 }
 
-/// Forward kinematics: every frame of the chain (robot base frame, base and tool not applied).
+/// Forward kinematics: every frame of the chain (robot base frame, base and tool not applied)
+/// at commanded joints `q`, the links turned by the model's non-geometric terms
+/// ([`RobotModel::link_angles`]) when it has any.
 pub fn forward(model: &RobotModel, q: &[f64]) -> Frames {
-    forward_joints(&model.joints, q)
+    if model.has_terms() {
+        forward_joints(&model.joints, &model.link_angles(q))
+    } else {
+        forward_joints(&model.joints, q)
+    }
 }
 
 /// Forward kinematics from bare MDH parameters.
@@ -295,6 +302,117 @@ pub fn measured_rotation(model: &RobotModel, q: &[f64]) -> Matrix3<f64> {
     model.base_rotation * forward(model, q).flange().r
 }
 
+/// Static gravity torque about each joint's +z axis (N·m) at commanded joints `q`: the weight
+/// of every mass in the frames the joint moves, the chain taken without its non-geometric
+/// terms (a deflection of a few µrad changes no lever measurably), gravity along
+/// `model.gravity` in the robot base frame.
+pub fn gravity_torques(model: &RobotModel, q: &[f64]) -> Vec<f64> {
+    torques_of_frames(model, &forward_joints(&model.joints, q))
+}
+
+/// [`gravity_torques`] from the frames of the bare chain at the commanded joints (robot base
+/// frame).
+pub fn torques_of_frames(model: &RobotModel, frames: &Frames) -> Vec<f64> {
+    let n = model.dof();
+    let mut tau = vec![0.0; n];
+    for m in &model.masses {
+        let k = m.frame.min(n);
+        if k == 0 {
+            continue;
+        }
+        let r = frames.frames[k].transform_point(&m.at);
+        let weight = model.gravity * (m.kg * STANDARD_GRAVITY_M_S2); // N
+        for (j, t) in tau.iter_mut().enumerate().take(k) {
+            let axes = frames.joint_axes(j);
+            // N·mm → N·m
+            *t += axes.z.dot(&(r - axes.origin).cross(&weight)) * 1e-3;
+        }
+    }
+    tau
+}
+
+/// Joint configurations over the joint limits that [`gravity_levers`] probes: a fixed
+/// low-discrepancy (Halton) sequence, so the answer is the same on every call.
+fn probe_configurations(model: &RobotModel, count: usize) -> impl Iterator<Item = Vec<f64>> + '_ {
+    const PRIMES: [u32; 8] = [2, 3, 5, 7, 11, 13, 17, 19];
+    let radical_inverse = |mut i: u32, base: u32| {
+        let (mut f, mut r) = (1.0, 0.0);
+        while i > 0 {
+            f /= f64::from(base);
+            r += f * f64::from(i % base);
+            i /= base;
+        }
+        r
+    };
+    (1..=count as u32).map(move |i| {
+        model
+            .limits
+            .iter()
+            .enumerate()
+            .map(|(j, l)| {
+                let u = radical_inverse(i, PRIMES[j % PRIMES.len()]);
+                l.min + u * (l.max - l.min)
+            })
+            .collect()
+    })
+}
+
+/// Torque below which a joint is taken to carry no gravity lever (N·m).
+pub const NO_LEVER_NM: f64 = 1e-6;
+
+/// Per joint, whether gravity puts a torque on it anywhere within the joint limits (a vertical
+/// first axis, or a joint with no mass beyond it, carries none).
+pub fn gravity_levers(model: &RobotModel) -> Vec<bool> {
+    let mut lever = vec![false; model.dof()];
+    for q in probe_configurations(model, 64) {
+        for (l, t) in lever.iter_mut().zip(gravity_torques(model, &q)) {
+            *l |= t.abs() > NO_LEVER_NM;
+        }
+    }
+    lever
+}
+
+impl RobotModel {
+    /// `Δθ_j(q)` of every joint (rad), the gravity torques `tau` given or computed when a
+    /// compliance needs them.
+    pub fn joint_corrections_with(&self, q: &[f64], tau: Option<&[f64]>) -> Vec<f64> {
+        if !self.has_terms() {
+            return vec![0.0; q.len()];
+        }
+        let own;
+        let tau = match tau {
+            Some(t) => t,
+            None if self.has_compliance() => {
+                own = gravity_torques(self, q);
+                &own
+            }
+            None => &[],
+        };
+        q.iter()
+            .enumerate()
+            .map(|(j, qj)| {
+                let t = tau.get(j).copied().unwrap_or(0.0);
+                self.terms
+                    .get(j)
+                    .map_or(0.0, |terms| terms.correction(*qj, t))
+            })
+            .collect()
+    }
+
+    /// `Δθ_j(q)` of every joint (rad).
+    pub fn joint_corrections(&self, q: &[f64]) -> Vec<f64> {
+        self.joint_corrections_with(q, None)
+    }
+
+    /// The link angles the chain turns by at commanded joints `q`: `q + Δθ(q)` (rad).
+    pub fn link_angles(&self, q: &[f64]) -> Vec<f64> {
+        q.iter()
+            .zip(self.joint_corrections(q))
+            .map(|(q, d)| q + d)
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -347,5 +465,85 @@ mod tests {
         let l = link(&m, q);
         assert!((l.r - r).norm() < 1e-14);
         assert!((l.p - p).norm() < 1e-12);
+    }
+}
+
+#[cfg(test)]
+mod gravity_tests {
+    use super::*;
+    use crate::model::tx60;
+    use crate::model::Mass;
+
+    fn with_mass(frame: usize, at: [f64; 3], kg: f64) -> RobotModel {
+        let mut m = tx60();
+        m.masses = vec![Mass {
+            frame,
+            at: Vector3::from(at),
+            kg,
+        }];
+        m
+    }
+
+    #[test]
+    fn torque_is_weight_times_horizontal_lever_with_the_right_sign() {
+        // TX60 with the upper arm leaning: joint 2's axis is horizontal; 10 kg at frame 2's origin.
+        let m = with_mass(2, [0.0, 0.0, 0.0], 10.0);
+        let q = [0.2, 0.5, -0.3, 0.0, 0.0, 0.0];
+        let f = forward_joints(&m.joints, &q);
+        let r = f.frames[2].p;
+        let axes = f.joint_axes(1);
+        let lever = (r - axes.origin).cross(&(-Vector3::z())).dot(&axes.z);
+        let tau = gravity_torques(&m, &q);
+        let expected = 10.0 * STANDARD_GRAVITY_M_S2 * lever * 1e-3;
+        assert!((tau[1] - expected).abs() < 1e-12, "{tau:?} vs {expected}");
+        // the mass does not load the joints after its frame
+        assert!(tau[2..].iter().all(|t| *t == 0.0), "{tau:?}");
+        // numerically: τ = −∂V/∂q with V = m g h, so turning the joint against τ raises it
+        let h = 1e-5;
+        let (mut qp, mut qm) = (q, q);
+        qp[1] += h;
+        qm[1] -= h;
+        let height = |q: &[f64]| forward_joints(&m.joints, q).frames[2].p.z;
+        let dv = 10.0 * STANDARD_GRAVITY_M_S2 * (height(&qp) - height(&qm)) / (2.0 * h) * 1e-3;
+        assert!((tau[1] + dv).abs() < 1e-6, "τ {} vs −dV/dq {}", tau[1], -dv);
+    }
+
+    #[test]
+    fn a_vertical_first_axis_carries_no_lever_and_massless_joints_none_either() {
+        let m = with_mass(3, [50.0, 20.0, 100.0], 5.0);
+        let levers = gravity_levers(&m);
+        assert_eq!(levers, vec![false, true, true, false, false, false]);
+        assert_eq!(gravity_levers(&tx60()), vec![false; 6]);
+    }
+}
+
+#[cfg(test)]
+mod terms_tests {
+    use super::*;
+    use crate::model::gravity::Mass;
+    use crate::model::{tx60, TermKind};
+
+    #[test]
+    fn corrections_follow_the_formula_and_forward_kinematics_turns_by_them() {
+        let mut m = tx60();
+        m.masses = vec![Mass {
+            frame: 3,
+            at: Vector3::new(100.0, 0.0, 50.0),
+            kg: 12.0,
+        }];
+        let q = [0.3, -0.4, 0.9, 0.2, -0.6, 1.1];
+        assert_eq!(m.joint_corrections(&q), vec![0.0; 6]);
+        *m.term_mut(1, TermKind::Compliance) = 2e-6;
+        *m.term_mut(2, TermKind::Sin2Q) = 3e-4;
+        *m.term_mut(4, TermKind::CosQ) = -1e-4;
+        let tau = gravity_torques(&m, &q);
+        let d = m.joint_corrections(&q);
+        assert_eq!(d[1], 2e-6 * tau[1]);
+        assert_eq!(d[2], 3e-4 * (2.0 * q[2]).sin());
+        assert_eq!(d[4], -1e-4 * q[4].cos());
+        assert_eq!([d[0], d[3], d[5]], [0.0; 3]);
+        let moved = crate::model::forward(&m, &q);
+        let bare = crate::model::kinematics::forward_joints(&m.joints, &m.link_angles(&q));
+        assert_eq!(moved.flange(), bare.flange());
     }
 }

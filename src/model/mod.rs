@@ -7,16 +7,21 @@ pub mod axis;
 pub mod chain;
 pub mod checked_toml;
 pub mod file;
+pub mod gravity;
 pub mod ik;
 pub mod kinematics;
 pub mod pose;
 pub mod rotation;
+pub mod terms;
 
 pub use axis::{AxisError, SignedAxis};
 pub use chain::{JointLimit, JointMotion, Mdh, ParamKind, RobotModel};
 pub use file::{load_robot, parse_robot, write_robot, FileError, RobotFileError};
+pub use gravity::Mass;
 pub use ik::{solve_flange, solve_motion, FlangeMotion, IkError, IkOptions, IkSolution};
 pub use kinematics::{forward, Frames, Pose};
+pub use kinematics::{gravity_levers, gravity_torques};
+pub use terms::{JointTerms, TermFamily, TermKind};
 
 /// The nominal Stäubli TX60 of `config/robots/staubli_tx60.toml`, built in at compile time: the
 /// shared fixture of tests, benches and examples. A cell loads its robot from its config instead.
