@@ -144,7 +144,7 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
 /// them verifies some 7 % worse (docs/design.md). The rule before stopped after 45 such poses
 /// here; now it measures on until the identification identifies what the whole plan does.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_optimal_campaign_does_not_stop_while_it_holds_back_a_parameter_the_plan_identifies() {
+async fn never_stops_holding_back_a_parameter() {
     let full = run_in_process(&config_text("", "selection = \"optimal\"", "")).await;
     let early = run_in_process(&config_text(
         "",
