@@ -142,8 +142,13 @@ impl Progress {
                 predicted_mm,
                 history,
             } => {
-                let why = match (reason, history.last().and_then(|c| c.gain)) {
+                let last = history.last();
+                let why = match (reason, last.and_then(|c| c.gain)) {
                     (StopReason::Target, _) => "at the target".to_owned(),
+                    (StopReason::RemainingGain, _) => match last.and_then(|c| c.remaining_gain) {
+                        Some(g) => format!("the poses still planned would gain {:.1} %", 100.0 * g),
+                        None => reason.as_str().to_owned(),
+                    },
                     (_, Some(g)) => format!("the last block gained {:.1} %", 100.0 * g),
                     (_, None) => reason.as_str().to_owned(),
                 };

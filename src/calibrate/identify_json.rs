@@ -226,16 +226,20 @@ pub enum StopReason {
     MinGain,
     /// The predicted verification error reached `target_verify_mm`.
     Target,
+    /// Every identification pose still planned would improve the predicted verification error
+    /// by less than `stop_remaining_gain`.
+    RemainingGain,
     /// Every planned identification pose was measured before the rule stopped them.
     Planned,
 }
 
 impl StopReason {
-    /// Its JSON spelling (`min_gain`, `target`, `planned`).
+    /// Its JSON spelling (`min_gain`, `target`, `remaining_gain`, `planned`).
     pub fn as_str(self) -> &'static str {
         match self {
             StopReason::MinGain => "min_gain",
             StopReason::Target => "target",
+            StopReason::RemainingGain => "remaining_gain",
             StopReason::Planned => "planned",
         }
     }
@@ -251,11 +255,24 @@ pub struct IdentCheck {
     pub predicted_mm: f64,
     /// The part of it the tracker's noise alone makes (mm).
     pub noise_floor_mm: f64,
-    /// Relative improvement on the previous check, `(previous − this) / previous` (null for
-    /// the first).
+    /// Relative improvement the last block bought, `(without − with) / without`, both
+    /// predicted from this check's identification (null for the first check; in checks stored
+    /// before 2026-11-26 evening: on the previous check's prediction).
     pub gain: Option<f64>,
     /// Why this check stopped the identification poses (null: measuring on).
     pub stopped: Option<StopReason>,
+    /// The same prediction had every planned identification pose been measured (mm; null in
+    /// checks stored before it was made).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_all_mm: Option<f64>,
+    /// Relative improvement the identification poses still planned would buy,
+    /// `(this − all) / this` (null in checks stored before it was made).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remaining_gain: Option<f64>,
+    /// Parameters the whole plan identifies that this check's identification held back (their
+    /// error is in no prediction: the rule does not stop while there are any).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held_back: Vec<String>,
 }
 
 /// `ident_stop` of a result: how the stop rule ended the identification poses.
@@ -272,6 +289,10 @@ pub struct IdentStop {
     pub predicted_mm: Option<f64>,
     /// The rule's fraction (`campaign.stop_min_gain`).
     pub stop_min_gain: f64,
+    /// The rule's fraction for the poses still planned (`campaign.stop_remaining_gain`; null
+    /// in results stored before it was made).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop_remaining_gain: Option<f64>,
     /// The rule's target (`campaign.target_verify_mm`, mm).
     pub target_verify_mm: Option<f64>,
     /// Every check, in order.

@@ -23,7 +23,10 @@ mod stop;
 mod tests_fake;
 
 pub use setup::{BaseResult, SetupResult, ToolFrameResult};
-pub use stop::{decide as stop_decision, stop_block};
+pub use stop::{
+    decide as stop_decision, predict_check, stop_block, CheckPrediction,
+    Thresholds as StopThresholds,
+};
 
 use std::future::Future;
 use std::time::Duration;

@@ -299,6 +299,9 @@ pub struct CampaignSection {
     /// With `stop_when = "predicted"`: stop once the predicted verification error improves by
     /// less than this fraction from one block of identification poses to the next.
     pub stop_min_gain: f64,
+    /// With `stop_when = "predicted"`: stop once the identification poses still planned would,
+    /// all together, improve the predicted verification error by less than this fraction.
+    pub stop_remaining_gain: f64,
     /// With `stop_when = "predicted"`: stop once the predicted verification error (mm) is at or
     /// below this; unset: only `stop_min_gain` stops.
     pub target_verify_mm: Option<f64>,
@@ -325,6 +328,10 @@ pub enum StopWhen {
 /// by less than 2 % stops the identification poses.
 pub const DEFAULT_STOP_MIN_GAIN: f64 = 0.02;
 
+/// Default of `campaign.stop_remaining_gain`: once every identification pose still planned
+/// would improve the predicted verification error by less than 5 %, they are not measured.
+pub const DEFAULT_STOP_REMAINING_GAIN: f64 = 0.05;
+
 impl Default for CampaignSection {
     fn default() -> Self {
         CampaignSection {
@@ -346,6 +353,7 @@ impl Default for CampaignSection {
             selection: crate::plan::selection::Selection::Random,
             stop_when: StopWhen::Planned,
             stop_min_gain: DEFAULT_STOP_MIN_GAIN,
+            stop_remaining_gain: DEFAULT_STOP_REMAINING_GAIN,
             target_verify_mm: None,
             stop_block: None,
         }
@@ -1048,6 +1056,14 @@ impl CampaignSection {
             "campaign.stop_min_gain",
             format!("must be a fraction in [0, 1), got {}", self.stop_min_gain),
         )?;
+        rule(
+            (0.0..1.0).contains(&self.stop_remaining_gain),
+            "campaign.stop_remaining_gain",
+            format!(
+                "must be a fraction in [0, 1), got {}",
+                self.stop_remaining_gain
+            ),
+        )?;
         if let Some(t) = self.target_verify_mm {
             positive("campaign.target_verify_mm", t)?;
         }
@@ -1065,14 +1081,13 @@ impl CampaignSection {
     }
 
     /// Identification poses per block of the stop rule: `stop_block`, or else the fewest poses
-    /// whose independent observations are at least twice the `candidates` parameters (so the
-    /// first identification has as many redundant observations as unknowns), at most `ident`.
+    /// whose independent observations are at least the `candidates` parameters (the first
+    /// check comes as soon as the identification can be determined, and the rule looks again
+    /// as often), at most `ident`.
     pub fn stop_block_for(&self, candidates: usize) -> usize {
         self.stop_block.unwrap_or_else(|| {
             let per_pose = self.model.observations();
-            (2 * candidates)
-                .div_ceil(per_pose)
-                .clamp(1, self.ident.max(1))
+            candidates.div_ceil(per_pose).clamp(1, self.ident.max(1))
         })
     }
 }
@@ -1131,10 +1146,11 @@ mod tests {
             ),
             (StopWhen::Planned, 0.02, None, None)
         );
-        // op, 6 joints and the base: 36 candidates, 5 observations a pose → 15
-        assert_eq!(c.stop_block_for(36), 15);
+        assert_eq!(c.stop_remaining_gain, 0.05);
+        // op, 6 joints and the base: 36 candidates, 5 observations a pose → 8
+        assert_eq!(c.stop_block_for(36), 8);
         let pos = parse_cell_config("[campaign]\nmodel = \"position\"\n", p).unwrap();
-        assert_eq!(pos.campaign.stop_block_for(36), 24);
+        assert_eq!(pos.campaign.stop_block_for(36), 12);
         let c = parse_cell_config(
             "[campaign]\nstop_when = \"predicted\"\nstop_min_gain = 0.05\n\
              target_verify_mm = 0.03\nstop_block = 10\n",
@@ -1154,6 +1170,14 @@ mod tests {
         for (text, key) in [
             ("[campaign]\nstop_min_gain = 1.0\n", "campaign.stop_min_gain"),
             ("[campaign]\nstop_min_gain = -0.01\n", "campaign.stop_min_gain"),
+            (
+                "[campaign]\nstop_remaining_gain = 1.0\n",
+                "campaign.stop_remaining_gain",
+            ),
+            (
+                "[campaign]\nstop_remaining_gain = nan\n",
+                "campaign.stop_remaining_gain",
+            ),
             ("[campaign]\ntarget_verify_mm = 0.0\n", "campaign.target_verify_mm"),
             ("[campaign]\nstop_block = 0\n", "campaign.stop_block"),
             ("[campaign]\nident = 20\nstop_block = 21\n", "campaign.stop_block"),

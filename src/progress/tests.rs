@@ -187,3 +187,39 @@ fn numbers_for_people() {
     assert_eq!(fmt_duration(Duration::from_secs(3_900)), "1 h 05 min");
     assert_eq!(fmt_duration(Duration::from_secs(3_599)), "59 min 59 s");
 }
+
+#[test]
+fn an_ident_stop_says_which_gain_stopped_it() {
+    use crate::calibrate::{IdentCheck, StopReason};
+    let check = |reason| IdentCheck {
+        after_poses: 64,
+        predicted_mm: 0.0246,
+        noise_floor_mm: 0.022,
+        gain: Some(0.008),
+        stopped: Some(reason),
+        predicted_all_mm: Some(0.0241),
+        remaining_gain: Some(0.019),
+        held_back: Vec::new(),
+    };
+    let mut f = Feed::new(100, 60);
+    let mut line = |reason| {
+        f.at(
+            1.0,
+            CampaignEvent::IdentStopped {
+                after_poses: 64,
+                skipped: 36,
+                reason,
+                predicted_mm: 0.0246,
+                history: vec![check(reason)],
+            },
+        )
+        .expect("a line")
+    };
+    let min = line(StopReason::MinGain);
+    assert!(min.contains("the last block gained 0.8 %"), "{min}");
+    let rest = line(StopReason::RemainingGain);
+    assert!(
+        rest.contains("the poses still planned would gain 1.9 %"),
+        "{rest}"
+    );
+}

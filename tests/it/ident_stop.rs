@@ -71,8 +71,12 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
         full.report.ident_stop.is_none(),
         "a planned campaign has none"
     );
-    // it stopped early, for the gain, and measured the whole verification set
-    assert_eq!(stop.reason, StopReason::MinGain);
+    // it stopped early, for a gain, and measured the whole verification set
+    assert!(
+        matches!(stop.reason, StopReason::MinGain | StopReason::RemainingGain),
+        "{:?}",
+        stop.reason
+    );
     assert!(
         ident_done < ident_planned,
         "{ident_done} of {ident_planned}"
@@ -85,13 +89,22 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
         verify_done, verify_planned,
         "every verification pose measured"
     );
+    assert_eq!(stop.stop_remaining_gain, Some(0.05));
     let last = stop.history.last().expect("history");
     assert_eq!(last.after_poses, ident_done);
-    assert_eq!(last.stopped, Some(StopReason::MinGain));
-    assert!(last.gain.expect("gain") < 0.02);
-    assert!(stop.history[..stop.history.len() - 1]
-        .iter()
-        .all(|c| c.stopped.is_none() && c.gain.is_none_or(|g| g >= 0.02)));
+    assert_eq!(last.stopped, Some(stop.reason));
+    assert!(last.held_back.is_empty(), "{last:?}");
+    match stop.reason {
+        StopReason::MinGain => assert!(last.gain.expect("gain") < 0.02),
+        _ => assert!(last.remaining_gain.expect("remaining gain") < 0.05),
+    }
+    // every check before went on: a parameter held back, or both gains large enough
+    assert!(stop.history[..stop.history.len() - 1].iter().all(|c| {
+        c.stopped.is_none()
+            && (!c.held_back.is_empty()
+                || (c.gain.is_none_or(|g| g >= 0.02)
+                    && c.remaining_gain.is_some_and(|g| g >= 0.05)))
+    }));
     // the identification used the measured ident poses only
     assert_eq!(early.report.metrics.ident.after.poses, ident_done);
     // the journal says so, and the stored result keeps it
@@ -108,7 +121,7 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
     };
     assert_eq!(
         (*after_poses, *skipped, *reason),
-        (ident_done, ident_planned - ident_done, StopReason::MinGain)
+        (ident_done, ident_planned - ident_done, stop.reason)
     );
     assert_eq!(history, &stop.history);
     let stored = CalibrationResult::from_stored_json(
@@ -122,6 +135,55 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
     assert!(
         after <= 1.10 * before,
         "verification {after:.5} mm with {ident_done} ident poses vs {before:.5} mm with all"
+    );
+}
+
+/// The rule stops on predictions, and a prediction knows only the parameters the
+/// identification identified: with the ranked optimal poses the campaign's identification
+/// holds back a5 and d5 (practical test) until some 60 poses on this cell, and a model without
+/// them verifies some 7 % worse (docs/design.md). The rule before stopped after 45 such poses
+/// here; now it measures on until the identification identifies what the whole plan does.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn never_stops_holding_back_a_parameter() {
+    let full = run_in_process(&config_text("", "selection = \"optimal\"", "")).await;
+    let early = run_in_process(&config_text(
+        "",
+        "selection = \"optimal\"\nstop_when = \"predicted\"",
+        "",
+    ))
+    .await;
+    let stop = early.report.ident_stop.clone().expect("ident_stop");
+    eprintln!(
+        "optimal + stop: {} of {} ident poses, verification {:.5} mm vs {:.5} mm with all; {:?}",
+        stop.ident_measured,
+        stop.ident_planned,
+        early.report_after_mm,
+        full.report_after_mm,
+        stop.history
+            .iter()
+            .map(|c| (c.after_poses, c.gain, c.remaining_gain, c.held_back.clone()))
+            .collect::<Vec<_>>()
+    );
+    assert!(stop.ident_measured < stop.ident_planned);
+    assert!(
+        stop.history
+            .iter()
+            .any(|c| c.stopped.is_none() && !c.held_back.is_empty()),
+        "a check went on for a parameter held back"
+    );
+    assert!(stop
+        .history
+        .iter()
+        .all(|c| c.stopped.is_none() || c.held_back.is_empty()));
+    assert_eq!(
+        early.report.identified, full.report.identified,
+        "the stopped identification identifies what the whole plan does"
+    );
+    assert!(
+        early.report_after_mm <= 1.10 * full.report_after_mm,
+        "{} vs {}",
+        early.report_after_mm,
+        full.report_after_mm
     );
 }
 
@@ -180,11 +242,14 @@ fn bad_stop_keys_exit_2_naming_file_and_key() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_target_stops_the_identification_poses_once_the_prediction_reaches_it() {
-    // the gain rule off (only a worse prediction would stop): the target alone decides
+    // the gain rules off (only a worse prediction would stop): the target alone decides
     let target = 0.027;
     let text = config_text(
         "",
-        &format!("stop_when = \"predicted\"\nstop_min_gain = 0.0\ntarget_verify_mm = {target}"),
+        &format!(
+            "stop_when = \"predicted\"\nstop_min_gain = 0.0\nstop_remaining_gain = 0.0\n\
+             target_verify_mm = {target}"
+        ),
         "",
     );
     let f = run_in_process(&text).await;
@@ -199,7 +264,13 @@ async fn the_target_stops_the_identification_poses_once_the_prediction_reaches_i
     assert_eq!(stop.reason, StopReason::Target);
     let (last, before) = stop.history.split_last().expect("history");
     assert!(last.predicted_mm <= target && stop.predicted_mm == Some(last.predicted_mm));
-    assert!(before.iter().all(|c| c.predicted_mm > target), "{before:?}");
+    assert!(
+        before
+            .iter()
+            .all(|c| c.predicted_mm > target || !c.held_back.is_empty()),
+        "{before:?}"
+    );
+    assert!(last.held_back.is_empty());
     assert_eq!(stop.target_verify_mm, Some(target));
     assert!(stop.ident_measured < stop.ident_planned);
     let s = Store::open(&f.store).expect("store");
@@ -238,7 +309,7 @@ fn kill_9_keeps_the_stop() {
     let mut child = run(false).spawn().expect("spawn cellcal run");
     // kill -9 as soon as the stop decision is stored
     let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    let stopped_at = loop {
+    let (stopped_at, reason) = loop {
         assert!(std::time::Instant::now() < deadline, "no stop decision");
         assert!(
             child.try_wait().expect("try_wait").is_none(),
@@ -250,7 +321,7 @@ fn kill_9_keeps_the_stop() {
             .unwrap_or_default();
         if let Some(c) = checks.iter().find(|c| c.stopped.is_some()) {
             child.kill().expect("kill -9");
-            break c.after_poses;
+            break (c.after_poses, c.stopped.expect("stopped"));
         }
         std::thread::sleep(Duration::from_millis(5));
     };
@@ -283,7 +354,7 @@ fn kill_9_keeps_the_stop() {
     let stop = stored.report.ident_stop.expect("ident_stop");
     assert_eq!(
         (stop.reason, stop.ident_measured, stop.ident_planned),
-        (StopReason::MinGain, stopped_at, ident_planned)
+        (reason, stopped_at, ident_planned)
     );
     assert_eq!(stored.report.metrics.ident.after.poses, stopped_at);
 }

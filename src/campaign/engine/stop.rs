@@ -2,12 +2,18 @@
 //! identification poses when it has enough.
 //!
 //! After each block of `stop_block` measured identification poses the engine identifies on
-//! what is stored (the campaign's own recipe, [`super::identification_input`]), predicts the
-//! mean verification error of that identification at the plan's verification poses
-//! ([`predicted_verification`] of `plan::selection`: the identification's parameter covariance
-//! carried to the ball at each verification pose, plus the tracker's noise there), and stops measuring
-//! identification poses once a block improves that prediction by less than `stop_min_gain`
-//! ([`decide`]) or it is at or below `target_verify_mm`. The remaining identification poses
+//! what is stored (the campaign's own recipe, [`super::identification_input`]) and predicts,
+//! from that one identification ([`predict_check`]), the mean verification error at the plan's
+//! verification poses ([`predicted_verification`] of `plan::selection`: the parameter
+//! covariance carried to the ball at each verification pose, plus the readings' noise there)
+//! with the poses measured, without the last block, and with every planned identification pose.
+//! It stops measuring identification poses ([`decide`]) once the prediction is at or below
+//! `target_verify_mm`, the last block bought less than `stop_min_gain`, or the poses still
+//! planned would buy less than `stop_remaining_gain` — never while the identification holds
+//! back a parameter the whole plan identifies (its error is in no prediction). Comparing
+//! predictions of one identification keeps the fit's own noise out of the gains: comparing each
+//! check with the previous one (the rule before) followed the a-posteriori σ of two fits and
+//! stopped after 45 to 75 poses of the same design. The remaining identification poses
 //! are skipped, never measured; the verification poses are always measured in full; the final
 //! identification uses the measured identification poses only, as always. Every check is
 //! stored ([`crate::store::Store::add_ident_check`]) before the robot moves again, so a resume
@@ -16,6 +22,8 @@
 //! The identification runs between robot moves, on a blocking thread: the robot stands at its
 //! last pose, nothing moves, and an abort or a disarm ends the wait at once.
 
+use std::collections::BTreeSet;
+
 use nalgebra::{DMatrix, Vector3};
 
 use super::{identification_input, Run, Stop};
@@ -23,47 +31,91 @@ use crate::calibrate::{calibrate, IdentCheck, IdentStop, StopReason};
 use crate::campaign::events::CampaignEvent;
 use crate::config::{CellConfig, StopWhen};
 use crate::dataset::PoseSet;
+use crate::identify::identifiability::DropKind;
 use crate::identify::{all_params, Identification, TrackerNoise};
 use crate::model::RobotModel;
 use crate::plan::selection::{predicted_verification, Design, NoiseModel, PredictedError};
 use crate::plan::Plan;
 use crate::units::human::fmt_mm;
 
-/// The rule: the relative gain on the `previous` prediction and why to stop, if so. Stops at
-/// or below `target_mm`, or when the gain `(previous − predicted) / previous` is below
-/// `min_gain` (a worse prediction included); the first check stops only at the target; a
-/// prediction that is not a finite positive number never stops.
-pub fn decide(
-    previous: Option<f64>,
-    predicted_mm: f64,
-    min_gain: f64,
-    target_mm: Option<f64>,
-) -> (Option<f64>, Option<StopReason>) {
-    if !(predicted_mm.is_finite() && predicted_mm > 0.0) {
-        return (None, None);
-    }
-    let gain = previous
-        .filter(|p| p.is_finite() && *p > 0.0)
-        .map(|p| (p - predicted_mm) / p);
-    let stop = if target_mm.is_some_and(|t| predicted_mm <= t) {
-        Some(StopReason::Target)
-    } else if gain.is_some_and(|g| g < min_gain) {
-        Some(StopReason::MinGain)
-    } else {
-        None
-    };
-    (gain, stop)
+/// What one check's identification predicts (mm): the mean verification error with the
+/// identification poses measured, and, from the same identification (its parameter
+/// covariance's scale and linearisation point), without the last block and with every planned
+/// identification pose measured. Comparing predictions of one identification, not of two, keeps
+/// the fit's own noise (its a-posteriori σ of unit weight) out of the gains.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckPrediction {
+    /// With the identification poses measured: mean and noise floor.
+    pub now: PredictedError,
+    /// Without the last block (`None`: no block before it, or too few poses to identify).
+    pub before_block_mm: Option<f64>,
+    /// With every planned identification pose.
+    pub all_mm: f64,
+    /// Parameters the whole plan identifies that this identification holds back (public
+    /// names): their error is in no prediction, so the rule does not stop while there are any.
+    pub held_back: Vec<String>,
 }
 
-/// The rule of a running campaign: its settings, the planned verification joints and the
-/// checks made so far (stored ones included).
+impl CheckPrediction {
+    /// `(before − now) / before`: what the last block bought.
+    pub fn block_gain(&self) -> Option<f64> {
+        self.before_block_mm
+            .filter(|b| b.is_finite() && *b > 0.0)
+            .map(|b| (b - self.now.mean_mm) / b)
+    }
+
+    /// `(now − all) / now`: what the identification poses still planned would buy.
+    pub fn remaining_gain(&self) -> Option<f64> {
+        (self.all_mm.is_finite() && self.all_mm > 0.0 && self.now.mean_mm > 0.0)
+            .then(|| (self.now.mean_mm - self.all_mm) / self.now.mean_mm)
+    }
+}
+
+/// The rule's thresholds (`campaign.stop_min_gain`, `stop_remaining_gain`,
+/// `target_verify_mm`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thresholds {
+    /// Least gain of a block to go on.
+    pub min_gain: f64,
+    /// Least gain of the poses still planned to go on.
+    pub remaining_gain: f64,
+    /// Stop at or below this prediction (mm).
+    pub target_mm: Option<f64>,
+}
+
+/// The rule: why to stop, if so. Stops at or below the target, else when the last block
+/// gained less than `min_gain` (a worse prediction included), else when the poses still planned
+/// would gain less than `remaining_gain`; a prediction that is not a finite positive number
+/// never stops, and a gain not known (the first check has no block before it) never stops.
+pub fn decide(
+    predicted_mm: f64,
+    block_gain: Option<f64>,
+    remaining_gain: Option<f64>,
+    t: &Thresholds,
+) -> Option<StopReason> {
+    if !(predicted_mm.is_finite() && predicted_mm > 0.0) {
+        return None;
+    }
+    let below = |g: Option<f64>, min: f64| g.is_some_and(|g| g.is_finite() && g < min);
+    if t.target_mm.is_some_and(|t| predicted_mm <= t) {
+        Some(StopReason::Target)
+    } else if below(block_gain, t.min_gain) {
+        Some(StopReason::MinGain)
+    } else if below(remaining_gain, t.remaining_gain) {
+        Some(StopReason::RemainingGain)
+    } else {
+        None
+    }
+}
+
+/// The rule of a running campaign: its settings, the planned identification and verification
+/// joints and the checks made so far (stored ones included).
 pub(super) struct StopRule {
     /// Identification poses per block.
     block: usize,
-    min_gain: f64,
-    target_mm: Option<f64>,
-    /// Identification poses planned.
-    ident_planned: usize,
+    thresholds: Thresholds,
+    /// The planned identification poses: index and joints (rad), by index (rank order).
+    ident: Vec<(usize, Vec<f64>)>,
     /// Joints of the planned verification poses (rad).
     verify_q: Vec<Vec<f64>>,
     /// The checks so far, by increasing pose count.
@@ -94,11 +146,19 @@ impl StopRule {
             return None;
         }
         let of_set = |set: PoseSet| plan.poses.iter().filter(move |p| p.set == set);
+        let mut ident: Vec<(usize, Vec<f64>)> = of_set(PoseSet::Ident)
+            .map(|p| (p.index, p.q_rad.clone()))
+            .collect();
+        ident.sort_by_key(|(i, _)| *i);
+        let c = &cfg.campaign;
         Some(StopRule {
             block: stop_block(cfg, nominal),
-            min_gain: cfg.campaign.stop_min_gain,
-            target_mm: cfg.campaign.target_verify_mm,
-            ident_planned: of_set(PoseSet::Ident).count(),
+            thresholds: Thresholds {
+                min_gain: c.stop_min_gain,
+                remaining_gain: c.stop_remaining_gain,
+                target_mm: c.target_verify_mm,
+            },
+            ident,
             verify_q: of_set(PoseSet::Verify).map(|p| p.q_rad.clone()).collect(),
             checks,
             failed_at: None,
@@ -115,7 +175,7 @@ impl StopRule {
     fn due(&self, ident_done: usize) -> bool {
         ident_done > 0
             && ident_done.is_multiple_of(self.block)
-            && ident_done < self.ident_planned
+            && ident_done < self.ident.len()
             && self
                 .checks
                 .last()
@@ -125,16 +185,34 @@ impl StopRule {
     }
 
     /// The check of `predicted` after `after_poses` identification poses.
-    fn check(&self, after_poses: usize, predicted: &PredictedError) -> IdentCheck {
-        let previous = self.checks.last().map(|c| c.predicted_mm);
-        let (gain, stopped) = decide(previous, predicted.mean_mm, self.min_gain, self.target_mm);
+    fn check(&self, after_poses: usize, predicted: &CheckPrediction) -> IdentCheck {
+        let (gain, remaining_gain) = (predicted.block_gain(), predicted.remaining_gain());
+        let stopped = decide(
+            predicted.now.mean_mm,
+            gain,
+            remaining_gain,
+            &self.thresholds,
+        )
+        .filter(|_| predicted.held_back.is_empty());
         IdentCheck {
             after_poses,
-            predicted_mm: predicted.mean_mm,
-            noise_floor_mm: predicted.noise_floor_mm,
+            predicted_mm: predicted.now.mean_mm,
+            noise_floor_mm: predicted.now.noise_floor_mm,
             gain,
             stopped,
+            predicted_all_mm: Some(predicted.all_mm),
+            remaining_gain,
+            held_back: predicted.held_back.clone(),
         }
+    }
+
+    /// The joints of the identification poses measured (`measured`: their indices), by index,
+    /// and of those still planned.
+    fn split_ident(&self, measured: &BTreeSet<usize>) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        let (done, rest): (Vec<_>, Vec<_>) =
+            self.ident.iter().partition(|(i, _)| measured.contains(i));
+        let q = |v: Vec<&(usize, Vec<f64>)>| v.into_iter().map(|(_, q)| q.clone()).collect();
+        (q(done), q(rest))
     }
 
     /// The `ident_stopped` event of the check that stopped the identification poses.
@@ -143,7 +221,7 @@ impl StopRule {
         let at = self.checks.iter().position(|x| x.stopped.is_some())?;
         Some(CampaignEvent::IdentStopped {
             after_poses: c.after_poses,
-            skipped: self.ident_planned.saturating_sub(c.after_poses),
+            skipped: self.ident.len().saturating_sub(c.after_poses),
             reason: c.stopped?,
             predicted_mm: c.predicted_mm,
             history: self.checks[..=at].to_vec(),
@@ -156,27 +234,37 @@ impl StopRule {
         IdentStop {
             reason: stop.and_then(|c| c.stopped).unwrap_or(StopReason::Planned),
             ident_measured,
-            ident_planned: self.ident_planned,
+            ident_planned: self.ident.len(),
             predicted_mm: stop.or(self.checks.last()).map(|c| c.predicted_mm),
-            stop_min_gain: self.min_gain,
-            target_verify_mm: self.target_mm,
+            stop_min_gain: self.thresholds.min_gain,
+            stop_remaining_gain: Some(self.thresholds.remaining_gain),
+            target_verify_mm: self.thresholds.target_mm,
             history: self.checks.clone(),
         }
     }
 }
 
-/// The predicted verification error of identification `id` (stage travel `travel_mm`) at
-/// `verify_q` ([`predicted_verification`]): its covariance over the identified parameters (σ
-/// and correlations as it reports them: the a-posteriori σ of unit weight, so a cell noisier
-/// than the tracker's model asks for more poses), the identified model (measurement frame, the
-/// ball as its tool) as the linearisation point, and the AT960 noise model with the tracker at
-/// the measurement frame's origin (the measurement frame is the tracker's). `None` when a σ is
-/// not finite.
-fn predicted_of(
+/// What identification `id` (stage travel `travel_mm`) predicts at `verify_q`
+/// ([`predicted_verification`]; [`CheckPrediction`]): its covariance over the identified
+/// parameters (σ and correlations as it reports them: the a-posteriori σ of unit weight, so a
+/// cell noisier than the tracker's model asks for more poses), the identified model
+/// (measurement frame, the ball as its tool) as the linearisation point, and the AT960 noise
+/// model with the tracker at the measurement frame's origin (the measurement frame is the
+/// tracker's). `measured_q`: the identification poses it used, by index (blocks of `block`, the
+/// last one last); `rest_q`: those still planned. The predictions without the last block and
+/// with every planned pose are the design's, its tracker noise scaled by the identification's
+/// own: so that the design's covariance of `measured_q` has the identification's parameter part
+/// at `verify_q`, the verification readings as noisy (the gains do not depend on that scale,
+/// nor on the fit's noisy estimate of it); they are given as ratios to `now`. `None` when a σ
+/// is not finite or the prediction is not a number.
+pub fn predict_check(
     id: &Identification,
     travel_mm: f64,
     verify_q: &[Vec<f64>],
-) -> Option<PredictedError> {
+    measured_q: &[Vec<f64>],
+    block: usize,
+    rest_q: &[Vec<f64>],
+) -> Option<CheckPrediction> {
     let params = id.identifiability.identified.clone();
     let std: Vec<f64> = params
         .iter()
@@ -203,8 +291,72 @@ fn predicted_of(
         },
         params,
     };
-    let p = predicted_verification(&design, &cov, verify_q);
-    (p.mean_mm.is_finite()).then_some(p)
+    let now = predicted_verification(&design, &cov, verify_q);
+    if !now.mean_mm.is_finite() {
+        return None;
+    }
+    let all: Vec<Vec<f64>> = measured_q.iter().chain(rest_q).cloned().collect();
+    // what the whole plan identifies (the structural and practical test of the campaign's
+    // identification, at this identification's model): the parameters this identification
+    // held back by the practical test that the whole plan would identify
+    let held_back = Design::new(
+        id.corrected.clone(),
+        id.options.obs,
+        travel_mm,
+        design.noise,
+        id.options.identify_base,
+        id.options.identify_tool,
+        &all,
+    )
+    .map(|whole| {
+        id.identifiability
+            .dropped
+            .iter()
+            .filter(|d| d.kind != DropKind::Structural && whole.params.contains(&d.param))
+            .map(|d| d.param.name())
+            .collect()
+    })
+    .unwrap_or_default();
+    // κ: the identification's parameter part at the verification poses over the design's for
+    // the same poses (≈ its a-posteriori σ² over the tracker model's); the readings are as
+    // much noisier as the fit saw, so the gains are the design's with the noise scaled by √κ
+    let jv: Vec<DMatrix<f64>> = verify_q
+        .iter()
+        .map(|q| design.position_jacobian(q))
+        .collect();
+    let part =
+        |c: &DMatrix<f64>| -> f64 { jv.iter().map(|j| (j * c * j.transpose()).trace()).sum() };
+    let kappa = design
+        .covariance(measured_q)
+        .map(|c| part(&cov) / part(&c))
+        .filter(|s| s.is_finite() && *s > 0.0);
+    let mut scaled = design;
+    if let Some(k) = kappa {
+        scaled.noise.tracker.k /= k.sqrt();
+    }
+    let predict = |set: &[Vec<f64>]| -> Option<f64> {
+        let c = scaled.covariance(set)?;
+        Some(predicted_verification(&scaled, &c, verify_q).mean_mm).filter(|m| m.is_finite())
+    };
+    let now_scaled = predict(measured_q).filter(|_| kappa.is_some());
+    let before_block_mm = measured_q
+        .len()
+        .checked_sub(block)
+        .filter(|n| *n > 0)
+        .and_then(|n| predict(&measured_q[..n]));
+    let all_mm = if rest_q.is_empty() {
+        now_scaled
+    } else {
+        predict(&all)
+    };
+    // in the reported prediction's terms: the same ratios to it
+    let to_now = |x: Option<f64>| now_scaled.zip(x).map(|(n, x)| now.mean_mm * x / n);
+    Some(CheckPrediction {
+        now,
+        before_block_mm: to_now(before_block_mm),
+        all_mm: to_now(all_mm).unwrap_or(f64::NAN),
+        held_back,
+    })
 }
 
 impl Run<'_> {
@@ -228,9 +380,18 @@ impl Run<'_> {
         }
         let input = identification_input(self.ctx).await?;
         let verify_q = rule.verify_q.clone();
+        let measured: BTreeSet<usize> = input
+            .rows
+            .iter()
+            .filter(|o| o.set == PoseSet::Ident)
+            .filter_map(|o| o.id.parse().ok())
+            .collect();
+        let (measured_q, rest_q) = rule.split_ident(&measured);
+        let block = rule.block;
         let work = tokio::task::spawn_blocking(move || {
-            calibrate(&input.nominal, &input.rows, &input.opts, input.travel)
-                .map(|(_, id)| predicted_of(&id, input.travel, &verify_q))
+            calibrate(&input.nominal, &input.rows, &input.opts, input.travel).map(|(_, id)| {
+                predict_check(&id, input.travel, &verify_q, &measured_q, block, &rest_q)
+            })
         });
         // the robot stands; an abort or a disarm ends the wait at once (the thread's result
         // is dropped)
@@ -275,12 +436,24 @@ impl Run<'_> {
             None => {
                 let gain = check
                     .gain
-                    .map(|g| format!(", {:.1} % better than the last block", 100.0 * g))
+                    .map(|g| format!(", {:.1} % better than without the last block", 100.0 * g))
                     .unwrap_or_default();
+                let rest = check
+                    .remaining_gain
+                    .map(|g| format!(", the poses still planned would gain {:.1} %", 100.0 * g))
+                    .unwrap_or_default();
+                let held = if check.held_back.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        ", {} held back (the whole plan identifies them)",
+                        check.held_back.join(", ")
+                    )
+                };
                 self.journal(CampaignEvent::Note {
                     text: format!(
                         "stop rule: after {ident_done} identification poses the predicted \
-                         verification error is {} mm{gain}; measuring on",
+                         verification error is {} mm{gain}{rest}{held}; measuring on",
                         fmt_mm(check.predicted_mm)
                     ),
                 })
@@ -295,60 +468,84 @@ impl Run<'_> {
 mod tests {
     use super::*;
 
+    fn t(min_gain: f64, remaining_gain: f64, target_mm: Option<f64>) -> Thresholds {
+        Thresholds {
+            min_gain,
+            remaining_gain,
+            target_mm,
+        }
+    }
+
     #[test]
     fn the_rule_stops_on_a_small_gain_or_at_the_target_and_never_on_nonsense() {
-        // first check: no gain, stops only at the target
-        assert_eq!(decide(None, 0.05, 0.02, None), (None, None));
+        let d = t(0.02, 0.05, None);
+        // first check: no block gain; a large remaining gain goes on, a small one stops
+        assert_eq!(decide(0.05, None, Some(0.10), &d), None);
+        assert_eq!(decide(0.05, None, None, &d), None);
         assert_eq!(
-            decide(None, 0.03, 0.02, Some(0.03)),
-            (None, Some(StopReason::Target))
+            decide(0.05, None, Some(0.049), &d),
+            Some(StopReason::RemainingGain)
         );
-        // a 10 % gain goes on, a 1 % gain stops, a worse prediction stops
-        let (g, s) = decide(Some(0.05), 0.045, 0.02, None);
-        assert!((g.unwrap() - 0.1).abs() < 1e-12 && s.is_none());
-        let (g, s) = decide(Some(0.05), 0.0495, 0.02, None);
-        assert!((g.unwrap() - 0.01).abs() < 1e-12);
-        assert_eq!(s, Some(StopReason::MinGain));
         assert_eq!(
-            decide(Some(0.05), 0.06, 0.02, None).1,
-            Some(StopReason::MinGain)
-        );
-        // 3 % goes on
-        assert_eq!(decide(Some(0.05), 0.0485, 0.02, None).1, None);
-        // the target wins over the gain; min_gain 0 stops only on a worse prediction
-        assert_eq!(
-            decide(Some(0.05), 0.0499, 0.02, Some(0.06)).1,
+            decide(0.03, None, Some(0.5), &t(0.02, 0.05, Some(0.03))),
             Some(StopReason::Target)
         );
-        assert_eq!(decide(Some(0.05), 0.0499, 0.0, None).1, None);
-        assert_eq!(decide(Some(0.05), 0.05, 0.0, None).1, None);
+        // a 10 % block goes on, a 1 % block stops, a worse prediction stops
+        assert_eq!(decide(0.05, Some(0.10), Some(0.2), &d), None);
         assert_eq!(
-            decide(Some(0.05), 0.0501, 0.0, None).1,
+            decide(0.05, Some(0.01), Some(0.2), &d),
+            Some(StopReason::MinGain)
+        );
+        assert_eq!(
+            decide(0.05, Some(-0.01), Some(0.2), &d),
+            Some(StopReason::MinGain)
+        );
+        // the block's reason wins over the remaining one, the target over both
+        assert_eq!(
+            decide(0.05, Some(0.01), Some(0.01), &d),
+            Some(StopReason::MinGain)
+        );
+        assert_eq!(
+            decide(0.05, Some(0.01), Some(0.01), &t(0.02, 0.05, Some(0.06))),
+            Some(StopReason::Target)
+        );
+        // 0 turns a gain rule off but for a worse prediction
+        let off = t(0.0, 0.0, None);
+        assert_eq!(decide(0.05, Some(0.0), Some(0.0), &off), None);
+        assert_eq!(
+            decide(0.05, Some(-0.001), Some(0.0), &off),
             Some(StopReason::MinGain)
         );
         // NaN, inf, zero: never a stop
         for p in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
-            assert_eq!(decide(Some(0.05), p, 0.02, Some(1.0)), (None, None));
+            assert_eq!(
+                decide(p, Some(0.0), Some(0.0), &t(0.02, 0.05, Some(1.0))),
+                None
+            );
         }
-        assert_eq!(decide(Some(f64::NAN), 0.05, 0.02, None), (None, None));
+        assert_eq!(decide(0.05, Some(f64::NAN), Some(f64::NAN), &d), None);
     }
 
     fn rule(block: usize, planned: usize) -> StopRule {
         StopRule {
             block,
-            min_gain: 0.02,
-            target_mm: None,
-            ident_planned: planned,
+            thresholds: t(0.02, 0.05, None),
+            ident: (0..planned).map(|i| (i, vec![0.0; 6])).collect(),
             verify_q: Vec::new(),
             checks: Vec::new(),
             failed_at: None,
         }
     }
 
-    fn predicted(mm: f64) -> PredictedError {
-        PredictedError {
-            mean_mm: mm,
-            noise_floor_mm: 0.02,
+    fn predicted(mm: f64, before: Option<f64>, all: f64) -> CheckPrediction {
+        CheckPrediction {
+            now: PredictedError {
+                mean_mm: mm,
+                noise_floor_mm: 0.02,
+            },
+            before_block_mm: before,
+            all_mm: all,
+            held_back: Vec::new(),
         }
     }
 
@@ -357,14 +554,19 @@ mod tests {
         let mut r = rule(10, 35);
         let due: Vec<usize> = (0..=35).filter(|n| r.due(*n)).collect();
         assert_eq!(due, [10, 20, 30], "whole blocks, not the last pose");
-        for (n, mm) in [(10, 0.05), (20, 0.04)] {
-            let c = r.check(n, &predicted(mm));
+        for (n, mm, before) in [(10, 0.05, None), (20, 0.04, Some(0.045))] {
+            let c = r.check(n, &predicted(mm, before, 0.03));
+            assert_eq!(c.stopped, None);
             r.checks.push(c);
         }
         assert!(!r.due(20), "a count is checked once");
         assert_eq!(r.summary(20).reason, StopReason::Planned);
-        let c = r.check(30, &predicted(0.0396));
+        // the last block bought 1 %
+        let c = r.check(30, &predicted(0.0396, Some(0.04), 0.03));
         assert_eq!(c.stopped, Some(StopReason::MinGain));
+        assert!((c.gain.unwrap() - 0.01).abs() < 1e-12);
+        assert!((c.remaining_gain.unwrap() - (1.0 - 0.03 / 0.0396)).abs() < 1e-12);
+        assert_eq!(c.predicted_all_mm, Some(0.03));
         r.checks.push(c);
         assert!(r.stopped().is_some() && !r.due(40));
         let s = r.summary(30);
@@ -373,5 +575,61 @@ mod tests {
             (StopReason::MinGain, 30, 35, 3)
         );
         assert_eq!(s.predicted_mm, Some(0.0396));
+        assert_eq!(s.stop_remaining_gain, Some(0.05));
+    }
+
+    #[test]
+    fn the_poses_still_planned_stop_the_rule_when_they_would_buy_too_little() {
+        let mut r = rule(10, 100);
+        // each block still buys 3 %, but the 60 poses left would buy only 4 %
+        let c = r.check(40, &predicted(0.0260, Some(0.0268), 0.0250));
+        assert_eq!(c.stopped, Some(StopReason::RemainingGain));
+        r.checks.push(c);
+        let s = r.summary(40);
+        assert_eq!(
+            (s.reason, s.ident_measured),
+            (StopReason::RemainingGain, 40)
+        );
+        let Some(CampaignEvent::IdentStopped {
+            after_poses,
+            skipped,
+            reason,
+            ..
+        }) = r.stopped_event()
+        else {
+            panic!("an ident_stopped event");
+        };
+        assert_eq!(
+            (after_poses, skipped, reason),
+            (40, 60, StopReason::RemainingGain)
+        );
+    }
+
+    #[test]
+    fn a_parameter_held_back_that_the_whole_plan_identifies_keeps_the_rule_measuring() {
+        let r = rule(10, 100);
+        let mut p = predicted(0.0260, Some(0.0268), 0.0250);
+        p.held_back = vec!["d5".into(), "a5".into()];
+        let c = r.check(40, &p);
+        assert_eq!(c.stopped, None, "its error is in no prediction");
+        assert_eq!(c.held_back, ["d5", "a5"]);
+        // the target does not stop it either
+        let mut r = rule(10, 100);
+        r.thresholds.target_mm = Some(0.03);
+        assert_eq!(r.check(40, &p).stopped, None);
+        p.held_back.clear();
+        assert_eq!(r.check(40, &p).stopped, Some(StopReason::Target));
+    }
+
+    #[test]
+    fn the_split_follows_the_measured_indices_in_rank_order() {
+        let mut r = rule(2, 5);
+        for (i, p) in r.ident.iter_mut() {
+            p[0] = *i as f64;
+        }
+        let (done, rest) = r.split_ident(&BTreeSet::from([3, 0]));
+        let first = |v: Vec<Vec<f64>>| v.iter().map(|q| q[0]).collect::<Vec<_>>();
+        assert_eq!(first(done), [0.0, 3.0]);
+        assert_eq!(first(rest), [1.0, 2.0, 4.0]);
     }
 }
