@@ -156,10 +156,19 @@ impl SimWorldConfig {
     /// given or in fast mode (3600 deg/s), else (realistic) the robot file's
     /// `max_speed_deg_s` and `max_accel_deg_s2` ([`MotionLimits::of`], with its fallback).
     pub fn motion_limits(&self, model: &RobotModel) -> MotionLimits {
+        match self.uniform_speed_rad_s() {
+            Some(v) => MotionLimits::uniform(model.dof(), v),
+            None => MotionLimits::of(model, 100.0),
+        }
+    }
+    /// Every joint's speed at 100 % (rad/s) when the simulated robot moves at one constant
+    /// speed (`move_speed_deg_s` given, or fast mode: 3600 deg/s); `None` when it moves by the
+    /// robot file's limits (realistic).
+    pub fn uniform_speed_rad_s(&self) -> Option<f64> {
         match (self.move_speed_deg_s, self.realistic) {
-            (Some(v), _) => MotionLimits::uniform(model.dof(), v.to_radians()),
-            (None, false) => MotionLimits::uniform(model.dof(), 3600f64.to_radians()),
-            (None, true) => MotionLimits::of(model, 100.0),
+            (Some(v), _) => Some(v.to_radians()),
+            (None, false) => Some(3600f64.to_radians()),
+            (None, true) => None,
         }
     }
     /// Effective settle time (ms).

@@ -1077,3 +1077,45 @@ fn the_travel_check_allows_the_tolerance_plus_three_sigma_and_refuses_nan() {
     assert!(check_travel(&p1, &point([0.0, 10.1, 0.0], 10.0, f64::NAN), 0.02, 0.05).is_ok());
     assert!(check_travel(&p1, &point([f64::NAN, 10.0, 0.0], 10.0, 0.01), 0.02, 0.05).is_err());
 }
+
+/// The setup reads each tool-frame target starting where the stage stands, as a pose: after the
+/// first robot stop (where the prepared stage is moved to P1 first), no stop moves the stage
+/// more than once (the tool frame moved it P2 → P1 → P2 at every P2 target before), and
+/// every tool-frame P1/P2 pair and base-registration point is still taken.
+#[tokio::test]
+async fn every_stop_of_the_robot_moves_the_stage_at_most_once_in_the_setup_too() {
+    let mut b = Bench::new(config(POSES, IDENT, true, &[]), false);
+    let (outcome, _) = b.run(nobody).await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let calls = b.cell.calls();
+    let mut per_stop: Vec<usize> = Vec::new();
+    for c in &calls {
+        match c {
+            Call::MoveJ { .. } => per_stop.push(0),
+            Call::StageMove(_) => *per_stop.last_mut().expect("a move first") += 1,
+            _ => {}
+        }
+    }
+    assert!(per_stop[0] <= 2, "{per_stop:?}");
+    assert!(
+        per_stop[1..].iter().all(|n| *n <= 1),
+        "stage moves per robot stop: {per_stop:?}"
+    );
+    let id = b.ctx.campaign_id;
+    let setup = b.with_store(|s| s.setup_points(id)).expect("setup points");
+    let marks = |end: &str| {
+        setup
+            .iter()
+            .filter(|p| p.note.starts_with("tool frame") && p.note.ends_with(end))
+            .count()
+    };
+    assert!(marks(" P2") >= 4, "P2 pairs: {}", marks(" P2"));
+    assert!(marks(" P1") > marks(" P2"), "rotations at P1 too");
+    assert_eq!(
+        setup
+            .iter()
+            .filter(|p| p.note.starts_with("base registration"))
+            .count(),
+        b.ctx.cfg.setup.base_poses
+    );
+}
