@@ -13,7 +13,7 @@ use crate::plan::{CampaignEstimate, MotionLimits, Plan, PlanRequest, Router};
 
 /// A real tracker's time per reading beyond the measuring time (s): the emScon command, the
 /// AT960's start of a stationary measurement and the result's transfer (an assumption; the
-/// measuring time itself is `[tracker] measure_ms`).
+/// measuring time itself is [`CellConfig::tracker_measure_ms`]).
 pub const REAL_READING_OVERHEAD_S: f64 = 0.3;
 /// The simulated tracker's time per reading beyond its measuring time (s): loopback round
 /// trips.
@@ -54,7 +54,7 @@ pub fn cell_times(cfg: &CellConfig, nominal: &RobotModel) -> CellTimes {
             cfg.robot_controller.settle_ms.unwrap_or(REAL_SETTLE_MS) as f64 / 1000.0,
         ),
     };
-    let measure_s = f64::from(cfg.tracker.measure_ms) / 1000.0;
+    let measure_s = f64::from(cfg.tracker_measure_ms()) / 1000.0;
     let (reading_s, tracker_prepare_s) = match cfg.tracker.mode {
         DeviceMode::Sim => (
             measure_s * sim.measure_time_scale.max(0.0) + SIM_READING_OVERHEAD_S,

@@ -33,7 +33,8 @@ pub struct SimWorldConfig {
     pub move_speed_deg_s: Option<f64>,
     /// Settle time after a move (ms); fast default 0, realistic 1500.
     pub settle_ms: Option<u64>,
-    /// Measuring time the cell's tracker clients should use (ms); fast default 5, realistic 1000.
+    /// Measuring time of a simulated tracker whose `[tracker] measure_ms` is unset (ms); fast
+    /// default 5, realistic 1000.
     pub measure_ms: Option<u64>,
     /// The simulated tracker measures for the client's measuring time × this factor (1 = real
     /// time, 0 = instant: zero-delay devices for overhead benchmarks).
