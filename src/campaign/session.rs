@@ -190,18 +190,22 @@ pub fn campaign_plan_request(cfg: &CellConfig, nominal: &RobotModel) -> PlanRequ
 /// is simulated, else [`REAL_SETTLE_S`].
 fn settle_s(cfg: &CellConfig) -> f64 {
     match (&cfg.robot_controller.mode, &cfg.sim) {
-        (DeviceMode::Sim, Some(sim)) => sim.effective_settle_ms() as f64 / 1000.0,
-        (DeviceMode::Sim, None) => SimWorldConfig::default().effective_settle_ms() as f64 / 1000.0,
+        (DeviceMode::Sim, Some(sim)) => sim.settle_s(),
+        (DeviceMode::Sim, None) => SimWorldConfig::default().settle_s(),
         _ => REAL_SETTLE_S,
     }
 }
 
-/// The constant joint speed the plan's order assumes (rad/s): the simulated robot's when it
-/// moves so ([`SimWorldConfig::uniform_speed_rad_s`]), else `None` (the robot file's limits).
+/// The constant joint speed the plan's order assumes (rad/s): a simulated robot's given
+/// `[sim] move_speed_deg_s`, else `None`: the robot file's limits (also for the fast simulated
+/// cell's default speed, whose times are not meant to be a robot's: its campaigns keep the
+/// order of the robot file, as README's pinned campaign).
 fn move_speed_rad_s(cfg: &CellConfig) -> Option<f64> {
-    match cfg.robot_controller.mode {
-        DeviceMode::Sim => cfg.sim.clone().unwrap_or_default().uniform_speed_rad_s(),
-        DeviceMode::Real => None,
+    match (cfg.robot_controller.mode, &cfg.sim) {
+        (DeviceMode::Sim, Some(sim)) => sim
+            .move_speed_deg_s
+            .map(|v| v.to_radians() / sim.time_scale),
+        _ => None,
     }
 }
 

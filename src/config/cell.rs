@@ -1593,6 +1593,10 @@ mod tests {
                 "[sim]\nstage_speed_mm_s = -1\n",
                 "sim.stage_speed_mm_s: must be positive",
             ),
+            (
+                "[sim]\ntime_scale = 0\n",
+                "sim.time_scale: must be positive",
+            ),
         ] {
             for e in [
                 parse_cell_config(text, p).unwrap_err().to_string(),
