@@ -86,7 +86,7 @@ const LOOP_EXHAUSTIVE_MAX: usize = 8;
 /// the same order.
 pub fn order_loop(limits: &MotionLimits, hub: &[f64], poses: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
     let n = poses.len();
-    if n < 2 || n > LOOP_EXHAUSTIVE_MAX {
+    if !(2..=LOOP_EXHAUSTIVE_MAX).contains(&n) {
         return poses;
     }
     let leg = |a: &[f64], b: &[f64]| limits.move_time_s(a, b);
