@@ -6,9 +6,7 @@
 use crate::config::{CellConfig, DeviceMode, StageMode};
 use crate::model::RobotModel;
 use crate::plan::setup::{base_registration_targets, tool_frame_targets};
-use crate::plan::timing::{
-    campaign_walk, estimate_campaign, pose_stage_targets, CellTimes, StageTimes, Visit,
-};
+use crate::plan::timing::{campaign_walk, estimate_campaign, CellTimes, StageTimes, Visit};
 use crate::plan::{CampaignEstimate, MotionLimits, Plan, PlanRequest, Router};
 
 /// A real tracker's time per reading beyond the measuring time (s): the emScon command, the
@@ -129,11 +127,8 @@ pub fn estimate_campaign_time(
             &cfg.setup.tool_frame_request(),
             home.as_deref(),
         );
-        // where the stage stands first, as the engine measures a target
-        let mut at = None;
         setup.extend(targets.unwrap_or_default().into_iter().map(|t| {
-            let stage_mm = pose_stage_targets(at, p1, p2, t.measure_p2);
-            at = stage_mm.last().copied();
+            let stage_mm = if t.measure_p2 { vec![p1, p2] } else { vec![p1] };
             Visit {
                 q_rad: t.q_rad,
                 approach: None,
@@ -143,7 +138,7 @@ pub fn estimate_campaign_time(
         }));
     }
     if cfg.setup.base_registration {
-        let poses = base_registration_targets(nominal, plan, req, cfg.setup.base_poses);
+        let poses = base_registration_targets(nominal, plan, cfg.setup.base_poses);
         setup.extend(poses.into_iter().map(|q_rad| Visit {
             q_rad,
             approach: None,

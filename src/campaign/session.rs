@@ -197,12 +197,12 @@ fn settle_s(cfg: &CellConfig) -> f64 {
 }
 
 /// The constant joint speed the plan's order assumes (rad/s): a simulated robot's given
-/// `[sim] move_speed_deg_s`, else `None`: the robot file's limits (also for the fast simulated
-/// cell's default speed, whose times are not meant to be a robot's: its campaigns keep the
-/// order of the robot file, as README's pinned campaign).
+/// `[sim] move_speed_deg_s` on a realistic cell (`[sim] realistic = true`), else `None`: the
+/// robot file's limits (a fast test cell's speeds are not meant to be a robot's: its campaigns
+/// keep the order of the robot file, as README's pinned one and the tests' short campaigns).
 fn move_speed_rad_s(cfg: &CellConfig) -> Option<f64> {
     match (cfg.robot_controller.mode, &cfg.sim) {
-        (DeviceMode::Sim, Some(sim)) => sim
+        (DeviceMode::Sim, Some(sim)) if sim.realistic => sim
             .move_speed_deg_s
             .map(|v| v.to_radians() / sim.time_scale),
         _ => None,

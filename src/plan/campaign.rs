@@ -44,7 +44,7 @@ pub struct PlanRequest {
     /// Robot speed setting the legs are timed at (%, `robot_controller.speed_pct`).
     pub speed_pct: f64,
     /// Every joint's speed at 100 % (rad/s), reached at once, when the robot moves so (a
-    /// simulated robot's `[sim] move_speed_deg_s`); `None`: the robot file's speeds and
+    /// realistic simulated robot's `[sim] move_speed_deg_s`); `None`: the robot file's speeds and
     /// accelerations ([`MotionLimits::of`]). The legs are timed by these.
     pub move_speed_rad_s: Option<f64>,
     /// Settle time after every move (s).

@@ -3,7 +3,6 @@
 //! measures them; the timing model walks them.
 
 use super::campaign::{target_ok, Plan, PlanRequest};
-use super::motion::MotionLimits;
 use crate::measure::{plan_tool_frame, select_spread, SetupTarget, ToolFramePlanRequest};
 use crate::model::{forward, RobotModel};
 
@@ -59,96 +58,12 @@ pub fn tool_frame_targets(
     }
 }
 
-/// The joints of the base registration's `n` spread poses among the planned poses on `model`,
-/// in the order the engine measures them ([`order_loop`] from and back to the drift
-/// reference, timed by `req`'s limits).
-pub fn base_registration_targets(
-    model: &RobotModel,
-    plan: &Plan,
-    req: &PlanRequest,
-    n: usize,
-) -> Vec<Vec<f64>> {
+/// The joints of the base registration's `n` spread poses among the planned poses, in the
+/// order the engine measures them.
+pub fn base_registration_targets(model: &RobotModel, plan: &Plan, n: usize) -> Vec<Vec<f64>> {
     let candidates: Vec<Vec<f64>> = plan.poses.iter().map(|p| p.q_rad.clone()).collect();
-    let spread: Vec<Vec<f64>> = select_spread(model, &candidates, n)
+    select_spread(model, &candidates, n)
         .into_iter()
         .map(|i| candidates[i].clone())
-        .collect();
-    order_loop(&req.motion_limits(model), &plan.drift_reference, spread)
-}
-
-/// The most poses [`order_loop`] orders by trying every order (8! = 40 320 loops); more keep
-/// their order.
-const LOOP_EXHAUSTIVE_MAX: usize = 8;
-
-/// `poses` in the order whose loop `hub` → poses → `hub` takes the least move time by `limits`
-/// (direct moves; every order tried, the first of equal ones kept), for at most
-/// [`LOOP_EXHAUSTIVE_MAX`] poses; more are returned as given. Deterministic: the same poses,
-/// the same order.
-pub fn order_loop(limits: &MotionLimits, hub: &[f64], poses: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
-    let n = poses.len();
-    if !(2..=LOOP_EXHAUSTIVE_MAX).contains(&n) {
-        return poses;
-    }
-    let leg = |a: &[f64], b: &[f64]| limits.move_time_s(a, b);
-    let loop_s = |order: &[usize]| {
-        let mut t = leg(hub, &poses[order[0]]) + leg(&poses[order[n - 1]], hub);
-        for w in order.windows(2) {
-            t += leg(&poses[w[0]], &poses[w[1]]);
-        }
-        t
-    };
-    let mut order: Vec<usize> = (0..n).collect();
-    let mut best = (loop_s(&order), order.clone());
-    // Heap's algorithm: every permutation once
-    let mut c = vec![0usize; n];
-    let mut i = 1;
-    while i < n {
-        if c[i] < i {
-            let j = if i % 2 == 0 { 0 } else { c[i] };
-            order.swap(j, i);
-            let t = loop_s(&order);
-            if t < best.0 {
-                best = (t, order.clone());
-            }
-            c[i] += 1;
-            i = 1;
-        } else {
-            c[i] = 0;
-            i += 1;
-        }
-    }
-    let mut poses: Vec<Option<Vec<f64>>> = poses.into_iter().map(Some).collect();
-    best.1.into_iter().filter_map(|k| poses[k].take()).collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_base_registration_loop_is_the_shortest_and_keeps_every_pose() {
-        let limits = MotionLimits::uniform(2, 1.0);
-        let hub = vec![0.0, 0.0];
-        // sampled zig-zag: 0 → 3 → 1 → 2 → 0 takes 3 + 2 + 1 + 2 = 8 s; in order 1 2 3: 6 s
-        let p = |x: f64| vec![x, 0.0];
-        let given = vec![p(3.0), p(1.0), p(2.0)];
-        let ordered = order_loop(&limits, &hub, given.clone());
-        let loop_s = |o: &[Vec<f64>]| {
-            let mut t = limits.move_time_s(&hub, &o[0]) + limits.move_time_s(&o[o.len() - 1], &hub);
-            for w in o.windows(2) {
-                t += limits.move_time_s(&w[0], &w[1]);
-            }
-            t
-        };
-        assert_eq!(loop_s(&given), 8.0);
-        assert_eq!(loop_s(&ordered), 6.0);
-        let mut sorted = ordered.clone();
-        sorted.sort_by(|a, b| a[0].total_cmp(&b[0]));
-        assert_eq!(sorted, vec![p(1.0), p(2.0), p(3.0)], "every pose once");
-        assert_eq!(
-            order_loop(&limits, &hub, ordered.clone()),
-            ordered,
-            "stable"
-        );
-    }
+        .collect()
 }

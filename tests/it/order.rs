@@ -79,6 +79,7 @@ fn a_simulated_robot_is_ordered_by_the_speed_it_moves_at() {
     let text = std::fs::read_to_string(&path)
         .expect("config")
         .replacen("# move_speed_deg_s = 3600", "move_speed_deg_s = 60.0", 1)
+        .replacen("realistic = false", "realistic = true", 1)
         .replacen("poses = 300", "poses = 120", 1)
         .replacen("ident = 100", "ident = 40", 1);
     let cfg = parse_cell_config(&text, &path).expect("config parses");

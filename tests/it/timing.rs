@@ -156,12 +156,8 @@ fn estimate_matches_the_clock() {
 /// within 10 % of the clock.
 #[test]
 fn a_time_scaled_cell_runs_and_is_estimated_ten_times_faster() {
-    let text = realistic_config().replacen(
-        "realistic = true\n",
-        "realistic = true\ntime_scale = 0.1\n",
-        1,
-    );
-    assert!(text.contains("time_scale = 0.1\n"), "{text}");
+    let text = realistic_config().replacen("\ntime_scale = 1.0 ", "\ntime_scale = 0.1 ", 1);
+    assert!(text.contains("\ntime_scale = 0.1 "), "{text}");
     let dir = tempfile::tempdir().expect("tempdir");
     let path = crate::campaign::write_config(dir.path(), &realistic_config());
     let (cfg, scaled) = (

@@ -14,11 +14,11 @@ use super::{settle_error, CampaignError, Run, Step, Stop};
 use crate::campaign::events::CampaignEvent;
 use crate::identify::IdentifyOptions;
 use crate::measure::{
-    plan_tool_frame, register_base, solve_tool_frame, SetupMeasurement, SetupTarget,
+    plan_tool_frame, register_base, select_spread, solve_tool_frame, SetupMeasurement, SetupTarget,
     ToolFramePlanRequest,
 };
 use crate::model::RobotModel;
-use crate::plan::setup::{base_registration_targets, home_tool_frame_targets};
+use crate::plan::setup::home_tool_frame_targets;
 use crate::store::{PointKind, SetupPoint, Store, StoreError};
 
 pub use crate::calibrate::setup::{BaseResult, SetupResult, ToolFrameResult};
@@ -237,34 +237,36 @@ impl Run<'_> {
             }
             self.wait_unpaused().await?;
             let joints = self.move_to(&t.q_rad).await?;
-            // where the stage stands first (P2 then P1 after a target that ended at P2), as
-            // a pose is measured: one stage move per target
-            let stol = self.ctx.cfg.stage.tolerance_mm;
-            let targets = match (t.measure_p2, self.stage_mm) {
-                (false, _) => vec![s1],
-                (true, Some(at)) if (at - s2).abs() <= stol => vec![s2, s1],
-                (true, _) => vec![s1, s2],
-            };
-            let (mut p1, mut p2) = (None, None);
-            for mm in targets {
-                let at = if mm == s1 { "P1" } else { "P2" };
-                let a = self.stage_to(mm).await?;
-                let p = self.measure_point(None, &joints, a).await?;
+            let a1 = self.stage_to(s1).await?;
+            let p1 = self.measure_point(None, &joints, a1).await?;
+            self.keep_point(
+                PointKind::Setup,
+                None,
+                &joints,
+                &p1,
+                a1,
+                format!("tool frame {label} P1"),
+            )
+            .await?;
+            let p2 = if t.measure_p2 {
+                let a2 = self.stage_to(s2).await?;
+                let p2 = self.measure_point(None, &joints, a2).await?;
                 self.keep_point(
                     PointKind::Setup,
                     None,
                     &joints,
-                    &p,
-                    a,
-                    format!("tool frame {label} {at}"),
+                    &p2,
+                    a2,
+                    format!("tool frame {label} P2"),
                 )
                 .await?;
-                *(if mm == s1 { &mut p1 } else { &mut p2 }) = Some(p.p_mm);
-            }
-            let p1 = p1.ok_or_else(|| Stop::Failed("setup: no reading at P1".into()))?;
+                Some(p2.p_mm)
+            } else {
+                None
+            };
             meas.push(SetupMeasurement {
                 mark: t.mark,
-                p1,
+                p1: p1.p_mm,
                 p2,
             });
         }
@@ -321,22 +323,28 @@ impl Run<'_> {
     ) -> Result<BaseResult, Stop> {
         let n = self.ctx.cfg.setup.base_poses;
         let max_rms = self.ctx.cfg.setup.max_base_rms_mm;
-        // spread poses, measured in the loop from the drift reference that takes least time
-        let chosen = base_registration_targets(model, &self.ctx.plan, &self.ctx.plan_request, n);
+        let candidates: Vec<Vec<f64>> = self
+            .ctx
+            .plan
+            .poses
+            .iter()
+            .map(|p| p.q_rad.clone())
+            .collect();
+        let chosen = select_spread(model, &candidates, n);
         let s1 = self.ctx.cfg.stage.p1_mm;
         let tol = self.settle_tolerance();
         let mut pairs = Vec::with_capacity(chosen.len());
-        for (k, q) in chosen.iter().enumerate() {
+        for (k, i) in chosen.into_iter().enumerate() {
             let stored = kept
                 .get(&format!("base registration {}", k + 1))
-                .filter(|p| settle_error(q, &p.joints_rad, tol).is_none());
+                .filter(|p| settle_error(&candidates[i], &p.joints_rad, tol).is_none());
             if let Some(p) = stored {
                 // taken before: reused, not asked again
                 pairs.push((p.joints_rad.clone(), position(p)));
                 continue;
             }
             self.wait_unpaused().await?;
-            let joints = self.move_to(q).await?;
+            let joints = self.move_to(&candidates[i]).await?;
             let a1 = self.stage_to(s1).await?;
             let p = self.measure_point(None, &joints, a1).await?;
             self.keep_point(
