@@ -37,7 +37,7 @@ fn config(realistic: bool) -> CellConfig {
         if let Some(sim) = cfg.sim.as_mut() {
             sim.realistic = true;
         }
-        cfg.tracker.measure_ms = 1000;
+        cfg.tracker.measure_ms = Some(1000);
     }
     cfg
 }

@@ -11,7 +11,7 @@ use crate::plan::{CampaignEstimate, MotionLimits, Plan, PlanRequest, Router};
 
 /// A real tracker's time per reading beyond the measuring time (s): the emScon command, the
 /// AT960's start of a stationary measurement and the result's transfer (an assumption; the
-/// measuring time itself is `[tracker] measure_ms`).
+/// measuring time itself is [`CellConfig::tracker_measure_ms`]).
 pub const REAL_READING_OVERHEAD_S: f64 = 0.3;
 /// The simulated tracker's time per reading beyond its measuring time (s): loopback round
 /// trips.
@@ -38,13 +38,13 @@ pub fn cell_times(cfg: &CellConfig, nominal: &RobotModel) -> CellTimes {
     let speed = cfg.robot_controller.speed_pct;
     let (motion, settle_s) = match cfg.robot_controller.mode {
         DeviceMode::Sim => {
-            let settle = cfg
+            let settle_s = cfg
                 .robot_controller
                 .settle_ms
-                .unwrap_or(sim.effective_settle_ms());
+                .map_or(sim.settle_s(), |ms| ms as f64 / 1000.0);
             (
                 sim.motion_limits(nominal).at_speed_pct(speed),
-                settle as f64 / 1000.0 + SIM_MOVE_OVERHEAD_S,
+                settle_s + SIM_MOVE_OVERHEAD_S,
             )
         }
         DeviceMode::Real => (
@@ -52,10 +52,10 @@ pub fn cell_times(cfg: &CellConfig, nominal: &RobotModel) -> CellTimes {
             cfg.robot_controller.settle_ms.unwrap_or(REAL_SETTLE_MS) as f64 / 1000.0,
         ),
     };
-    let measure_s = f64::from(cfg.tracker.measure_ms) / 1000.0;
+    let measure_s = f64::from(cfg.tracker_measure_ms()) / 1000.0;
     let (reading_s, tracker_prepare_s) = match cfg.tracker.mode {
         DeviceMode::Sim => (
-            measure_s * sim.measure_time_scale.max(0.0) + SIM_READING_OVERHEAD_S,
+            measure_s * sim.measuring_scale() + SIM_READING_OVERHEAD_S,
             0.0,
         ),
         DeviceMode::Real => (measure_s + REAL_READING_OVERHEAD_S, REAL_TRACKER_PREPARE_S),
@@ -73,8 +73,8 @@ pub fn cell_times(cfg: &CellConfig, nominal: &RobotModel) -> CellTimes {
                 speed_mm_s: cfg
                     .stage
                     .speed_mm_s
-                    .unwrap_or(sim.effective_stage_speed_mm_s()),
-                per_move_s: (sim.stage_settle_ms + poll_ms) as f64 / 1000.0,
+                    .unwrap_or(sim.stage_speed_scaled_mm_s()),
+                per_move_s: sim.stage_settle_s() + poll_ms as f64 / 1000.0,
             }
         }
         (StageMode::Serial, DeviceMode::Real) => StageTimes::Motorised {

@@ -29,8 +29,8 @@ use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
 use crate::plan::selection::DesignSetup;
 use crate::plan::{
-    campaign_router, count_via_points, order_times, plan_campaign, Plan, PlanEntry, PlanError,
-    PlanRequest, Workspace,
+    campaign_router, count_via_points, order_times, plan_campaign, CampaignEstimate, Plan,
+    PlanEntry, PlanError, PlanRequest, Workspace,
 };
 use crate::sim::{start_cell_with, RunningSimCell, SimTechnician};
 use crate::store::{
@@ -154,6 +154,7 @@ pub fn plan_request(cfg: &CellConfig) -> PlanRequest {
         drift_every: c.drift_every,
         ident_block: None,
         speed_pct: cfg.robot_controller.speed_pct,
+        move_speed_rad_s: move_speed_rad_s(cfg),
         settle_s: settle_s(cfg),
         stage_offset_mm: stage_offset_mm(cfg),
         selection: c.selection,
@@ -189,9 +190,22 @@ pub fn campaign_plan_request(cfg: &CellConfig, nominal: &RobotModel) -> PlanRequ
 /// is simulated, else [`REAL_SETTLE_S`].
 fn settle_s(cfg: &CellConfig) -> f64 {
     match (&cfg.robot_controller.mode, &cfg.sim) {
-        (DeviceMode::Sim, Some(sim)) => sim.effective_settle_ms() as f64 / 1000.0,
-        (DeviceMode::Sim, None) => SimWorldConfig::default().effective_settle_ms() as f64 / 1000.0,
+        (DeviceMode::Sim, Some(sim)) => sim.settle_s(),
+        (DeviceMode::Sim, None) => SimWorldConfig::default().settle_s(),
         _ => REAL_SETTLE_S,
+    }
+}
+
+/// The constant joint speed the plan's order assumes (rad/s): a simulated robot's given
+/// `[sim] move_speed_deg_s` on a realistic cell (`[sim] realistic = true`), else `None`: the
+/// robot file's limits (a fast test cell's speeds are not meant to be a robot's: its campaigns
+/// keep the order of the robot file, as README's pinned one and the tests' short campaigns).
+fn move_speed_rad_s(cfg: &CellConfig) -> Option<f64> {
+    match (cfg.robot_controller.mode, &cfg.sim) {
+        (DeviceMode::Sim, Some(sim)) if sim.realistic => sim
+            .move_speed_deg_s
+            .map(|v| v.to_radians() / sim.time_scale),
+        _ => None,
     }
 }
 
@@ -291,6 +305,7 @@ pub async fn open_session_with(
         lock,
         cell,
         plan_request: req,
+        estimate: stored,
     } = prepared;
     let sim = simulated_cell(&cfg, &nominal, robot_secret.clone()).await?;
     let devices = cell_devices(&cfg, sim.as_ref(), robot_secret, prompter)?;
@@ -304,13 +319,18 @@ pub async fn open_session_with(
         // identify with the model the campaign was created with
         cfg.campaign.model = model;
     }
-    let estimate = {
-        let (cfg, nominal, req, plan) = (cfg.clone(), nominal.clone(), req.clone(), plan.clone());
-        tokio::task::spawn_blocking(move || {
-            super::estimate::estimate_campaign_time(&cfg, &nominal, &req, &plan)
-        })
-        .await
-        .ok()
+    // a campaign created now: the estimate stored with it (computed once); else afresh
+    let estimate = match stored {
+        Some(e) => Some(e),
+        None => {
+            let (cfg, nominal, req, plan) =
+                (cfg.clone(), nominal.clone(), req.clone(), plan.clone());
+            tokio::task::spawn_blocking(move || {
+                super::estimate::estimate_campaign_time(&cfg, &nominal, &req, &plan)
+            })
+            .await
+            .ok()
+        }
     };
     Ok(Session {
         ctx: CampaignContext {
@@ -366,6 +386,8 @@ struct Prepared {
     cell: Option<CellLock>,
     /// The planning request of the campaign (a resumed one's own seed and pose counts).
     plan_request: PlanRequest,
+    /// The estimate stored with a campaign created now (`None`: resumed, or not estimated).
+    estimate: Option<CampaignEstimate>,
 }
 
 /// Check a campaign to resume (or plan and store a new one), then take it for this process
@@ -395,7 +417,7 @@ fn plan_and_store(
         _ => req.clone(),
     };
     let fresh = plan_campaign(nominal, &own_req)?;
-    let (campaign_id, plan, iso, model_of_resumed, accepted_changes) = match resumed {
+    let (campaign_id, plan, iso, model_of_resumed, accepted_changes, estimate) = match resumed {
         Some(s) if s.iso.is_some() || cfg.iso9283.is_some() => {
             let iso =
                 match (s.iso, cfg.iso9283.is_some()) {
@@ -410,15 +432,22 @@ fn plan_and_store(
                     }
                 };
             let plan = iso_engine_plan(nominal, req, &iso)?;
-            (s.id, plan, Some(iso), Some(s.model), s.accepted_changes)
+            (
+                s.id,
+                plan,
+                Some(iso),
+                Some(s.model),
+                s.accepted_changes,
+                None,
+            )
         }
         None if cfg.iso9283.is_some() => {
             let iso = plan_new_iso(cfg, nominal, req, &fresh.drift_reference)?;
             let plan = iso_engine_plan(nominal, req, &iso)?;
-            let id = store.blocking(|s| {
+            let (id, _) = store.blocking(|s| {
                 store_new_campaign(s, cfg, (nominal, req), robot_text, &plan, Some(&iso))
             })?;
-            (id, plan, Some(iso), None, Vec::new())
+            (id, plan, Some(iso), None, Vec::new(), None)
         }
         Some(s) => {
             // a stored plan whose moves cannot all be routed is refused before anything moves
@@ -436,13 +465,13 @@ fn plan_and_store(
                 sampling_order_s,
                 planned_order_s,
             };
-            (s.id, plan, None, Some(s.model), s.accepted_changes)
+            (s.id, plan, None, Some(s.model), s.accepted_changes, None)
         }
         None => {
-            let id = store.blocking(|s| {
+            let (id, estimate) = store.blocking(|s| {
                 store_new_campaign(s, cfg, (nominal, req), robot_text, &fresh, None)
             })?;
-            (id, fresh, None, None, Vec::new())
+            (id, fresh, None, None, Vec::new(), estimate)
         }
     };
     if !plan.poses.iter().any(|p| p.set == PoseSet::Ident) {
@@ -473,6 +502,7 @@ fn plan_and_store(
         lock,
         cell: None,
         plan_request: own_req,
+        estimate,
     })
 }
 
@@ -636,7 +666,7 @@ fn store_new_campaign(
     robot_text: String,
     plan: &Plan,
     iso: Option<&IsoPlan>,
-) -> Result<i64, SessionError> {
+) -> Result<(i64, Option<CampaignEstimate>), SessionError> {
     let planned = planned_poses(plan);
     let new = NewCampaign {
         name: match iso {
@@ -652,9 +682,13 @@ fn store_new_campaign(
     Ok(match iso {
         // the estimate is stored with the campaign: shown the same until it is done
         None => {
-            match super::time::estimate_json(&estimate_campaign_time(cfg, nominal, req, plan)) {
-                Some(json) => store.create_campaign_estimated(&new, &planned, None, &json)?,
-                None => store.create_campaign(&new, &planned)?,
+            let estimate = estimate_campaign_time(cfg, nominal, req, plan);
+            match super::time::estimate_json(&estimate) {
+                Some(json) => (
+                    store.create_campaign_estimated(&new, &planned, None, &json)?,
+                    Some(estimate),
+                ),
+                None => (store.create_campaign(&new, &planned)?, None),
             }
         }
         Some(iso) => {
@@ -663,7 +697,7 @@ fn store_new_campaign(
                 plan_json: serde_json::to_string(iso)
                     .map_err(|e| SessionError::Invalid(e.to_string()))?,
             };
-            store.create_campaign_of_kind(&new, &planned, &kind)?
+            (store.create_campaign_of_kind(&new, &planned, &kind)?, None)
         }
     })
 }
@@ -804,4 +838,34 @@ fn config_changes(
 /// Journal a note in the store (before the engine runs).
 fn note(store: &mut Store, id: i64, text: String) -> Result<(), SessionError> {
     Ok(super::lock::journal_note(store, id, text)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::parse_cell_config;
+
+    /// A campaign created now carries the estimate stored with it to the session (computed
+    /// once, not again for the session).
+    #[test]
+    fn a_new_campaign_hands_the_estimate_it_stored_to_the_session() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/cell.sim.toml");
+        let text = std::fs::read_to_string(&path)
+            .expect("config")
+            .replacen("poses = 300", "poses = 40", 1)
+            .replacen("ident = 100", "ident = 20", 1);
+        let cfg = parse_cell_config(&text, &path).expect("config parses");
+        let mut nominal = load_robot(&cfg.robot).expect("robot");
+        nominal.tool = Vector3::from(cfg.campaign.tool_mm);
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = StoreHandle::new(Store::open(&dir.path().join("c.db")).expect("store"));
+        let req = campaign_plan_request(&cfg, &nominal);
+        let p = plan_and_store(&store, &nominal, &req, &cfg, None, String::new()).expect("stored");
+        let id = p.campaign_id;
+        let stored = store
+            .blocking(|s| super::super::time::stored_estimate(s, id))
+            .expect("read");
+        assert!(p.estimate.is_some(), "a new campaign is estimated");
+        assert_eq!(p.estimate, stored);
+    }
 }

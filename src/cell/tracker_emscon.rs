@@ -81,7 +81,10 @@ impl EmsconTrackerConfig {
     /// `[tracker]` gives: the one place the section reaches the adapter.
     pub fn with_section(self, s: &TrackerSection) -> EmsconTrackerConfig {
         EmsconTrackerConfig {
-            meas_time_ms: i32::try_from(s.measure_ms).unwrap_or(i32::MAX),
+            // unset: this configuration's (the simulated cell's, or the real default)
+            meas_time_ms: s.measure_ms.map_or(self.meas_time_ms, |ms| {
+                i32::try_from(ms).unwrap_or(i32::MAX)
+            }),
             reflector_id: s.reflector_id,
             use_adm: s.use_adm,
             beam_break_codes: s.beam_break_codes.clone(),

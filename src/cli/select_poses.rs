@@ -160,6 +160,7 @@ impl SelectPosesArgs {
             drift_every: 0,
             ident_block: None,
             speed_pct: RobotSection::default().speed_pct,
+            move_speed_rad_s: None,
             settle_s: 0.0,
             // the robot moves with the ball at P1 or P2: both are checked
             stage_offset_mm: obs.stage_axis * self.stage_travel_mm,

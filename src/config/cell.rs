@@ -28,6 +28,9 @@ pub enum DeviceMode {
     Real,
 }
 
+/// A real tracker's stationary measuring time when `[tracker] measure_ms` is unset (ms).
+pub const REAL_MEASURE_MS: u32 = 1000;
+
 /// `[tracker]`: the laser tracker and the measurement quality gate.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
@@ -36,8 +39,9 @@ pub struct TrackerSection {
     pub mode: DeviceMode,
     /// emScon server address (real mode), e.g. `192.168.0.1:700`.
     pub address: String,
-    /// Stationary measuring time (ms).
-    pub measure_ms: u32,
+    /// Stationary measuring time (ms); unset: [`REAL_MEASURE_MS`] for a real tracker, the
+    /// simulated cell's `[sim] measure_ms` for a simulated one ([`CellConfig::tracker_measure_ms`]).
+    pub measure_ms: Option<u32>,
     /// Reflector id for SetReflector (emScon), if it must be set.
     pub reflector_id: Option<i32>,
     /// Quality gate: a point whose total standard deviation exceeds this is measured again (mm).
@@ -75,7 +79,7 @@ impl Default for TrackerSection {
         TrackerSection {
             mode: DeviceMode::Sim,
             address: "127.0.0.1:700".into(),
-            measure_ms: 1000,
+            measure_ms: None,
             reflector_id: None,
             max_std_total_mm: 0.05,
             max_attempts: 5,
@@ -669,6 +673,20 @@ impl CellConfig {
         self.campaign.model
     }
 
+    /// The tracker's stationary measuring time (ms): `[tracker] measure_ms` when given, else
+    /// the simulated cell's `[sim] measure_ms` (its fast or realistic default) for a simulated
+    /// tracker and [`REAL_MEASURE_MS`] for a real one.
+    pub fn tracker_measure_ms(&self) -> u32 {
+        match (self.tracker.measure_ms, self.tracker.mode) {
+            (Some(ms), _) => ms,
+            (None, DeviceMode::Sim) => {
+                let sim = self.sim.clone().unwrap_or_default();
+                u32::try_from(sim.effective_measure_ms()).unwrap_or(u32::MAX)
+            }
+            (None, DeviceMode::Real) => REAL_MEASURE_MS,
+        }
+    }
+
     /// Whether any device is simulated.
     pub fn any_simulated(&self) -> bool {
         self.tracker.mode == DeviceMode::Sim
@@ -856,11 +874,13 @@ impl TrackerSection {
     /// distance above zero; device times in 1..=[`MAX_DEVICE_MS`] ms; a beam-break code list
     /// that is not empty.
     pub fn check(&self) -> Result<(), InvalidKey> {
-        rule(
-            self.measure_ms > 0 && u64::from(self.measure_ms) <= MAX_DEVICE_MS,
-            "tracker.measure_ms",
-            format!("must be in 1..={MAX_DEVICE_MS} ms, got {}", self.measure_ms),
-        )?;
+        if let Some(ms) = self.measure_ms {
+            rule(
+                ms > 0 && u64::from(ms) <= MAX_DEVICE_MS,
+                "tracker.measure_ms",
+                format!("must be in 1..={MAX_DEVICE_MS} ms, got {ms}"),
+            )?;
+        }
         positive("tracker.max_std_total_mm", self.max_std_total_mm)?;
         rule(
             self.max_attempts > 0,
@@ -1597,6 +1617,10 @@ mod tests {
                 "[sim]\nstage_speed_mm_s = -1\n",
                 "sim.stage_speed_mm_s: must be positive",
             ),
+            (
+                "[sim]\ntime_scale = 0\n",
+                "sim.time_scale: must be positive",
+            ),
         ] {
             for e in [
                 parse_cell_config(text, p).unwrap_err().to_string(),
@@ -1793,7 +1817,7 @@ mod shipped_files {
         let d = TrackerSection::default();
         assert_eq!(
             (c.tracker.use_adm, c.tracker.measure_ms),
-            (d.use_adm, d.measure_ms)
+            (d.use_adm, Some(REAL_MEASURE_MS))
         );
         let d = StageSection::default();
         assert_eq!(

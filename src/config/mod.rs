@@ -12,6 +12,6 @@ pub use cell::{
     load_cell_config, parse_cell_config, parse_sim_config, ApiSection, ApiToken, CampaignSection,
     CellConfig, ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotSection, SetupSection,
     StageMode, StageSection, StopWhen, TrackerSection, DEFAULT_STOP_MIN_GAIN, MAX_DEVICE_MS,
-    MAX_POSES,
+    MAX_POSES, REAL_MEASURE_MS,
 };
 pub use sim::SimWorldConfig;

@@ -33,7 +33,8 @@ pub struct SimWorldConfig {
     pub move_speed_deg_s: Option<f64>,
     /// Settle time after a move (ms); fast default 0, realistic 1500.
     pub settle_ms: Option<u64>,
-    /// Measuring time the cell's tracker clients should use (ms); fast default 5, realistic 1000.
+    /// Measuring time of a simulated tracker whose `[tracker] measure_ms` is unset (ms); fast
+    /// default 5, realistic 1000.
     pub measure_ms: Option<u64>,
     /// The simulated tracker measures for the client's measuring time × this factor (1 = real
     /// time, 0 = instant: zero-delay devices for overhead benchmarks).
@@ -42,6 +43,11 @@ pub struct SimWorldConfig {
     pub stage_speed_mm_s: Option<f64>,
     /// Time added to every stage move (ms): start-up and settling; 5 in both modes.
     pub stage_settle_ms: u64,
+    /// Every simulated duration × this (1 = the times above; 0.05: twenty times faster): the
+    /// robot's moves (joint speeds ÷ it, accelerations ÷ its square), its settling, the
+    /// tracker's measuring, the stage's moves and settling. Loopback round trips, store commits
+    /// and computing are not scaled. > 0.
+    pub time_scale: f64,
     /// Tracker position in the measurement frame (mm): the range of the noise model.
     pub tracker_position_mm: [f64; 3],
     /// Tracker noise multiplier (1 = AT960 σ = (15 µm + 6 µm/m)/2 per axis, 0 = none).
@@ -115,6 +121,7 @@ impl Default for SimWorldConfig {
             measure_time_scale: 1.0,
             stage_speed_mm_s: None,
             stage_settle_ms: 5,
+            time_scale: 1.0,
             tracker_position_mm: [2550.0, 0.0, 0.0],
             tracker_noise_scale: 1.0,
             base_translation_mm: None,
@@ -156,11 +163,29 @@ impl SimWorldConfig {
     /// given or in fast mode (3600 deg/s), else (realistic) the robot file's
     /// `max_speed_deg_s` and `max_accel_deg_s2` ([`MotionLimits::of`], with its fallback).
     pub fn motion_limits(&self, model: &RobotModel) -> MotionLimits {
-        match (self.move_speed_deg_s, self.realistic) {
+        let at_scale = match (self.move_speed_deg_s, self.realistic) {
             (Some(v), _) => MotionLimits::uniform(model.dof(), v.to_radians()),
             (None, false) => MotionLimits::uniform(model.dof(), 3600f64.to_radians()),
             (None, true) => MotionLimits::of(model, 100.0),
-        }
+        };
+        at_scale.time_scaled(self.time_scale)
+    }
+    /// The robot's settling after a move (s), [`Self::time_scale`] applied.
+    pub fn settle_s(&self) -> f64 {
+        self.effective_settle_ms() as f64 / 1000.0 * self.time_scale
+    }
+    /// The stage's speed (mm/s), [`Self::time_scale`] applied.
+    pub fn stage_speed_scaled_mm_s(&self) -> f64 {
+        self.effective_stage_speed_mm_s() / self.time_scale
+    }
+    /// The time added to every stage move (s), [`Self::time_scale`] applied.
+    pub fn stage_settle_s(&self) -> f64 {
+        self.stage_settle_ms as f64 / 1000.0 * self.time_scale
+    }
+    /// The simulated tracker's measuring time per ms of the client's: `measure_time_scale`
+    /// × [`Self::time_scale`].
+    pub fn measuring_scale(&self) -> f64 {
+        self.measure_time_scale.max(0.0) * self.time_scale
     }
     /// Effective settle time (ms).
     pub fn effective_settle_ms(&self) -> u64 {
@@ -183,6 +208,7 @@ impl SimWorldConfig {
     pub fn check(&self) -> Result<(), InvalidKey> {
         positive("sim.stage_max_mm", self.stage_max_mm)?;
         positive("sim.stage_microsteps_per_mm", self.stage_microsteps_per_mm)?;
+        positive("sim.time_scale", self.time_scale)?;
         if let Some(v) = self.move_speed_deg_s {
             positive("sim.move_speed_deg_s", v)?;
         }

@@ -43,6 +43,10 @@ pub struct PlanRequest {
     pub ident_block: Option<usize>,
     /// Robot speed setting the legs are timed at (%, `robot_controller.speed_pct`).
     pub speed_pct: f64,
+    /// Every joint's speed at 100 % (rad/s), reached at once, when the robot moves so (a
+    /// realistic simulated robot's `[sim] move_speed_deg_s`); `None`: the robot file's speeds and
+    /// accelerations ([`MotionLimits::of`]). The legs are timed by these.
+    pub move_speed_rad_s: Option<f64>,
     /// Settle time after every move (s).
     pub settle_s: f64,
     /// The ball's displacement from P1 to P2 in the flange frame (mm; stage axis × travel):
@@ -87,6 +91,17 @@ pub struct Plan {
     /// The same in the planned order (s): `sampling_order_s − planned_order_s` is the time
     /// the order saves.
     pub planned_order_s: f64,
+}
+
+impl PlanRequest {
+    /// The joint limits the legs are timed by: [`PlanRequest::move_speed_rad_s`] for every
+    /// joint when given, else the robot file's, at [`PlanRequest::speed_pct`].
+    pub fn motion_limits(&self, model: &RobotModel) -> MotionLimits {
+        match self.move_speed_rad_s {
+            Some(v) => MotionLimits::uniform(model.dof(), v).at_speed_pct(self.speed_pct),
+            None => MotionLimits::of(model, self.speed_pct),
+        }
+    }
 }
 
 /// Whether the target ball at `q` faces the tracker within the limit.
@@ -204,7 +219,7 @@ fn order_blocks(req: &PlanRequest, n: usize) -> Vec<Vec<usize>> {
 
 /// Order the poses `kept` (index = pose index; identification poses are those below
 /// `req.ident`) by time through `router`'s hub ([`order_by_time`]: nearest neighbour, then 2-opt,
-/// on leg time at `req.speed_pct` with `req.settle_s` per stop, routes included), in the blocks
+/// on leg time by [`PlanRequest::motion_limits`] with `req.settle_s` per stop, routes included), in the blocks
 /// of [`PlanRequest::ident_block`].
 pub fn order_plan(
     model: &RobotModel,
@@ -212,7 +227,7 @@ pub fn order_plan(
     router: &mut Router,
     kept: Vec<Vec<f64>>,
 ) -> OrderedPlan {
-    let limits = MotionLimits::of(model, req.speed_pct);
+    let limits = req.motion_limits(model);
     let blocks = order_blocks(req, kept.len());
     let sampling: Vec<usize> = blocks.iter().flatten().copied().collect();
     let mut legs = Legs::new(&kept, router, &limits, req.settle_s);
@@ -250,7 +265,7 @@ pub fn order_times(
     router: &mut Router,
     poses: &[PlanEntry],
 ) -> (f64, f64) {
-    let limits = MotionLimits::of(model, req.speed_pct);
+    let limits = req.motion_limits(model);
     let points: Vec<Vec<f64>> = poses.iter().map(|p| p.q_rad.clone()).collect();
     let mut sampling: Vec<usize> = (0..poses.len()).collect();
     sampling.sort_by_key(|&k| (poses[k].set != PoseSet::Ident, poses[k].index));
@@ -537,6 +552,7 @@ mod tests {
             drift_every: 20,
             ident_block: None,
             speed_pct: 20.0,
+            move_speed_rad_s: None,
             settle_s: 1.5,
             stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
             selection: Selection::Random,
@@ -869,6 +885,7 @@ mod selection_tests {
             drift_every: 0,
             ident_block: None,
             speed_pct: 20.0,
+            move_speed_rad_s: None,
             settle_s: 0.0,
             stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
             selection: Selection::Random,

@@ -447,6 +447,7 @@ mod tests {
             drift_every: 50,
             ident_block: None,
             speed_pct: 20.0,
+            move_speed_rad_s: None,
             settle_s: 1.5,
             stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
         };

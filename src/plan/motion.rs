@@ -100,6 +100,22 @@ impl MotionLimits {
         }
     }
 
+    /// These limits for a world whose durations are all × `scale`: speeds ÷ `scale`,
+    /// accelerations ÷ `scale`² (every move takes `scale` × its time).
+    pub fn time_scaled(self, scale: f64) -> MotionLimits {
+        if scale == 1.0 {
+            return self;
+        }
+        MotionLimits {
+            speed_rad_s: self.speed_rad_s.iter().map(|v| v / scale).collect(),
+            accel_rad_s2: self
+                .accel_rad_s2
+                .iter()
+                .map(|a| a / (scale * scale))
+                .collect(),
+        }
+    }
+
     /// These limits with the speeds scaled by `speed_pct` / 100 (accelerations kept).
     pub fn at_speed_pct(&self, speed_pct: f64) -> MotionLimits {
         MotionLimits {

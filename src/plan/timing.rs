@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::campaign::Plan;
 pub use super::motion::{MotionLimits, MoveProfile, FALLBACK_RAMP_S, FALLBACK_SPEED_DEG_S};
 use super::route::Router;
-use crate::units::human::fmt_estimate;
+use crate::units::human::{fmt_estimate, UNDER_TEN_S};
 
 /// The planned duration of a campaign by part (s); stored, shown, compared with the actual.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -40,13 +40,13 @@ pub struct CampaignEstimate {
 
 impl CampaignEstimate {
     /// One line for people: `300 poses, 600 readings, about 3 h 10 min` (minutes from 10 min
-    /// on, else to 10 s).
+    /// on, else to 10 s; `…, under 10 s` below 5 s).
     pub fn summary(&self) -> String {
+        let total = fmt_estimate(self.total_s);
+        let about = if total == UNDER_TEN_S { "" } else { "about " };
         format!(
-            "{} poses, {} readings, about {}",
-            self.poses,
-            self.readings,
-            fmt_estimate(self.total_s)
+            "{} poses, {} readings, {about}{total}",
+            self.poses, self.readings
         )
     }
 }
@@ -416,6 +416,7 @@ mod tests {
         );
         assert_eq!(e(56.0).summary(), "300 poses, 600 readings, about 1 min");
         assert_eq!(e(44.0).summary(), "300 poses, 600 readings, about 40 s");
+        assert_eq!(e(3.0).summary(), "300 poses, 600 readings, under 10 s");
     }
     #[test]
     fn the_stage_is_followed_through_the_sequence_and_a_move_to_where_it_is_is_skipped() {

@@ -41,6 +41,7 @@ pub(crate) fn paper_setup(verify: usize) -> Setup {
             drift_every: 0,
             ident_block: None,
             speed_pct: 20.0,
+            move_speed_rad_s: None,
             settle_s: 0.0,
             stage_offset_mm: Vector3::new(0.0, 10.0, 0.0),
             selection: crate::plan::selection::Selection::Random,

@@ -153,7 +153,7 @@ impl RunningSimCell {
     /// device's address, scale and range, timeouts from its stage speed.
     pub fn stage_config(&self) -> Option<ZaberStageAdapterConfig> {
         let port = self.stage_path.clone()?;
-        let speed = self.config.effective_stage_speed_mm_s().max(1e-3);
+        let speed = self.config.stage_speed_scaled_mm_s().max(1e-3);
         let travel_s = self.config.stage_max_mm / speed;
         let move_ms = (travel_s * 1000.0 * 2.0) as u64 + 2000;
         Some(ZaberStageAdapterConfig {
@@ -306,7 +306,7 @@ pub async fn start_cell_with(
 
     let (stop_tx, stop_rx) = watch::channel(false);
     let tracker_options = emscon::ServerOptions {
-        measuring_time_scale: cfg.measure_time_scale,
+        measuring_time_scale: cfg.measuring_scale(),
         ..emscon::ServerOptions::default()
     };
     let tasks = vec![
@@ -380,9 +380,9 @@ fn stage_simulator(cfg: &SimWorldConfig) -> Result<Option<StageSim>, SimError> {
         resolution: sim_stage_resolution(k)?,
         limit_min: 0,
         limit_max: (cfg.stage_max_mm * k).round() as i64,
-        speed_steps_s: cfg.effective_stage_speed_mm_s().max(1e-3) * k,
+        speed_steps_s: cfg.stage_speed_scaled_mm_s().max(1e-3) * k,
         homed: false,
-        move_overhead: Duration::from_millis(cfg.stage_settle_ms),
+        move_overhead: Duration::from_secs_f64(cfg.stage_settle_s()),
         device: cfg.stage_address.0,
         axis: cfg.stage_address.1,
         ..StageSimConfig::default()

@@ -198,7 +198,7 @@ impl World {
             rng: ChaCha8Rng::seed_from_u64(cfg.seed),
             start: now,
             limits: cfg.motion_limits(&nominal),
-            settle: Duration::from_millis(cfg.effective_settle_ms()),
+            settle: Duration::from_secs_f64(cfg.settle_s()),
             joint_jitter_rad: cfg.joint_jitter_rad.max(0.0),
             commanded: q0.clone(),
             actual: q0,

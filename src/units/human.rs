@@ -86,11 +86,18 @@ pub fn fmt_duration(d: Duration) -> String {
     format!("{} h {:02} min", mins / 60, mins % 60)
 }
 
+/// What [`fmt_estimate`] says of a planned duration above 0 s that would round to 0 s.
+pub const UNDER_TEN_S: &str = "under 10 s";
+
 /// A planned duration (s), as precise as a plan can be: whole minutes above 10 min (`3 h 10
-/// min`, `43 min`), else to 10 s (`4 min 10 s`, `1 min`, `40 s`); `—` when not a number.
+/// min`, `43 min`), else to 10 s (`4 min 10 s`, `1 min`, `40 s`), [`UNDER_TEN_S`] for a
+/// duration that would round to 0 s but is not none, `0 s` for none; `—` when not a number.
 pub fn fmt_estimate(secs: f64) -> String {
     if !secs.is_finite() || secs < 0.0 {
         return NO_NUMBER.to_owned();
+    }
+    if secs > 0.0 && secs < 5.0 {
+        return UNDER_TEN_S.to_owned();
     }
     if secs > 600.0 {
         let mins = (secs / 60.0).round() as u64;
@@ -219,7 +226,10 @@ mod tests {
         assert_eq!(fmt_estimate(594.0), "9 min 50 s");
         assert_eq!(fmt_estimate(254.0), "4 min 10 s");
         assert_eq!(fmt_estimate(44.9), "40 s");
-        assert_eq!(fmt_estimate(3.0), "0 s");
+        assert_eq!(fmt_estimate(5.0), "10 s");
+        assert_eq!(fmt_estimate(4.9), "under 10 s", "not \"0 s\"");
+        assert_eq!(fmt_estimate(0.01), "under 10 s");
+        assert_eq!(fmt_estimate(0.0), "0 s", "nothing at all");
         assert_eq!(fmt_estimate(f64::NAN), "—");
     }
 

@@ -54,6 +54,38 @@ async fn a_configured_emscon_command_timeout_makes_a_silent_tracker_fail_in_that
     .await;
 }
 
+/// `[sim] measure_ms` is the measuring time of a simulated tracker whose `[tracker]` leaves
+/// `measure_ms` unset (it reached no campaign before: `[tracker]`'s default of 1000 ms always
+/// won); a given `[tracker] measure_ms` wins; the estimate reads the same time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sim_measure_ms_reaches_a_simulated_tracker_unless_the_tracker_section_sets_one() {
+    bounded(async {
+        let cfg = cell_config("[sim]\nmeasure_ms = 40\n");
+        assert_eq!(cfg.tracker.measure_ms, None);
+        assert_eq!(cfg.tracker_measure_ms(), 40);
+        let sim = cfg.sim.clone().expect("[sim]");
+        let cell = start_cell(tx60(), sim, std::future::pending())
+            .await
+            .expect("simulated cell");
+        let t = EmsconTracker::new(cell.tracker_config().with_section(&cfg.tracker));
+        assert_eq!(t.config().meas_time_ms, 40);
+        let times = cellcal::campaign::estimate::cell_times(&cfg, &tx60());
+        assert!(
+            (times.reading_s - 0.040).abs() < 0.01,
+            "{}",
+            times.reading_s
+        );
+        let given = cell_config("[tracker]\nmeasure_ms = 7\n[sim]\nmeasure_ms = 40\n");
+        assert_eq!(given.tracker_measure_ms(), 7);
+        let t = EmsconTracker::new(cell.tracker_config().with_section(&given.tracker));
+        assert_eq!(t.config().meas_time_ms, 7);
+        // a real tracker without the key: the AT960's 1000 ms
+        let real = cell_config("[tracker]\nmode = \"real\"\n");
+        assert_eq!(real.tracker_measure_ms(), cellcal::config::REAL_MEASURE_MS);
+    })
+    .await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_configured_beam_break_code_makes_that_status_a_beam_break() {
     bounded(async {

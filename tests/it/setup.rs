@@ -179,6 +179,7 @@ fn campaign_request(cell: &Cell, tool: &Vector3<f64>) -> PlanRequest {
         drift_every: 0,
         ident_block: None,
         speed_pct: 20.0,
+        move_speed_rad_s: None,
         settle_s: 1.5,
         stage_offset_mm: Vector3::zeros(),
     }
