@@ -258,6 +258,16 @@ fn comparison_lines(out: &mut String, x: &Extended) {
     }
 }
 
+/// The summary's non-geometric blocks alone, for the report's tests.
+#[cfg(test)]
+pub(crate) mod tests_support {
+    /// The terms block and the comparison of `x`.
+    pub fn extended_lines(out: &mut String, x: &super::Extended) {
+        super::terms_lines(out, x);
+        super::comparison_lines(out, x);
+    }
+}
+
 /// Human summary of an identify report.
 pub fn summary_text(r: &IdentifyReport) -> String {
     let mut out = String::new();
