@@ -9,7 +9,7 @@ use anyhow::{anyhow, Context};
 
 use cellcal::compensate::table::{parse_joints, parse_targets, write_joints, Row};
 use cellcal::compensate::{Compensated, Compensator};
-use cellcal::model::{load_robot, RobotModel};
+use cellcal::model::{load_robot, JointTerms, RobotModel};
 use cellcal::units::human::{fmt_deg, fmt_mm, fmt_mrad};
 
 use super::identify::write_file;
@@ -123,6 +123,7 @@ pub fn run(a: CompensateArgs) -> Result<(), Failure> {
         (None, None) => return Err(input(anyhow!("give --targets CSV or --joints CSV"))),
     };
     write_file(&a.out, &write_joints(&ids, &rows, comp.dof()))?;
+    print!("{}", terms_line(comp.identified()));
     print!("{}", summary(&ids, &rows, &a.out));
     let unreachable = rows.iter().filter(|r| !r.reachable).count();
     if unreachable > 0 {
@@ -136,6 +137,34 @@ pub fn run(a: CompensateArgs) -> Result<(), Failure> {
         ));
     }
     Ok(())
+}
+
+/// Which non-geometric terms of the identified model the joints account for (empty without).
+fn terms_line(m: &RobotModel) -> String {
+    if !m.has_terms() {
+        return String::new();
+    }
+    let joints = |f: &dyn Fn(&JointTerms) -> bool| -> String {
+        let j: Vec<String> = m
+            .terms
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| f(t))
+            .map(|(i, _)| (i + 1).to_string())
+            .collect();
+        if j.is_empty() {
+            "none".to_owned()
+        } else {
+            j.join(", ")
+        }
+    };
+    format!(
+        "the joints account for the identified model's non-geometric terms (docs/method.md §10): \
+         compliance on joints {} (gravity torques from {} masses), harmonics on joints {}\n",
+        joints(&|t| t.compliance != 0.0),
+        m.masses.len(),
+        joints(&|t| t.harmonics.iter().any(|h| *h != 0.0)),
+    )
 }
 
 /// The row ids of an input file.

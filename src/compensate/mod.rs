@@ -17,6 +17,11 @@
 //! - A program point (joints computed on the nominal model): the target is the tool pose the
 //!   nominal model gives those joints, its nominal solution the joints themselves.
 //!
+//! The identified model's forward kinematics include its non-geometric terms (joint
+//! compliance under the gravity torque of its masses, per-joint harmonics; docs/method.md §10),
+//! and the inverse kinematics differentiates through them, so the compensated joints put the
+//! robot that has them on the target; the nominal (controller's) model has none.
+//!
 //! Every solution stays inside the joint limits ([`solve_within_limits`]); a target the
 //! identified model cannot reach there is reported unreachable with its remaining error and
 //! the joints on a limit.
@@ -30,7 +35,7 @@ use nalgebra::{Matrix3, Vector3};
 use crate::model::ik::{solve_within_limits, IkGoal, IkOptions};
 use crate::model::kinematics::{measured_point, measured_rotation, Pose};
 use crate::model::rotation::log_so3;
-use crate::model::{IkError, RobotModel};
+use crate::model::{IkError, RobotModel, TermFamily};
 
 /// Largest MDH length difference (mm) between the nominal and the identified model.
 pub const MAX_LENGTH_CHANGE_MM: f64 = 20.0;
@@ -60,6 +65,17 @@ pub enum CompensateError {
         difference: String,
         /// The allowed difference, with its unit.
         limit: String,
+    },
+    /// The identified model has a joint compliance but no masses to compute the gravity
+    /// torque it multiplies (§10): compensating would leave the compliance out.
+    #[error(
+        "the identified model has a compliance on joint {joints} but no [[masses]]: the \
+         gravity torques it was identified with are unknown, so compensation would leave the \
+         compliance out (give the masses the identification used)"
+    )]
+    ComplianceWithoutMasses {
+        /// The joints with a compliance (1-based, comma-separated).
+        joints: String,
     },
     /// A start or program joint vector has the wrong length or a value that is not finite.
     #[error("{0}")]
@@ -130,13 +146,43 @@ fn check_calibration(nominal: &RobotModel, identified: &RobotModel) -> Result<()
             }
         }
     }
+    // a harmonic turns the joint by up to its coefficient: the same bound as an MDH angle
+    for (i, t) in identified.terms.iter().enumerate() {
+        for kind in TermFamily::Harmonics.kinds() {
+            let v = t.get(*kind).abs();
+            if v > MAX_ANGLE_CHANGE_RAD || !v.is_finite() {
+                return Err(CompensateError::NotACalibration {
+                    name: format!("{}{}", kind.name(), i + 1),
+                    difference: format!("{:.3}°", v.to_degrees()),
+                    limit: format!("{:.0}°", MAX_ANGLE_CHANGE_RAD.to_degrees()),
+                });
+            }
+        }
+    }
+    if identified.masses.is_empty() {
+        let compliant: Vec<String> = identified
+            .terms
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.compliance != 0.0)
+            .map(|(i, _)| (i + 1).to_string())
+            .collect();
+        if !compliant.is_empty() {
+            return Err(CompensateError::ComplianceWithoutMasses {
+                joints: compliant.join(", "),
+            });
+        }
+    }
     Ok(())
 }
 
 impl Compensator {
     /// The nominal chain placed by the identified model's base and tool, both with the nominal
     /// limits; refused when the chains differ in length or by more than a calibration can
-    /// ([`MAX_LENGTH_CHANGE_MM`], [`MAX_ANGLE_CHANGE_RAD`]).
+    /// ([`MAX_LENGTH_CHANGE_MM`], [`MAX_ANGLE_CHANGE_RAD`], also for each harmonic), or when
+    /// the identified model has a compliance but no masses. The nominal model is the
+    /// controller's: its non-geometric terms, if its file has any, are dropped; the identified
+    /// model keeps its terms, masses and gravity (§10), so its solutions account for them.
     pub fn new(
         nominal: &RobotModel,
         identified: &RobotModel,
@@ -152,6 +198,7 @@ impl Compensator {
             base_rotation: identified.base_rotation,
             base_translation: identified.base_translation,
             tool: identified.tool,
+            terms: Vec::new(),
             ..nominal.clone()
         };
         let identified = RobotModel {

@@ -177,3 +177,38 @@ fn compensating_the_nominal_robot_changes_nothing_and_bad_joints_are_refused() {
         Err(CompensateError::Joints(IkError::NotFinite))
     ));
 }
+
+#[test]
+fn an_identified_model_with_a_compliance_needs_its_masses_and_harmonics_stay_small() {
+    use crate::model::{Mass, TermKind};
+    let nominal = crate::model::tx60();
+    let mut compliant = nominal.clone();
+    *compliant.term_mut(1, TermKind::Compliance) = 2e-6;
+    *compliant.term_mut(2, TermKind::Compliance) = 1e-6;
+    assert_eq!(
+        Compensator::new(&nominal, &compliant)
+            .unwrap_err()
+            .to_string(),
+        "the identified model has a compliance on joint 2, 3 but no [[masses]]: the gravity \
+         torques it was identified with are unknown, so compensation would leave the compliance \
+         out (give the masses the identification used)"
+    );
+    compliant.masses.push(Mass {
+        frame: 3,
+        at: nalgebra::Vector3::new(100.0, 0.0, 50.0),
+        kg: 10.0,
+    });
+    let c = Compensator::new(&nominal, &compliant).expect("with its masses");
+    assert_eq!(c.identified().terms, compliant.terms);
+    let mut wobbly = nominal.clone();
+    *wobbly.term_mut(3, TermKind::Sin2Q) = 0.25;
+    match Compensator::new(&nominal, &wobbly) {
+        Err(CompensateError::NotACalibration { name, limit, .. }) => {
+            assert_eq!((name.as_str(), limit.as_str()), ("sin_2q4", "10°"));
+        }
+        other => panic!("{other:?}"),
+    }
+    // the controller's model has no terms, even when its file gives some
+    let c = Compensator::new(&compliant, &compliant).expect("same robot");
+    assert!(!c.nominal().has_terms() && c.identified().has_terms());
+}

@@ -202,9 +202,11 @@ impl IkGoal {
         }
     }
 
-    /// The joint Jacobian of [`IkGoal::weighted`]: 6×n for a pose (velocity of the flange
-    /// origin, then angular velocity × `w` mm/rad), 3×n for a point, from the θ screws.
-    fn jacobian(&self, model: &RobotModel, f: &Frames, w: f64) -> DMatrix<f64> {
+    /// The joint Jacobian of [`IkGoal::weighted`] at commanded joints `q` (frames `f`): 6×n for
+    /// a pose (velocity of the flange origin, then angular velocity × `w` mm/rad), 3×n for a
+    /// point, from the θ screws at the link angles, times `I + ∂Δθ/∂q` when the model has
+    /// non-geometric terms (§10: the link turns by `q + Δθ(q)`).
+    fn jacobian(&self, model: &RobotModel, q: &[f64], f: &Frames, w: f64) -> DMatrix<f64> {
         let n = model.dof();
         let screws = f.screws(&model.joints);
         let (p, rows) = match self {
@@ -221,6 +223,10 @@ impl IkGoal {
                     j[(3 + k, i)] = w * s.axis[k];
                 }
             }
+        }
+        if model.has_terms() {
+            let chain = DMatrix::identity(n, n) + model.correction_rates(q);
+            j *= chain;
         }
         j
     }
@@ -309,7 +315,7 @@ impl lsq::Problem for IkProblem<'_> {
     fn linearize(&self, s: &IkState) -> Linearization {
         let w = self.opts.rotation_scale_mm;
         let e = self.goal.weighted(&s.ep, &s.er, w);
-        let j = self.goal.jacobian(self.model, &s.frames, w);
+        let j = self.goal.jacobian(self.model, &s.q, &s.frames, w);
         let jt = j.transpose();
         let mut h = &jt * &j;
         // the descent direction Jᵀe (e = target − current = −r)
@@ -598,6 +604,90 @@ mod tests {
             solve_flange(&m, &HOME, &bad, &IkOptions::default()),
             Err(IkError::NotFinite)
         );
+    }
+
+    /// The TX60 with masses on the arm and every kind of non-geometric term.
+    fn with_terms() -> RobotModel {
+        use crate::model::{Mass, TermKind};
+        let mut m = tx60();
+        m.masses = vec![
+            Mass {
+                frame: 2,
+                at: Vector3::new(-150.0, 0.0, 120.0),
+                kg: 8.4,
+            },
+            Mass {
+                frame: 3,
+                at: Vector3::new(20.0, 80.0, 50.0),
+                kg: 5.0,
+            },
+            Mass {
+                frame: 6,
+                at: Vector3::new(0.0, 0.0, 60.0),
+                kg: 2.0,
+            },
+        ];
+        *m.term_mut(1, TermKind::Compliance) = 4e-6;
+        *m.term_mut(2, TermKind::Compliance) = 6e-6;
+        *m.term_mut(0, TermKind::SinQ) = 3e-4;
+        *m.term_mut(2, TermKind::Cos2Q) = -4e-4;
+        *m.term_mut(4, TermKind::CosQ) = 2e-4;
+        m
+    }
+
+    #[test]
+    fn the_jacobian_of_a_model_with_terms_is_the_derivative_of_its_forward_kinematics() {
+        let m = with_terms();
+        let q = [0.3, -0.4, 1.4, 0.2, -0.6, 1.1];
+        let tool = Vector3::new(10.0, -20.0, 60.0);
+        let w = 100.0;
+        let goal = IkGoal::Flange(flange_pose(&m, &q));
+        let jac = goal.jacobian(&m, &q, &forward(&m, &q), w);
+        let point = IkGoal::Point {
+            tool,
+            target: Vector3::zeros(),
+        };
+        let jp = point.jacobian(&m, &q, &forward(&m, &q), w);
+        let h = 1e-6;
+        let mut worst: f64 = 0.0;
+        for i in 0..6 {
+            let (mut qp, mut qm) = (q, q);
+            qp[i] += h;
+            qm[i] -= h;
+            let (a, b) = (flange_pose(&m, &qp), flange_pose(&m, &qm));
+            let dp = (a.p - b.p) / (2.0 * h);
+            let dr = log_so3(&(a.r * b.r.transpose())) / (2.0 * h);
+            let dt = (a.transform_point(&tool) - b.transform_point(&tool)) / (2.0 * h);
+            for k in 0..3 {
+                worst = worst
+                    .max((jac[(k, i)] - dp[k]).abs())
+                    .max((jac[(3 + k, i)] - w * dr[k]).abs())
+                    .max((jp[(k, i)] - dt[k]).abs());
+            }
+        }
+        // the θ screws alone are off by the terms' rates (~1e-3 of ~600 mm/rad)
+        assert!(
+            worst < 1e-5,
+            "Jacobian vs finite differences: {worst:e} mm/rad"
+        );
+    }
+
+    #[test]
+    fn targets_of_a_model_with_terms_are_reached_exactly() {
+        let m = with_terms();
+        let q_true = [0.25, 0.55, 1.5, 0.1, -0.4, 0.5];
+        let target = flange_pose(&m, &q_true);
+        let sol = solve_flange(&m, &HOME, &target, &IkOptions::default()).expect("solves");
+        assert_reaches(&m, &sol, &target);
+        for (a, b) in sol.q.iter().zip(q_true) {
+            assert!((a - b).abs() < 1e-8, "{a} vs {b}");
+        }
+        // without the terms the same joints put the flange elsewhere
+        let bare = RobotModel {
+            terms: Vec::new(),
+            ..m.clone()
+        };
+        assert!((flange_pose(&bare, &q_true).p - target.p).norm() > 0.1);
     }
 
     #[test]

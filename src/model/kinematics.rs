@@ -6,7 +6,7 @@
 //! along an axis. [`Frames::screws`] returns these axes for all 5n parameters in the robot base
 //! frame; the identification builds every Jacobian from them.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 
 use super::chain::{Mdh, RobotModel};
 use super::gravity::STANDARD_GRAVITY_M_S2;
@@ -331,6 +331,39 @@ pub fn torques_of_frames(model: &RobotModel, frames: &Frames) -> Vec<f64> {
     tau
 }
 
+/// `∂τ_j/∂q_i` of the gravity torques of [`gravity_torques`] at commanded joints `q` (row `j`,
+/// column `i`; N·m/rad), analytic: joint `i` turns the masses beyond it, and the axes and
+/// origins of the joints after it, about its axis.
+pub fn gravity_torque_rates(model: &RobotModel, q: &[f64]) -> DMatrix<f64> {
+    let n = model.dof();
+    let frames = forward_joints(&model.joints, q);
+    let axes: Vec<JointAxes> = (0..n).map(|j| frames.joint_axes(j)).collect();
+    let mut rates = DMatrix::zeros(n, n);
+    for m in &model.masses {
+        let k = m.frame.min(n);
+        let r = frames.frames[k].transform_point(&m.at);
+        let w = model.gravity * (m.kg * STANDARD_GRAVITY_M_S2); // N
+        for (i, turning) in axes.iter().enumerate().take(k) {
+            let omega = turning.z;
+            let dr = omega.cross(&(r - turning.origin));
+            for (j, joint) in axes.iter().enumerate().take(k) {
+                let a = r - joint.origin;
+                let rate = if j <= i {
+                    // joint j's axis stays; the mass turns about joint i
+                    joint.z.dot(&dr.cross(&w))
+                } else {
+                    // joint j's axis, its origin and the mass turn together about joint i
+                    omega.cross(&joint.z).dot(&a.cross(&w))
+                        + joint.z.dot(&omega.cross(&a).cross(&w))
+                };
+                // N·mm → N·m
+                rates[(j, i)] += rate * 1e-3;
+            }
+        }
+    }
+    rates
+}
+
 /// Joint configurations over the joint limits that [`gravity_levers`] probes: a fixed
 /// low-discrepancy (Halton) sequence, so the answer is the same on every call.
 fn probe_configurations(model: &RobotModel, count: usize) -> impl Iterator<Item = Vec<f64>> + '_ {
@@ -402,6 +435,29 @@ impl RobotModel {
     /// `Δθ_j(q)` of every joint (rad).
     pub fn joint_corrections(&self, q: &[f64]) -> Vec<f64> {
         self.joint_corrections_with(q, None)
+    }
+
+    /// `∂Δθ_j/∂q_i` at commanded joints `q` (row `j`, column `i`; rad/rad): the harmonics' rate
+    /// on the diagonal plus each compliance times its torque's rates; zero without terms.
+    pub fn correction_rates(&self, q: &[f64]) -> DMatrix<f64> {
+        let n = q.len();
+        let mut d = DMatrix::zeros(n, n);
+        if !self.has_terms() {
+            return d;
+        }
+        if self.has_compliance() {
+            let tau = gravity_torque_rates(self, q);
+            for j in 0..n.min(tau.nrows()) {
+                let c = self.term(j, super::terms::TermKind::Compliance);
+                for i in 0..n.min(tau.ncols()) {
+                    d[(j, i)] = c * tau[(j, i)];
+                }
+            }
+        }
+        for (j, t) in self.terms.iter().enumerate().take(n) {
+            d[(j, j)] += t.harmonic_rate(q[j]);
+        }
+        d
     }
 
     /// The link angles the chain turns by at commanded joints `q`: `q + Δθ(q)` (rad).
@@ -545,5 +601,56 @@ mod terms_tests {
         let moved = crate::model::forward(&m, &q);
         let bare = crate::model::kinematics::forward_joints(&m.joints, &m.link_angles(&q));
         assert_eq!(moved.flange(), bare.flange());
+    }
+
+    #[test]
+    fn correction_rates_are_the_derivatives_of_the_corrections() {
+        let mut m = tx60();
+        m.gravity = Vector3::new(0.3, -0.2, -0.9).normalize();
+        m.masses = [(2, [-150.0, 0.0, 120.0], 8.4), (3, [20.0, 80.0, 50.0], 5.0)]
+            .into_iter()
+            .chain([(5, [0.0, 10.0, 30.0], 1.5), (6, [5.0, 0.0, 60.0], 2.0)])
+            .map(|(frame, at, kg)| Mass {
+                frame,
+                at: Vector3::from(at),
+                kg,
+            })
+            .collect();
+        for (j, c) in [(0, 1e-6), (1, 3e-6), (2, -2e-6), (3, 5e-5), (4, 4e-5)] {
+            *m.term_mut(j, TermKind::Compliance) = c;
+        }
+        for (j, k, v) in [(0, TermKind::SinQ, 2e-4), (2, TermKind::Cos2Q, -3e-4)] {
+            *m.term_mut(j, k) = v;
+        }
+        *m.term_mut(4, TermKind::Sin2Q) = 1e-4;
+        *m.term_mut(4, TermKind::CosQ) = -2e-4;
+        let q = [0.3, -0.4, 0.9, 0.2, -0.6, 1.1];
+        let d = m.correction_rates(&q);
+        let tau = gravity_torque_rates(&m, &q);
+        let h = 1e-6;
+        for i in 0..6 {
+            let (mut qp, mut qm) = (q, q);
+            qp[i] += h;
+            qm[i] -= h;
+            let (up, down) = (m.joint_corrections(&qp), m.joint_corrections(&qm));
+            let (tp, tm) = (gravity_torques(&m, &qp), gravity_torques(&m, &qm));
+            for j in 0..6 {
+                let want = (up[j] - down[j]) / (2.0 * h);
+                assert!(
+                    (d[(j, i)] - want).abs() < 1e-10,
+                    "∂Δθ{j}/∂q{i}: {} vs {want}",
+                    d[(j, i)]
+                );
+                let want = (tp[j] - tm[j]) / (2.0 * h);
+                assert!(
+                    (tau[(j, i)] - want).abs() < 1e-5 * (1.0 + want.abs()),
+                    "∂τ{j}/∂q{i}: {} vs {want}",
+                    tau[(j, i)]
+                );
+            }
+        }
+        assert!(tau.iter().filter(|v| v.abs() > 1.0).count() > 10, "{tau}");
+        m.terms.clear();
+        assert_eq!(m.correction_rates(&q), DMatrix::zeros(6, 6));
     }
 }

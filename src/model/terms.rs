@@ -168,6 +168,15 @@ impl JointTerms {
         self.compliance == 0.0 && self.harmonics.iter().all(|h| *h == 0.0)
     }
 
+    /// `∂Δθ/∂q` of the harmonics at commanded value `q` (rad/rad; the compliance's rate comes
+    /// from the torque's, [`crate::model::kinematics::gravity_torque_rates`]).
+    pub fn harmonic_rate(&self, q: f64) -> f64 {
+        let [s1, c1, s2, c2] = self.harmonics;
+        let (s, c) = q.sin_cos();
+        let (s_2, c_2) = (2.0 * q).sin_cos();
+        s1 * c - c1 * s + 2.0 * (s2 * c_2 - c2 * s_2)
+    }
+
     /// `Δθ` of this joint at commanded value `q` with gravity torque `tau` (rad).
     pub fn correction(&self, q: f64, tau: f64) -> f64 {
         TermKind::ALL

@@ -1,6 +1,7 @@
 //! Renderings of a calibration result ([`crate::calibrate`]): the printed summary, the
 //! corrected model file and the HTML calibration report.
 
+pub mod extended;
 pub mod html;
 pub mod model_file;
 pub mod summary;

@@ -6,12 +6,15 @@
 //! that produced it: MDH values are `nominal + error` (absolute), base and tool are the
 //! result's, joint limits and the name are the nominal model's. The header comments say where it comes from (deterministic provenance
 //! given by the caller: file hashes, campaign id; no clock), which parameters were held at
-//! nominal and which frame the base maps into.
+//! nominal and which frame the base maps into. A result with non-geometric terms (§10) adds them
+//! per joint (`compliance_rad_per_nm`, `harmonics_rad`) and a header line naming them; the
+//! masses and gravity are the nominal model's, those the identification used.
 
 use crate::calibrate::result::{corrected_model, BaseSource, CalibrationResult, ModelFileError};
 use crate::calibrate::IdentifyReport;
+use crate::identify::params::ParamId;
 use crate::model::file::write_robot;
-use crate::model::RobotModel;
+use crate::model::{JointTerms, RobotModel};
 
 /// The header comment lines of a corrected model file: what it is, `provenance` (the
 /// caller's deterministic source lines), the fit, what was held at nominal, base and tool.
@@ -80,6 +83,61 @@ fn header(report: &IdentifyReport, provenance: &[String], base: BaseSource) -> V
     h
 }
 
+/// The corrected model of `result` with its non-geometric terms (§10): the MDH values, base and
+/// tool of [`corrected_model`], then each term value the result's corrected model holds
+/// (`ParamId::Term`, absolute); a term the result does not give keeps the nominal model's, the
+/// masses and gravity are the nominal model's — the ones the identification computed the
+/// gravity torques with. A model whose terms are all zero has none (its file is a geometric
+/// one, byte for byte).
+pub fn corrected_model_with_terms(
+    result: &CalibrationResult,
+    nominal: &RobotModel,
+) -> Result<RobotModel, ModelFileError> {
+    let mut m = corrected_model(result, nominal)?;
+    for v in &result.corrected.values {
+        if let ParamId::Term { joint, kind } = v.param {
+            if joint >= m.dof() {
+                return Err(ModelFileError::Parameter(v.param.name()));
+            }
+            if !v.value.is_finite() {
+                return Err(ModelFileError::NotFinite(v.param.name()));
+            }
+            *m.term_mut(joint, kind) = v.value;
+        }
+    }
+    if !m.has_terms() {
+        m.terms.clear();
+    }
+    Ok(m)
+}
+
+/// The header line naming the terms a model carries (none: no line, so a geometric model's
+/// file is as before).
+fn terms_line(m: &RobotModel) -> Option<String> {
+    if !m.has_terms() {
+        return None;
+    }
+    let joints = |f: &dyn Fn(&JointTerms) -> bool| -> String {
+        let j: Vec<String> = (m.terms.iter().enumerate())
+            .filter(|(_, t)| f(t))
+            .map(|(i, _)| (i + 1).to_string())
+            .collect();
+        if j.is_empty() {
+            "none".to_owned()
+        } else {
+            j.join(", ")
+        }
+    };
+    Some(format!(
+        "Non-geometric terms (docs/method.md §10): compliance_rad_per_nm on joints {}, \
+         harmonics_rad on joints {}; gravity torques from the {} [[masses]] and the gravity \
+         direction the identification used.",
+        joints(&|t| t.compliance != 0.0),
+        joints(&|t| t.harmonics.iter().any(|h| *h != 0.0)),
+        m.masses.len()
+    ))
+}
+
 /// The corrected model of `result` as robot-file TOML with its header (see the module doc).
 pub fn corrected_model_toml(
     result: &CalibrationResult,
@@ -87,8 +145,13 @@ pub fn corrected_model_toml(
     provenance: &[String],
     base: BaseSource,
 ) -> Result<String, ModelFileError> {
-    let m = corrected_model(result, nominal)?;
-    Ok(write_robot(&m, &header(&result.report, provenance, base)))
+    let m = corrected_model_with_terms(result, nominal)?;
+    let mut h = header(&result.report, provenance, base);
+    if let Some(line) = terms_line(&m) {
+        let at = h.len() - 1;
+        h.insert(at, line);
+    }
+    Ok(write_robot(&m, &h))
 }
 
 /// The header line that says what the base is and which frame poses of this model are in.

@@ -8,6 +8,7 @@ use crate::analysis::metrics::Metrics;
 use crate::calibrate::identify_json::ParameterJson;
 use crate::calibrate::{CampaignTime, IdentifyReport, ParamStatus, Quality, SetupResult};
 use crate::identify::DropKind;
+use crate::report::extended::{change_percent, term_value_sigma, Extended, KeptModel};
 use crate::units::human::{
     fmt_deg, fmt_duration, fmt_fixed, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, NO_NUMBER,
 };
@@ -167,6 +168,106 @@ fn before_line(out: &mut String, r: &IdentifyReport) {
     }
 }
 
+/// The non-geometric terms (§10): families, each term's value ± σ or why it is held, the torque
+/// model's inputs; nothing for a geometric identification.
+fn terms_lines(out: &mut String, x: &Extended) {
+    let families: Vec<&str> = x.families.iter().map(|f| f.name()).collect();
+    let _ = writeln!(
+        out,
+        "\nNon-geometric terms ({}; docs/method.md §10): compliance µrad/(N·m), harmonics mrad; \
+         handed over: the {} model",
+        families.join(", "),
+        match x.kept {
+            KeptModel::Extended => "extended (geometric + terms)",
+            KeptModel::Geometric => "geometric (the terms did not verify better)",
+        }
+    );
+    for t in x.terms {
+        let status = match (&t.reason, t.status) {
+            (Some(r), ParamStatus::NotIdentified) => format!("held at zero: {r}"),
+            (_, st) => st.name().to_owned(),
+        };
+        let _ = writeln!(
+            out,
+            "  {:<12} joint {:<2} {:<10} {:>32}  {status}",
+            t.name,
+            t.joint,
+            t.kind,
+            term_value_sigma(t),
+        );
+    }
+    if let Some(g) = x.gravity {
+        let masses: Vec<String> = x
+            .masses
+            .iter()
+            .map(|m| {
+                format!(
+                    "frame {} at {} mm {} kg",
+                    m.frame,
+                    fmt_mm3(&m.at_mm),
+                    fmt_fixed(m.kg, 3)
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "torque model: gravity ({}, {}, {}) in the robot base frame; {}",
+            fmt_fixed(g[0], 4),
+            fmt_fixed(g[1], 4),
+            fmt_fixed(g[2], 4),
+            if masses.is_empty() {
+                "no masses".to_owned()
+            } else {
+                format!("masses: {}", masses.join("; "))
+            }
+        );
+    }
+}
+
+/// Before / geometric / extended mean, rms and max position error per set (§10).
+fn comparison_lines(out: &mut String, x: &Extended) {
+    let _ = writeln!(
+        out,
+        "\nBefore / geometric / extended (position mm; change = extended vs geometric)"
+    );
+    let _ = writeln!(
+        out,
+        "{:<7} {:<10} {:>9} {:>9} {:>9} {:>8}",
+        "set", "model", "mean", "rms", "max", "change"
+    );
+    let columns = x.columns();
+    for set in ["ident", "verify"] {
+        let Some(geometric) = columns[1].of(set) else {
+            continue;
+        };
+        for c in &columns {
+            let Some(m) = c.of(set) else { continue };
+            let change = (c.label == "extended")
+                .then(|| change_percent(geometric.position_mean_mm, m.position_mean_mm))
+                .flatten()
+                .map_or_else(String::new, |p| format!("{} %", fmt_fixed(p, 1)));
+            let _ = writeln!(
+                out,
+                "{set:<7} {:<10} {:>9} {:>9} {:>9} {change:>8}",
+                c.label,
+                fmt_mm(m.position_mean_mm),
+                fmt_mm(m.position_rms_mm),
+                fmt_mm(m.position_max_mm),
+            );
+        }
+    }
+}
+
+/// The summary's non-geometric blocks alone, for the report's tests.
+#[cfg(test)]
+pub(crate) mod tests_support {
+    /// The terms block and the comparison of `x`.
+    pub fn extended_lines(out: &mut String, x: &super::Extended) {
+        super::terms_lines(out, x);
+        super::comparison_lines(out, x);
+    }
+}
+
 /// Human summary of an identify report.
 pub fn summary_text(r: &IdentifyReport) -> String {
     let mut out = String::new();
@@ -234,6 +335,10 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     }
     setup_relative_lines(&mut out, r);
     not_identified_lines(&mut out, r);
+    let extended = Extended::of(r);
+    if let Some(x) = &extended {
+        terms_lines(&mut out, x);
+    }
     if let (Some(m), Some(a)) = (r.stage_axis_measured, r.stage_axis_angle_rad) {
         let _ = writeln!(
             out,
@@ -269,6 +374,9 @@ pub fn summary_text(r: &IdentifyReport) -> String {
     if let Some(v) = &r.metrics.verify {
         metric_line(&mut out, "verify", "before", &v.before);
         metric_line(&mut out, "verify", "after", &v.after);
+    }
+    if let Some(x) = &extended {
+        comparison_lines(&mut out, x);
     }
     out
 }

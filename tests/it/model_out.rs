@@ -231,3 +231,128 @@ fn identify_model_out_loads_as_robot_everywhere() {
         "{err}"
     );
 }
+
+/// A model file with non-geometric terms (docs/method.md §10): the result's term values are
+/// written per joint with the masses and gravity of the nominal model the identification used,
+/// and the file loads back (`load_robot`) to the same model — same terms, masses, gravity and
+/// forward kinematics; a geometric result's file has none of the keys.
+#[test]
+fn the_model_file_carries_the_terms_with_their_masses_and_gravity_and_loads_back() {
+    use cellcal::calibrate::ParamValue;
+    use cellcal::identify::params::ParamId;
+    use cellcal::model::{load_robot, Mass, TermKind};
+    let truth = paper_truth();
+    let data = sim(
+        &truth,
+        &SimConfig {
+            poses: 120,
+            ident: 80,
+            ..SimConfig::default()
+        },
+    );
+    let opts = options(ObsModel::Op, Vector3::y());
+    let mut nominal = tx60();
+    nominal.tool = truth.tool;
+    nominal.gravity = Vector3::new(0.0, 0.6, -0.8);
+    nominal.masses = vec![
+        Mass {
+            frame: 2,
+            at: Vector3::new(-150.0, 0.0, 120.0),
+            kg: 8.4,
+        },
+        Mass {
+            frame: 6,
+            at: Vector3::new(0.0, 0.0, 30.0 + 1.0 / 3.0),
+            kg: 0.35,
+        },
+    ];
+    let (mut result, id) = calibrate_result(
+        &nominal,
+        &data.observations,
+        &opts,
+        10.0,
+        BaseSource::Nominal,
+    )
+    .expect("identifies");
+    let geometric =
+        corrected_model_toml(&result, &nominal, &[], BaseSource::Nominal).expect("writes");
+    for key in ["compliance", "harmonics", "Non-geometric"] {
+        assert!(
+            !geometric.contains(key),
+            "{key} in a geometric file:\n{geometric}"
+        );
+    }
+
+    // the terms as an extended identification keeps them in its corrected model
+    let terms = [
+        (1, TermKind::Compliance, 2.0e-6 + 1.0 / 3.0 * 1e-7),
+        (2, TermKind::Compliance, -7.5e-7),
+        (0, TermKind::SinQ, 1.0 / 7.0 * 1e-3),
+        (2, TermKind::Cos2Q, -2.5e-4),
+        (4, TermKind::Sin2Q, 3.0e-5),
+    ];
+    let mut expected = id.corrected.clone();
+    for (joint, kind, value) in terms {
+        result.corrected.values.push(ParamValue {
+            param: ParamId::Term { joint, kind },
+            value,
+        });
+        *expected.term_mut(joint, kind) = value;
+    }
+    let text = corrected_model_toml(
+        &result,
+        &nominal,
+        &["Data: test".into()],
+        BaseSource::Nominal,
+    )
+    .expect("writes");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("identified.toml");
+    std::fs::write(&path, &text).unwrap();
+    let file = load_robot(&path).expect("loads back");
+    assert_eq!(file.terms, expected.terms, "{text}");
+    assert_eq!(file.masses, nominal.masses, "{text}");
+    assert_eq!(file.gravity, nominal.gravity, "{text}");
+    let (dp, dr) = fk_difference(&file, &expected);
+    assert!(
+        dp < 1e-9 && dr < 1e-12,
+        "FK differs by {dp:e} mm, {dr:e} rad"
+    );
+    // the terms matter: without them the model is elsewhere
+    let (apart, _) = fk_difference(&file, &id.corrected);
+    assert!(apart > 0.05, "the terms move the tool by {apart} mm");
+    for line in [
+        "# Non-geometric terms (docs/method.md §10): compliance_rad_per_nm on joints 2, 3, \
+         harmonics_rad on joints 1, 3, 5; gravity torques from the 2 [[masses]]",
+        "compliance_rad_per_nm = ",
+        "harmonics_rad = [",
+        "[[masses]]",
+        "gravity = [0.0, 0.6, -0.8]",
+    ] {
+        assert!(text.contains(line), "{line}\n{text}");
+    }
+    // the same bytes again, and what is written is what was identified
+    assert_eq!(
+        corrected_model_toml(
+            &result,
+            &nominal,
+            &["Data: test".into()],
+            BaseSource::Nominal
+        )
+        .unwrap(),
+        text
+    );
+    // a term of a joint the nominal model does not have is refused
+    result.corrected.values.push(ParamValue {
+        param: ParamId::Term {
+            joint: 6,
+            kind: TermKind::SinQ,
+        },
+        value: 1e-4,
+    });
+    let e = corrected_model_toml(&result, &nominal, &[], BaseSource::Nominal).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "the result has parameters of 7 joints, the nominal model has 6"
+    );
+}

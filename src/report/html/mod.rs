@@ -8,6 +8,7 @@
 //! `data-json="<JSON pointer>"` and `data-value="<the exact value>"` beside its rounded display,
 //! so a reader (or a test) can check the page against the JSON it came from.
 
+mod nongeometric;
 mod page;
 mod plots;
 mod sections;

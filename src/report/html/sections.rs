@@ -19,13 +19,14 @@ use crate::report::summary::campaign_time_rows;
 use crate::units::human::{fmt_deg, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, fmt_time_in, TimeZone};
 
 /// `(id, heading)` of every section, in order (the table of contents).
-const SECTIONS: [(&str, &str); 12] = [
+const SECTIONS: [(&str, &str); 13] = [
     ("verdict", "Verdict and warnings"),
     ("accuracy", "Accuracy before and after"),
     ("per-pose", "Per-pose position errors"),
     ("histograms", "Error histograms"),
     ("attitude", "Attitude errors"),
     ("parameters", "Identified parameters"),
+    ("nongeometric", "Non-geometric terms"),
     ("correlation", "Parameter correlations"),
     ("significance", "Significance indices"),
     ("setup", "Cell setup"),
@@ -47,6 +48,7 @@ pub fn all(input: &ReportInput) -> String {
         histograms(input),
         attitude(input),
         parameters(&input.result),
+        super::nongeometric::section(&input.result),
         correlation(&input.result),
         significance(input),
         setup(input),

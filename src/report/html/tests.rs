@@ -206,3 +206,152 @@ fn the_parameter_table_shows_mm_mrad_and_degrees_with_three_decimals_and_sigma_b
         );
     }
 }
+
+/// Every `(data-json, data-value)` pair of a page fragment (values unescaped).
+fn tagged(html: &str) -> Vec<(String, String)> {
+    let doc = scraper::Html::parse_fragment(html);
+    let sel = scraper::Selector::parse("[data-json]").expect("selector");
+    doc.select(&sel)
+        .map(|e| {
+            let a = |k| e.value().attr(k).expect("attribute").to_owned();
+            (a("data-json"), a("data-value"))
+        })
+        .collect()
+}
+
+#[test]
+fn the_nongeometric_section_shows_terms_torque_model_and_comparison_each_number_the_json_s() {
+    use crate::calibrate::identify_json::ParamStatus;
+    use crate::model::TermFamily;
+    use crate::report::extended::{Extended, KeptModel, MassJson, TermJson};
+    let (_, report, _) = small_op();
+    let term =
+        |name: &str, joint, kind: &str, value, sigma, unit: &str, reason: Option<&str>| TermJson {
+            name: name.into(),
+            joint,
+            kind: kind.into(),
+            value,
+            sigma,
+            unit: unit.into(),
+            status: if sigma.is_some() {
+                ParamStatus::Identified
+            } else {
+                ParamStatus::NotIdentified
+            },
+            reason: reason.map(Into::into),
+        };
+    let terms = vec![
+        term(
+            "compliance2",
+            2,
+            "compliance",
+            2.5e-6,
+            Some(1.5e-8),
+            "rad/(N·m)",
+            None,
+        ),
+        term("sin_q3", 3, "sin_q", -1.5e-4, Some(2e-6), "rad", None),
+        term(
+            "sin_q6",
+            6,
+            "sin_q",
+            0.0,
+            None,
+            "rad",
+            Some("not observable: the tool is on axis 6"),
+        ),
+    ];
+    let mut geometric = report.metrics.clone();
+    let v = geometric.verify.as_mut().expect("verify");
+    v.after.position_mean_mm *= 1.25;
+    let masses = vec![MassJson {
+        frame: 2,
+        at_mm: [-150.0, 0.0, 120.5],
+        kg: 8.4,
+    }];
+    let x = Extended {
+        families: &[TermFamily::Compliance, TermFamily::Harmonics],
+        terms: &terms,
+        metrics: &report.metrics,
+        geometric: &geometric,
+        extended_not_kept: None,
+        kept: KeptModel::Extended,
+        gravity: Some([0.0, 0.0, -1.0]),
+        masses: &masses,
+    };
+    let html = super::nongeometric::render(&x);
+    let mut json = serde_json::to_value(&report).expect("JSON");
+    json["metrics_geometric"] = serde_json::to_value(&geometric).expect("JSON");
+    json["gravity"] = serde_json::json!([0.0, 0.0, -1.0]);
+    json["masses"] = serde_json::json!([{"frame": 2, "at_mm": [-150.0, 0.0, 120.5], "kg": 8.4}]);
+    json["nongeometric_terms"] = serde_json::Value::Array(
+        terms
+            .iter()
+            .map(|t| {
+                serde_json::json!({"name": t.name, "joint": t.joint, "kind": t.kind,
+                    "value": t.value, "sigma": t.sigma, "unit": t.unit,
+                    "status": t.status.name(), "reason": t.reason})
+            })
+            .collect(),
+    );
+    let pairs = tagged(&html);
+    for (pointer, shown) in &pairs {
+        let want = json
+            .pointer(pointer)
+            .unwrap_or_else(|| panic!("{pointer} not in the JSON"));
+        match want {
+            serde_json::Value::Number(n) => {
+                assert_eq!(shown.parse::<f64>().ok(), n.as_f64(), "{pointer}")
+            }
+            serde_json::Value::String(s) => assert_eq!(shown, s, "{pointer}"),
+            other => panic!("{pointer}: {other}"),
+        }
+    }
+    let seen = |p: &str| pairs.iter().any(|(q, _)| q == p);
+    for p in [
+        "/metrics/verify/before/position_mean_mm",
+        "/metrics_geometric/verify/after/position_rms_mm",
+        "/metrics/verify/after/position_max_mm",
+        "/metrics/ident/after/position_mean_mm",
+        "/nongeometric_terms/0/value",
+        "/nongeometric_terms/0/sigma",
+        "/nongeometric_terms/2/reason",
+        "/nongeometric_terms/2/status",
+        "/gravity/2",
+        "/masses/0/at_mm/2",
+        "/masses/0/kg",
+        "/masses/0/frame",
+    ] {
+        assert!(seen(p), "{p} not shown");
+    }
+    // units for people: compliance in µrad/(N·m), harmonics in mrad; the change vs geometric
+    assert!(
+        html.contains(">2.500</td>") && html.contains("± 0.015"),
+        "{html}"
+    );
+    assert!(html.contains(">-0.150</td>"), "{html}");
+    assert!(
+        html.contains("-20.0 %"),
+        "verification mean −20 % vs geometric: {html}"
+    );
+    assert!(html.contains("held at zero"), "{html}");
+
+    // the printed summary shows the same
+    let mut text = String::new();
+    super::super::summary::tests_support::extended_lines(&mut text, &x);
+    assert!(
+        text.contains(
+            "compliance2  joint 2  compliance         2.500 ± 0.015 µrad/(N·m)  identified"
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("held at zero: not observable: the tool is on axis 6"),
+        "{text}"
+    );
+    assert!(
+        text.contains("masses: frame 2 at (-150.000, 0.000, 120.500) mm 8.400 kg"),
+        "{text}"
+    );
+    assert!(text.contains("-20.0 %"), "{text}");
+}
