@@ -38,9 +38,18 @@ pub struct SimArgs {
     /// True errors: `paper` (docs/method.md §7), `random`, or a JSON/TOML file of name = value.
     #[arg(long, default_value = "paper")]
     errors: String,
-    /// Seed of `--errors random`.
+    /// Seed of `--errors random` and `--nongeometric-errors typical`.
     #[arg(long, default_value_t = 1)]
     error_seed: u64,
+    /// True joint compliance C1,…,Cn (rad/(N·m)): joint j deflects by c_j·τ_j, τ_j its gravity torque from the robot file's [[masses]].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    compliance_rad_per_nm: Option<Vec<f64>>,
+    /// True harmonic errors (µrad), four per joint from joint 1: sin q, cos q, sin 2q, cos 2q.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    harmonics_urad: Option<Vec<f64>>,
+    /// Generated non-geometric errors: `none` or `typical` (seeded by --error-seed; not with the explicit values).
+    #[arg(long, default_value = "none", value_parser = ["none", "typical"])]
+    nongeometric_errors: String,
     /// Stage axis in the flange frame: +x, -x, +y, -y, +z, -z or a vector X,Y,Z (normalised).
     #[arg(long, value_parser = SignedAxis::parse, default_value = "+y", allow_hyphen_values = true)]
     stage_axis: SignedAxis,
@@ -184,6 +193,12 @@ fn true_robot(
 ) -> Result<RobotModel, Failure> {
     let mut true_model = truth::apply_errors(nominal, errors)
         .map_err(|e| input(anyhow!("--errors {}: {e}", a.errors)))?;
+    true_model = truth::apply_terms(&true_model, &term_errors(a, nominal.dof())?)
+        .map_err(|e| {
+            input(anyhow!(
+                "non-geometric errors (--compliance-rad-per-nm, --harmonics-urad, --nongeometric-errors): {e}"
+            ))
+        })?;
     if let Some(t) = a.tool_mm {
         true_model.tool = t;
     }
@@ -194,6 +209,29 @@ fn true_robot(
         true_model.base_rotation = from_rotation_vector(&(r * std::f64::consts::PI / 180.0));
     }
     Ok(true_model)
+}
+
+/// The non-geometric errors of the arguments (`--harmonics-urad` in rows of four, rad).
+fn term_errors(a: &SimArgs, dof: usize) -> Result<truth::TermErrors, Failure> {
+    let harmonics_rad = match &a.harmonics_urad {
+        Some(v) if v.len() != 4 * dof => {
+            return Err(input(anyhow!(
+                "--harmonics-urad: {} values for {dof} joints (four per joint: sin q, cos q, sin 2q, cos 2q)",
+                v.len()
+            )))
+        }
+        Some(v) => Some(
+            v.chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]].map(|x| x * 1e-6))
+                .collect(),
+        ),
+        None => None,
+    };
+    Ok(truth::TermErrors {
+        compliance_rad_per_nm: a.compliance_rad_per_nm.clone(),
+        harmonics_rad,
+        typical_seed: (a.nongeometric_errors == "typical").then_some(a.error_seed),
+    })
 }
 
 /// The simulation settings of the arguments (noise off with `--no-noise`).
@@ -240,6 +278,10 @@ fn truth_json(
             "rotation_vector_rad": to_rotation_vector(&true_model.base_rotation).as_slice(),
         },
         "tool": { "translation_mm": true_model.tool.as_slice() },
+        "true_terms": {
+            "compliance_rad_per_nm": true_model.terms.iter().map(|t| t.compliance).collect::<Vec<_>>(),
+            "harmonics_rad": true_model.terms.iter().map(|t| t.harmonics).collect::<Vec<_>>(),
+        },
         "noise": {
             "tracker_position_mm": tracker_pos.as_slice(),
             "tracker_sigma": if a.no_noise { "none".to_owned() } else { "(15 um + 6 um/m * range)/2 per axis".to_owned() },

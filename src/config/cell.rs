@@ -1621,6 +1621,29 @@ mod tests {
                 "[sim]\ntime_scale = 0\n",
                 "sim.time_scale: must be positive",
             ),
+            (
+                "[sim]\ncompliance_rad_per_nm = [0, 1e-6, 1e-6, 1e-6, 1e-6]\n",
+                "sim.compliance_rad_per_nm: TOML parse error",
+            ),
+            (
+                "[sim]\ncompliance_rad_per_nm = [0, -1e-6, 0, 0, 0, 0]\n",
+                "sim.compliance_rad_per_nm: joint 2: a compliance cannot be negative",
+            ),
+            (
+                "[sim]\nharmonics_urad = [[1, 2, 3, 4], [1, 2, 3, 4], [1, 2, 3], [0, 0, 0, 0], \
+                 [0, 0, 0, 0], [0, 0, 0, 0]]\n",
+                "expected an array of length 4",
+            ),
+            (
+                "[sim]\nharmonics_urad = [[1, 2, 3, 4], [1, 2, 3, 4], [1, 2, 3, nan], [0, 0, 0, 0], \
+                 [0, 0, 0, 0], [0, 0, 0, 0]]\n",
+                "sim.harmonics_urad[2][3]: nan is not a finite number",
+            ),
+            (
+                "[sim]\nnongeometric_errors = \"typical\"\ncompliance_rad_per_nm = [0, 1e-6, 1e-6, 1e-6, 1e-6, 0]\n",
+                "sim.nongeometric_errors: \"typical\" generates",
+            ),
+            ("[sim]\nnongeometric_errors = \"large\"\n", "nongeometric_errors"),
         ] {
             for e in [
                 parse_cell_config(text, p).unwrap_err().to_string(),

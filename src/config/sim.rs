@@ -60,8 +60,17 @@ pub struct SimWorldConfig {
     pub tool_mm: Option<[f64; 3]>,
     /// Hidden MDH errors: `paper`, `random`, `none`, or a TOML/JSON file of name = value.
     pub errors: String,
-    /// Seed of `errors = "random"`.
+    /// Seed of `errors = "random"` and `nongeometric_errors = "typical"`.
     pub error_seed: u64,
+    /// True joint compliance of the simulated robot per joint (rad/(N·m)): joint j deflects by
+    /// c_j · τ_j, τ_j the gravity torque of the robot file's `[[masses]]`; none = 0.
+    pub compliance_rad_per_nm: Option<[f64; 6]>,
+    /// True per-joint harmonic errors of the simulated robot (µrad), `[sin q, cos q, sin 2q,
+    /// cos 2q]` per joint: joint j deflects by a·sin q_j + b·cos q_j + a2·sin 2q_j + b2·cos 2q_j;
+    /// none = 0.
+    pub harmonics_urad: Option<[[f64; 4]; 6]>,
+    /// Generated non-geometric errors when neither explicit key is given.
+    pub nongeometric_errors: NongeometricErrors,
     /// Seed of every random draw in the world (noise, jitter, stage, beam breaks).
     pub seed: u64,
     /// Joint repeatability σ (rad), drawn per move.
@@ -129,6 +138,9 @@ impl Default for SimWorldConfig {
             tool_mm: None,
             errors: "paper".into(),
             error_seed: 1,
+            compliance_rad_per_nm: None,
+            harmonics_urad: None,
+            nongeometric_errors: NongeometricErrors::None,
             seed: 4802,
             joint_jitter_rad: 1.2746e-5,
             stage_axis: SignedAxis::PLUS_Y,
@@ -215,6 +227,22 @@ impl SimWorldConfig {
         if let Some(v) = self.stage_speed_mm_s {
             positive("sim.stage_speed_mm_s", v)?;
         }
+        if let Some(c) = &self.compliance_rad_per_nm {
+            for (j, v) in c.iter().enumerate() {
+                rule(
+                    *v >= 0.0,
+                    "sim.compliance_rad_per_nm",
+                    format!("joint {}: a compliance cannot be negative, got {v}", j + 1),
+                )?;
+            }
+        }
+        rule(
+            self.nongeometric_errors == NongeometricErrors::None
+                || (self.compliance_rad_per_nm.is_none() && self.harmonics_urad.is_none()),
+            "sim.nongeometric_errors",
+            "\"typical\" generates the compliance and harmonic errors: give it or \
+             compliance_rad_per_nm / harmonics_urad, not both",
+        )?;
         let p = self.faults.tracker.beam_break_probability;
         rule(
             (0.0..=1.0).contains(&p),
@@ -222,6 +250,17 @@ impl SimWorldConfig {
             format!("must be in [0, 1], got {p}"),
         )
     }
+}
+
+/// `[sim] nongeometric_errors`: generated non-geometric errors of the simulated robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum NongeometricErrors {
+    /// None (only `compliance_rad_per_nm` / `harmonics_urad` when given).
+    #[default]
+    None,
+    /// [`crate::simulate::truth::typical_terms`], seeded by `error_seed`.
+    Typical,
 }
 
 /// `[sim.faults]`: faults armed at start (tests can change them at runtime through

@@ -2,5 +2,6 @@
 //! [`crate::config::sim`] (parsed once, by the same strict parser).
 
 pub use crate::config::sim::{
-    RobotFaults, SimFaults, SimWorldConfig, StageFaults, StageMode, TrackerFaults,
+    NongeometricErrors, RobotFaults, SimFaults, SimWorldConfig, StageFaults, StageMode,
+    TrackerFaults,
 };

@@ -82,7 +82,8 @@ pub fn load_error_table(spec: &str, dof: usize, seed: u64) -> Result<ErrorTable,
     }
 }
 
-/// The true robot: nominal + hidden errors, base and tool from the config (else the file's).
+/// The true robot: nominal + hidden errors (MDH and non-geometric), base and tool from the
+/// config (else the file's).
 pub fn true_model(nominal: &RobotModel, cfg: &SimWorldConfig) -> Result<RobotModel, SimError> {
     let errors = load_error_table(&cfg.errors, nominal.dof(), cfg.error_seed)?;
     let mut m = truth::apply_errors(nominal, &errors).map_err(|message| SimError::Errors {
@@ -99,7 +100,20 @@ pub fn true_model(nominal: &RobotModel, cfg: &SimWorldConfig) -> Result<RobotMod
     if let Some(t) = cfg.tool_mm {
         m.tool = t.into();
     }
-    Ok(m)
+    let terms = truth::TermErrors {
+        compliance_rad_per_nm: cfg.compliance_rad_per_nm.map(|c| c.to_vec()),
+        harmonics_rad: cfg
+            .harmonics_urad
+            .map(|h| h.iter().map(|row| row.map(|v| v * 1e-6)).collect()),
+        typical_seed: (cfg.nongeometric_errors == config::NongeometricErrors::Typical)
+            .then_some(cfg.error_seed),
+    };
+    truth::apply_terms(&m, &terms).map_err(|e| {
+        SimError::Config(format!(
+            "the non-geometric errors (compliance_rad_per_nm, harmonics_urad, \
+             nongeometric_errors): {e}"
+        ))
+    })
 }
 
 /// A running simulated cell. Dropping it stops every task (as does [`RunningSimCell::stop`]).

@@ -238,3 +238,67 @@ fn an_unknown_reject_code_is_a_config_error() {
     .expect_err("bad code");
     assert!(e.to_string().contains("`unreachable`"), "{e}");
 }
+
+#[test]
+fn the_simulated_robot_moves_to_the_pose_of_its_true_model_with_the_non_geometric_terms() {
+    let compliance = [0.0, 4e-6, 5e-6, 6e-6, 6e-6, 0.0];
+    let harmonics = [[20.0, -10.0, 5.0, 0.0]; 6];
+    let with_terms = SimWorldConfig {
+        errors: "none".into(),
+        compliance_rad_per_nm: Some(compliance),
+        harmonics_urad: Some(harmonics),
+        ..SimWorldConfig::default()
+    };
+    let mut w = still_world(with_terms.clone());
+    let truth = w.true_model().clone();
+    for (j, t) in truth.terms.iter().enumerate() {
+        assert_eq!(t.compliance, compliance[j]);
+        for (got, want) in t.harmonics.iter().zip(harmonics[j]) {
+            assert!((got - want * 1e-6).abs() < 1e-18);
+        }
+    }
+    let q = vec![0.3, 0.9, 1.1, 0.1, 0.6, -0.4];
+    w.set_power(true).expect("power");
+    w.start_move(q.clone(), 100.0).expect("move");
+    while !w.is_settled() {
+        std::hint::spin_loop();
+    }
+    // the controller reports the commanded joints, the tracker sees the deflected chain
+    assert_eq!(w.readback_joints_rad(), q);
+    let fl = *forward(&truth, &q).flange();
+    let ball = truth.base_rotation * fl.transform_point(&truth.tool) + truth.base_translation;
+    let emscon::BackendMeasurement::Point(p) = w.measure() else {
+        panic!("target lost");
+    };
+    assert!((Vector3::from(p.xyz_mm) - ball).norm() < 1e-9);
+    let rigid = crate::model::RobotModel {
+        terms: Vec::new(),
+        ..truth.clone()
+    };
+    let fl = *forward(&rigid, &q).flange();
+    let rigid_ball = rigid.base_rotation * fl.transform_point(&rigid.tool) + rigid.base_translation;
+    let deflection = (ball - rigid_ball).norm();
+    assert!(deflection > 0.1, "the terms move the ball {deflection} mm");
+
+    // typical ones are seeded by error_seed; a compliance without masses is refused
+    let typical = SimWorldConfig {
+        errors: "none".into(),
+        nongeometric_errors: super::config::NongeometricErrors::Typical,
+        error_seed: 5,
+        ..SimWorldConfig::default()
+    };
+    let nominal = crate::model::tx60().bare();
+    assert_eq!(
+        true_model(&nominal, &typical).expect("typical").terms,
+        crate::simulate::truth::typical_terms(&nominal, 5)
+    );
+    let massless = crate::model::RobotModel {
+        masses: Vec::new(),
+        ..nominal
+    };
+    let e = true_model(&massless, &with_terms).expect_err("no masses");
+    assert!(
+        e.to_string().contains("compliance_rad_per_nm") && e.to_string().contains("[[masses]]"),
+        "{e}"
+    );
+}

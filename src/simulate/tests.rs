@@ -3,10 +3,14 @@
 
 use nalgebra::Vector3;
 
-use super::truth::{apply_errors, paper_errors, random_errors, PAPER_ERRORS};
+use super::truth::{
+    apply_errors, apply_terms, paper_errors, random_errors, typical_terms, TermErrors,
+    PAPER_ERRORS, TYPICAL_COMPLIANCE_RAD_PER_NM,
+};
 use super::{simulate, SimConfig, TrackerNoise};
 use crate::dataset::PoseSet;
 use crate::model::kinematics::forward;
+use crate::model::TermKind;
 
 #[test]
 fn at960_sigma_is_half_of_15_um_plus_6_um_per_metre() {
@@ -112,4 +116,123 @@ fn a_simulated_set_is_seeded_split_and_without_noise_exactly_the_true_geometry()
         .all(|(x, y)| x == y));
     let d = simulate(&nominal, &nominal, &SimConfig { seed: 1, ..noisy }).expect("poses");
     assert_ne!(b.observations[0].p1, d.observations[0].p1);
+}
+
+#[test]
+fn error_tables_name_non_geometric_terms_too_and_a_compliance_needs_masses() {
+    let nominal = crate::model::tx60();
+    let t = [
+        ("compliance2".to_owned(), 4e-6),
+        ("sin_q3".to_owned(), 2e-5),
+        ("d3".to_owned(), 0.25),
+    ]
+    .into_iter()
+    .collect();
+    let m = apply_errors(&nominal, &t).expect("errors");
+    assert_eq!(m.term(1, TermKind::Compliance), 4e-6);
+    assert_eq!(m.term(2, TermKind::SinQ), 2e-5);
+    assert_eq!(m.term(0, TermKind::CosQ), 0.0);
+    // the terms move the chain: a pose where joint 2 carries torque sees both
+    let q = [0.3, 0.8, 1.2, 0.1, 0.6, -0.4];
+    let geometric =
+        apply_errors(&nominal, &[("d3".to_owned(), 0.25)].into_iter().collect()).expect("errors");
+    let moved = (forward(&m, &q).flange().p - forward(&geometric, &q).flange().p).norm();
+    assert!(moved > 0.05, "terms move the flange by {moved} mm");
+    // plain MDH tables leave the model without terms
+    assert!(paper_model_has_no_terms());
+    let bare = crate::model::RobotModel {
+        masses: Vec::new(),
+        ..nominal.clone()
+    };
+    assert!(apply_errors(&bare, &t)
+        .expect_err("no masses")
+        .contains("[[masses]]"));
+    let bad = [("sin_q7".to_owned(), 1e-5)].into_iter().collect();
+    assert_eq!(
+        apply_errors(&nominal, &bad).expect_err("joint 7"),
+        "unknown parameter `sin_q7`"
+    );
+}
+
+fn paper_model_has_no_terms() -> bool {
+    let m = apply_errors(&crate::model::tx60(), &paper_errors()).expect("paper");
+    m.terms.is_empty()
+}
+
+#[test]
+fn typical_terms_are_seeded_give_loaded_joints_a_compliance_and_explicit_ones_are_checked() {
+    let nominal = crate::model::tx60();
+    let a = typical_terms(&nominal, 3);
+    assert_eq!(a, typical_terms(&nominal, 3));
+    assert_ne!(a, typical_terms(&nominal, 4));
+    assert_eq!(a.len(), 6);
+    let levers = crate::model::gravity_levers(&nominal);
+    assert_eq!(levers, [false, true, true, true, true, false]);
+    let (lo, hi) = TYPICAL_COMPLIANCE_RAD_PER_NM;
+    for (t, lever) in a.iter().zip(&levers) {
+        assert_eq!(*lever, (lo..=hi).contains(&t.compliance), "{a:?}");
+        assert!(*lever || t.compliance == 0.0);
+        assert!(t.harmonics.iter().all(|h| h.abs() < 2e-4 && *h != 0.0));
+    }
+    let m = apply_terms(
+        &nominal,
+        &TermErrors {
+            typical_seed: Some(3),
+            ..TermErrors::default()
+        },
+    )
+    .expect("typical");
+    assert_eq!(m.terms, a);
+    assert_eq!(
+        apply_terms(&nominal, &TermErrors::default()).expect("none"),
+        nominal
+    );
+    let explicit = TermErrors {
+        compliance_rad_per_nm: Some(vec![0.0, 4e-6, 5e-6, 0.0, 0.0, 0.0]),
+        harmonics_rad: Some(vec![[1e-5, 0.0, 0.0, -2e-5]; 6]),
+        typical_seed: None,
+    };
+    let m = apply_terms(&m, &explicit).expect("explicit on top of typical ones");
+    assert_eq!(m.term(1, TermKind::Compliance), a[1].compliance + 4e-6);
+    assert_eq!(m.term(5, TermKind::Cos2Q), a[5].harmonics[3] - 2e-5);
+    for (bad, want) in [
+        (
+            TermErrors {
+                compliance_rad_per_nm: Some(vec![0.0; 5]),
+                ..TermErrors::default()
+            },
+            "compliance: 5 values for 6 joints",
+        ),
+        (
+            TermErrors {
+                compliance_rad_per_nm: Some(vec![0.0, -1e-6, 0.0, 0.0, 0.0, 0.0]),
+                ..TermErrors::default()
+            },
+            "compliance: joint 2: -0.000001 is not a compliance",
+        ),
+        (
+            TermErrors {
+                harmonics_rad: Some(vec![[0.0, f64::NAN, 0.0, 0.0]; 6]),
+                ..TermErrors::default()
+            },
+            "harmonics: joint 1: not a finite number",
+        ),
+        (
+            TermErrors {
+                typical_seed: Some(1),
+                ..explicit.clone()
+            },
+            "not both",
+        ),
+    ] {
+        let e = apply_terms(&nominal, &bad).expect_err(want);
+        assert!(e.contains(want), "{e}");
+    }
+    let massless = crate::model::RobotModel {
+        masses: Vec::new(),
+        ..nominal
+    };
+    assert!(apply_terms(&massless, &explicit)
+        .expect_err("no masses")
+        .contains("[[masses]]"));
 }
