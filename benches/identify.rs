@@ -60,6 +60,7 @@ fn bench_identify(c: &mut Criterion) {
                 point_weights: None,
                 solver: Options::default(),
                 practical: PracticalBounds::default(),
+                nongeometric: Default::default(),
             };
             let meas = to_measured(&rows[..n], model, 10.0).expect("convert");
             g.bench_with_input(BenchmarkId::new(model.name(), n), &meas, |b, m| {

@@ -53,6 +53,7 @@ fn bench_pipeline(c: &mut Criterion) {
         point_weights: None,
         solver: Options::default(),
         practical: Default::default(),
+        nongeometric: Default::default(),
     };
     let read = || read_csv(&path, 6, OP).expect("read").1;
     let rows = read();

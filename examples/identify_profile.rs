@@ -46,6 +46,7 @@ fn main() {
         point_weights: None,
         solver: Options::default(),
         practical: PracticalBounds::default(),
+        nongeometric: Default::default(),
     };
     // best batch of 10 calls: least disturbed by other load on the machine
     let mut last = None;

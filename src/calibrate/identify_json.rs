@@ -17,11 +17,23 @@
 //! registered base — would take over were it free; `predicted_sigma` their σ then, null when
 //! unbounded) and the parameters' `status` (`identified` | `setup_relative` | `not_identified`;
 //! `setup_relative` ones are identified too, their value and σ conditional on the setup).
+//!
+//! Non-geometric terms (§10; present only when terms were asked for, so a geometric result's
+//! JSON is as before): `nongeometric` (the families, `compliance` | `harmonics`),
+//! `nongeometric_terms` (`{name, joint, kind, value, sigma, unit, status, reason}`: every
+//! candidate term, `value` its absolute coefficient in `unit` — `rad/(N·m)` or `rad` —,
+//! `sigma` null when held at zero, `reason` why it is held), `metrics_geometric` (like `metrics`,
+//! for the geometric model fitted to the same data; `metrics` describes the model handed
+//! over), `nongeometric_kept` (`extended` | `geometric`: the model handed over) and, when the
+//! geometric one was kept, `metrics_extended`. The terms are in `identified`,
+//! `not_identifiable` and `correlation` (every parameter of the fit) but not in `parameters`,
+//! whose rows are the geometric model's (`nominal + error` of an MDH, base or tool value).
 
 use serde::{Deserialize, Serialize};
 
 use crate::analysis::metrics::Metrics;
 use crate::identify::{BeforeBase, DropKind, Dropped};
+use crate::model::TermFamily;
 
 /// `{name, reason, kind, predicted_sigma}` of a parameter held at nominal.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -106,6 +118,48 @@ pub struct ParameterJson {
     pub status: ParamStatus,
 }
 
+/// One non-geometric term of an identification with terms (`nongeometric_terms`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TermJson {
+    /// Public name (`compliance2`, `sin_q3`, `cos_2q6`).
+    pub name: String,
+    /// Joint number (1-based).
+    pub joint: usize,
+    /// `compliance`, `sin_q`, `cos_q`, `sin_2q` or `cos_2q`.
+    pub kind: String,
+    /// The identified coefficient (absolute; 0 when held), in `unit`.
+    pub value: f64,
+    /// Its standard deviation (null when not identified).
+    pub sigma: Option<f64>,
+    /// `rad/(N·m)` (compliance) or `rad` (harmonic).
+    pub unit: String,
+    /// `identified`, `setup_relative` or `not_identified` (held at zero).
+    pub status: ParamStatus,
+    /// Why it is held at zero (null when identified).
+    #[serde(default)]
+    pub reason: Option<String>,
+}
+
+/// Which model a calibration with non-geometric terms handed over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum KeptModel {
+    /// The geometric model with the terms.
+    Extended,
+    /// The geometric model alone (`nongeometric_keep = "better"` and it verified better).
+    Geometric,
+}
+
+impl KeptModel {
+    /// Contract name: `extended`, `geometric`.
+    pub fn name(self) -> &'static str {
+        match self {
+            KeptModel::Extended => "extended",
+            KeptModel::Geometric => "geometric",
+        }
+    }
+}
+
 /// Base transform (robot base → measurement frame).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BaseJson {
@@ -136,7 +190,7 @@ pub struct SolverJson {
 }
 
 /// Before/after metrics of one set.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BeforeAfter {
     /// Nominal (initial) model.
     pub before: Metrics,
@@ -145,7 +199,7 @@ pub struct BeforeAfter {
 }
 
 /// Metrics of both sets.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MetricsJson {
     /// Identification set.
     pub ident: BeforeAfter,
@@ -216,6 +270,22 @@ pub struct IdentifyReport {
     /// identification poses (absent otherwise, and from `cellcal identify`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ident_stop: Option<IdentStop>,
+    /// The families of non-geometric terms asked for (absent: a geometric identification).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nongeometric: Vec<TermFamily>,
+    /// Every candidate non-geometric term of the extended fit (absent without terms).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nongeometric_terms: Vec<TermJson>,
+    /// The metrics of the geometric model fitted to the same data with the same options
+    /// (absent without terms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metrics_geometric: Option<MetricsJson>,
+    /// Which model was handed over (absent without terms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nongeometric_kept: Option<KeptModel>,
+    /// The extended model's metrics when the geometric one was kept (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metrics_extended: Option<MetricsJson>,
 }
 
 /// Why a campaign stopped measuring identification poses.

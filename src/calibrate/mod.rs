@@ -12,7 +12,9 @@ pub mod result;
 pub mod setup;
 
 pub use campaign_time::CampaignTime;
-pub use identify_json::{IdentCheck, IdentStop, IdentifyReport, ParamStatus, StopReason};
+pub use identify_json::{
+    IdentCheck, IdentStop, IdentifyReport, KeptModel, ParamStatus, StopReason, TermJson,
+};
 pub use quality::{Quality, QualityWarning};
 pub use result::{
     corrected_model, BaseSource, CalibrationResult, CorrectedModel, ModelFileError, ParamValue,
@@ -23,7 +25,10 @@ pub use setup::{BaseResult, SetupResult, ToolFrameResult};
 use crate::analysis::metrics::evaluate_pair;
 use crate::dataset::{split_measured, ConvertError, Observation, PoseSet};
 use crate::identify::observation::{predict, Measured};
-use crate::identify::{identify_with, Identification, IdentifyError, IdentifyOptions, JointTrig};
+use crate::identify::{
+    identify_with, Identification, IdentifyError, IdentifyOptions, JointTrig, Nongeometric,
+    NongeometricKeep,
+};
 use crate::measure::rigid::fit_rigid;
 use crate::model::rotation::log_so3;
 use crate::model::RobotModel;
@@ -135,8 +140,101 @@ fn ident_ids(rows: &[Observation], indices: &[usize]) -> Vec<String> {
     indices.iter().map(|&i| ident[i].id.clone()).collect()
 }
 
-/// Run the identify pipeline on data-set rows.
+/// The verdict's bounds of an identification with `opts`: σ judged by the bounds the
+/// identification kept its set within.
+fn quality_bounds(opts: &IdentifyOptions) -> QualityBounds {
+    QualityBounds {
+        sigma_mm: opts.practical.max_sigma_mm,
+        sigma_rad: opts.practical.max_sigma_rad,
+        ..QualityBounds::default()
+    }
+}
+
+/// Run the identify pipeline on data-set rows. With non-geometric terms
+/// (`opts.nongeometric`), the geometric model is identified too, on the same data with the same
+/// options otherwise: the report gains the terms and the geometric fit's metrics, and hands
+/// over the extended model — or, with [`NongeometricKeep::Better`], the one with the lower
+/// verification position RMS.
 pub fn calibrate(
+    robot: &RobotModel,
+    rows: &[Observation],
+    opts: &IdentifyOptions,
+    stage_travel_mm: f64,
+) -> Result<(IdentifyReport, Identification), CalibrateError> {
+    if opts.nongeometric.is_empty() {
+        return calibrate_one(robot, rows, opts, stage_travel_mm);
+    }
+    let (extended, ext_id) = calibrate_one(robot, rows, opts, stage_travel_mm)?;
+    let geometric_opts = IdentifyOptions {
+        nongeometric: Nongeometric::default(),
+        ..*opts
+    };
+    let (geometric, geo_id) = calibrate_one(robot, rows, &geometric_opts, stage_travel_mm)?;
+    let terms = term_rows(&ext_id);
+    let verify_rms =
+        |r: &IdentifyReport| r.metrics.verify.as_ref().map(|v| v.after.position_rms_mm);
+    let keep_geometric = opts.nongeometric.keep == NongeometricKeep::Better
+        && matches!(
+            (verify_rms(&geometric), verify_rms(&extended)),
+            (Some(g), Some(e)) if g <= e
+        );
+    let metrics_geometric = geometric.metrics.clone();
+    let (mut report, id, metrics_extended) = if keep_geometric {
+        let m = extended.metrics.clone();
+        (geometric, geo_id, Some(m))
+    } else {
+        (extended, ext_id, None)
+    };
+    report.nongeometric = opts.nongeometric.families();
+    report.nongeometric_terms = terms;
+    report.metrics_geometric = Some(metrics_geometric);
+    report.nongeometric_kept = Some(if keep_geometric {
+        KeptModel::Geometric
+    } else {
+        KeptModel::Extended
+    });
+    report.metrics_extended = metrics_extended;
+    report.judge(&quality_bounds(opts));
+    Ok((report, id))
+}
+
+/// `nongeometric_terms` of identification `id`: every candidate term, in candidate order.
+fn term_rows(id: &Identification) -> Vec<TermJson> {
+    id.estimates
+        .iter()
+        .filter(|e| e.param.is_term())
+        .map(|e| TermJson {
+            name: e.param.name(),
+            joint: e.param.joint_number().unwrap_or(0),
+            kind: e.param.kind_name().to_owned(),
+            value: e.nominal + e.error,
+            sigma: e.std,
+            unit: e.param.unit().to_owned(),
+            status: status_of(id, e),
+            reason: id
+                .identifiability
+                .dropped
+                .iter()
+                .find(|d| d.param == e.param)
+                .map(|d| d.reason.clone()),
+        })
+        .collect()
+}
+
+/// What the identification made of one estimate.
+fn status_of(id: &Identification, e: &crate::identify::Estimate) -> ParamStatus {
+    if !e.identified {
+        ParamStatus::NotIdentified
+    } else if id.setup_relative.iter().any(|d| d.param == e.param) {
+        ParamStatus::SetupRelative
+    } else {
+        ParamStatus::Identified
+    }
+}
+
+/// Run the identify pipeline on data-set rows for one parameter set (the geometric one, or it
+/// with the terms of `opts.nongeometric`).
+fn calibrate_one(
     robot: &RobotModel,
     rows: &[Observation],
     opts: &IdentifyOptions,
@@ -155,12 +253,7 @@ pub fn calibrate(
     // one joint table for the identification and the metrics of the ident set
     let trig = JointTrig::of(&ident);
     let id = identify_with(robot, &ident, &trig, opts)?;
-    // the verdict judges σ by the bounds the identification kept its set within
-    let bounds = QualityBounds {
-        sigma_mm: opts.practical.max_sigma_mm,
-        sigma_rad: opts.practical.max_sigma_rad,
-        ..QualityBounds::default()
-    };
+    let bounds = quality_bounds(opts);
     let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
     if let Some(c) = axis.filter(|c| {
         c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad
@@ -200,6 +293,7 @@ pub fn calibrate(
         parameters: id
             .estimates
             .iter()
+            .filter(|e| !e.param.is_term())
             .map(|e| ParameterJson {
                 name: e.param.name(),
                 joint: e.param.joint_number(),
@@ -209,13 +303,7 @@ pub fn calibrate(
                 error: e.error,
                 std: e.std,
                 identified: e.identified,
-                status: if !e.identified {
-                    ParamStatus::NotIdentified
-                } else if id.setup_relative.iter().any(|d| d.param == e.param) {
-                    ParamStatus::SetupRelative
-                } else {
-                    ParamStatus::Identified
-                },
+                status: status_of(&id, e),
             })
             .collect(),
         base: BaseJson {
@@ -250,6 +338,11 @@ pub fn calibrate(
         before_base: Some(id.before_base),
         setup_relative: id.setup_relative.iter().map(NotIdentifiable::of).collect(),
         ident_stop: None,
+        nongeometric: Vec::new(),
+        nongeometric_terms: Vec::new(),
+        metrics_geometric: None,
+        nongeometric_kept: None,
+        metrics_extended: None,
     };
     report.judge(&bounds);
     Ok((report, id))
@@ -269,3 +362,6 @@ pub fn calibrate_result(
         CalibrationResult::of(report, &id, base).with_residuals(&id, rows, stage_travel_mm)?;
     Ok((result, id))
 }
+
+#[cfg(test)]
+mod terms_tests;

@@ -473,6 +473,11 @@ mod tests {
             before_base: None,
             setup_relative: vec![],
             ident_stop: None,
+            nongeometric: Vec::new(),
+            nongeometric_terms: Vec::new(),
+            metrics_geometric: None,
+            nongeometric_kept: None,
+            metrics_extended: None,
         }
     }
 

@@ -469,6 +469,7 @@ mod tests {
             point_weights: None,
             solver: Default::default(),
             practical: PracticalBounds::default(),
+            nongeometric: Default::default(),
         };
         let (r, _) = calibrate_result(&nominal, &rows, &opts, 10.0, BaseSource::Nominal)
             .expect("identified");

@@ -477,6 +477,7 @@ fn resolve(
             .practical
             .bounds(a.tracker_weights.is_some())
             .map_err(input)?,
+        nongeometric: Default::default(),
     };
     Ok((robot, opts, travel, rows))
 }

@@ -60,6 +60,10 @@ pub const DEFAULT_NOISE_MM: f64 = 0.015;
 pub const DEFAULT_MAX_SIGMA_MM: f64 = 0.05;
 /// Default largest predicted σ of an identified angle (rad): 0.5 mrad, 0.05 mm at 100 mm.
 pub const DEFAULT_MAX_SIGMA_RAD: f64 = 5e-4;
+/// The gravity torque (N·m) a compliance is judged at: its column is scaled as the angle it
+/// turns the joint by at this torque, and its σ bound is the angle bound over it (0.5 mrad at
+/// 50 N·m: 10 µrad/(N·m)). Joints 2–3 of a 5–10 kg-payload arm carry 30–150 N·m.
+pub const REFERENCE_TORQUE_NM: f64 = 50.0;
 
 /// The practical test: how noisy one residual row is a priori, and how large a predicted
 /// parameter σ may be for the parameter still to be identified.
@@ -86,9 +90,12 @@ impl Default for PracticalBounds {
 }
 
 impl PracticalBounds {
-    /// The bound of one parameter, in its unit (mm or rad).
+    /// The bound of one parameter, in its unit (mm, rad, or rad/(N·m) for a compliance: the
+    /// angle bound at [`REFERENCE_TORQUE_NM`]).
     pub fn bound(&self, p: &ParamId) -> f64 {
-        if p.is_angle() {
+        if is_compliance(p) {
+            self.max_sigma_rad / REFERENCE_TORQUE_NM
+        } else if p.is_angle() {
             self.max_sigma_rad
         } else {
             self.max_sigma_mm
@@ -207,7 +214,37 @@ impl Identifiability {
 /// robot's own geometry: frames go first in the priority order, so a frame parameter takes an
 /// offset it cannot be told apart from and the robot parameter stays at nominal.
 pub fn is_frame(p: &ParamId) -> bool {
-    !matches!(p, ParamId::Mdh { .. })
+    matches!(
+        p,
+        ParamId::BaseTranslation(_)
+            | ParamId::BaseRotation(_)
+            | ParamId::Tool(_)
+            | ParamId::StageAxis(_)
+    )
+}
+
+/// Whether `p` is a joint compliance (rad/(N·m)).
+pub fn is_compliance(p: &ParamId) -> bool {
+    matches!(
+        p,
+        ParamId::Term {
+            kind: crate::model::TermKind::Compliance,
+            ..
+        }
+    )
+}
+
+/// The class of a parameter in the priority order: frames (0) before the robot's geometry (1)
+/// before the non-geometric terms (2). A parameter that would push a kept one of an earlier
+/// class over its bound is held back when it comes, so the earlier class keeps the offset.
+fn priority_class(p: &ParamId) -> u8 {
+    if is_frame(p) {
+        0
+    } else if p.is_term() {
+        2
+    } else {
+        1
+    }
 }
 
 /// The priority order in which candidates are tried (see the module doc): the frame
@@ -251,6 +288,8 @@ pub fn priority_order(model: &RobotModel, candidates: &[ParamId]) -> Vec<ParamId
     }
     let mut out: Vec<ParamId> = candidates.iter().filter(|p| is_frame(p)).copied().collect();
     out.extend(order.into_iter().filter(|p| candidates.contains(p)));
+    // the non-geometric terms last: they take only what the geometry cannot explain
+    out.extend(candidates.iter().filter(|p| p.is_term()).copied());
     out
 }
 
@@ -272,7 +311,9 @@ fn scale_gram(sums: &SplitSums, params: &[ParamId]) -> DMatrix<f64> {
     let colscale: Vec<f64> = params
         .iter()
         .map(|p| {
-            if p.is_angle() {
+            if is_compliance(p) {
+                1.0 / (RANK_SCALE_MM * REFERENCE_TORQUE_NM)
+            } else if p.is_angle() {
                 1.0 / RANK_SCALE_MM
             } else {
                 1.0
@@ -383,9 +424,12 @@ struct HeldBack {
     reason: String,
 }
 
-/// `v` in the unit of `p` with about three significant digits (angles in mrad).
+/// `v` in the unit of `p` with about three significant digits (angles in mrad, compliances
+/// in µrad/(N·m)).
 fn figure(p: &ParamId, v: f64) -> String {
-    let (v, unit) = if p.is_angle() {
+    let (v, unit) = if is_compliance(p) {
+        (v * 1e6, "µrad/(N·m)")
+    } else if p.is_angle() {
         (v * 1e3, "mrad")
     } else {
         (v, "mm")
@@ -493,18 +537,19 @@ impl<'a> Practical<'a> {
                 order,
             ));
         }
-        if is_frame(param) {
+        let class = priority_class(param);
+        if class == 0 {
             return None;
         }
-        // frame first: a robot parameter that would blur a kept frame parameter beyond its
-        // bound is the one held back, the frame keeps the offset they share
+        // frame first, geometry before terms: a parameter that would blur a kept one of an
+        // earlier class beyond its bound is the one held back, the earlier keeps the offset
         let with = self.kept.inv_diag_with(&p);
         let (frame, frame_sigma) = self
             .kept
             .cols
             .iter()
             .zip(&with)
-            .filter(|(&k, _)| is_frame(&order[k]))
+            .filter(|(&k, _)| priority_class(&order[k]) < class)
             .map(|(&k, &d)| (k, self.sigma(k, d)))
             .map(|(k, s)| (k, s, s / self.bounds.bound(&order[k])))
             .filter(|(_, _, ratio)| *ratio > 1.0)
@@ -521,10 +566,15 @@ impl<'a> Practical<'a> {
             sigma,
             reason: format!(
                 "indistinguishable from {names} given these poses: identifying it would raise \
-                 {}'s predicted σ to {} (bound {}); the frame takes the offset",
+                 {}'s predicted σ to {} (bound {}); the {} takes the offset",
                 order[frame].name(),
                 figure(&order[frame], frame_sigma),
-                figure(&order[frame], self.bounds.bound(&order[frame]))
+                figure(&order[frame], self.bounds.bound(&order[frame])),
+                if is_frame(&order[frame]) {
+                    "frame"
+                } else {
+                    "geometry"
+                }
             ),
         })
     }

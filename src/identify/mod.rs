@@ -32,7 +32,7 @@ pub use tracker_noise::TrackerNoise;
 use crate::measure::fit_rigid;
 use crate::model::kinematics::forward;
 use crate::model::rotation::to_rotation_vector;
-use crate::model::RobotModel;
+use crate::model::{gravity_levers, RobotModel, TermFamily, TermKind};
 use covariance::{covariance, unit_variance, Covariance};
 use problem::CalibProblem;
 use solver::Problem;
@@ -61,7 +61,62 @@ pub struct IdentifyOptions {
     /// Practical identifiability: a-priori noise and the σ bounds over which a parameter is held
     /// at nominal (with `point_weights`, the noise is the tracker model's σ at 1 m instead).
     pub practical: PracticalBounds,
+    /// The families of non-geometric terms identified with the geometry (§10); none by default.
+    pub nongeometric: Nongeometric,
 }
+
+/// Which families of non-geometric joint terms an identification adds to the geometric
+/// parameters (§10): a copyable set of [`TermFamily`]s, empty by default.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Nongeometric {
+    /// One compliance per joint that carries a gravity lever.
+    pub compliance: bool,
+    /// Four harmonic coefficients per joint.
+    pub harmonics: bool,
+    /// Which model a calibration hands over (the identification itself ignores it).
+    pub keep: NongeometricKeep,
+}
+
+/// `[campaign] nongeometric_keep`: which model a calibration with terms hands over.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NongeometricKeep {
+    /// The model with the terms (default).
+    #[default]
+    Extended,
+    /// The better of the extended and the geometric model on the verification set.
+    Better,
+}
+
+impl Nongeometric {
+    /// The set holding `families`.
+    pub fn of(families: &[TermFamily]) -> Nongeometric {
+        Nongeometric {
+            compliance: families.contains(&TermFamily::Compliance),
+            harmonics: families.contains(&TermFamily::Harmonics),
+            keep: NongeometricKeep::Extended,
+        }
+    }
+
+    /// The families in the set, in [`TermFamily::ALL`] order.
+    pub fn families(&self) -> Vec<TermFamily> {
+        TermFamily::ALL
+            .into_iter()
+            .filter(|f| match f {
+                TermFamily::Compliance => self.compliance,
+                TermFamily::Harmonics => self.harmonics,
+            })
+            .collect()
+    }
+
+    /// Whether no family is asked for (a geometric identification).
+    pub fn is_empty(&self) -> bool {
+        !self.compliance && !self.harmonics
+    }
+}
+
+/// Why a compliance of a joint without a gravity lever is held at zero.
+pub const NO_LEVER_REASON: &str = "no gravity torque about this joint";
 
 /// Why an identification could not be run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -348,6 +403,26 @@ fn setup_relative_reason(held: &[ParamId], reason: &str) -> String {
     )
 }
 
+/// The non-geometric candidates of `families` for `nominal` (joint by joint), and apart the
+/// compliances of joints without a gravity lever ([`gravity_levers`]): no torque, no column.
+pub fn term_candidates(
+    nominal: &RobotModel,
+    families: &Nongeometric,
+) -> (Vec<ParamId>, Vec<ParamId>) {
+    let all = params::term_params(nominal.dof(), &families.families());
+    if !families.compliance {
+        return (all, Vec::new());
+    }
+    let levers = gravity_levers(nominal);
+    all.into_iter().partition(|p| match p {
+        ParamId::Term {
+            joint,
+            kind: TermKind::Compliance,
+        } => levers.get(*joint).copied().unwrap_or(false),
+        _ => true,
+    })
+}
+
 /// Identify the parameter errors of `nominal` from identification poses.
 pub fn identify(
     nominal: &RobotModel,
@@ -381,10 +456,23 @@ pub fn identify_with(
             &weighted
         }
     };
-    let candidates = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
+    let geometric = all_params(nominal.dof(), opts.identify_base, opts.identify_tool);
+    // the non-geometric terms after the geometry; a compliance without a gravity lever is
+    // held at zero before the analysis (its column is zero on every pose)
+    let (terms, no_lever) = term_candidates(nominal, &opts.nongeometric);
+    let analysed: Vec<ParamId> = geometric.iter().chain(&terms).copied().collect();
+    let candidates: Vec<ParamId> = geometric
+        .iter()
+        .copied()
+        .chain(params::term_params(
+            nominal.dof(),
+            &opts.nongeometric.families(),
+        ))
+        .collect();
     let rows = opts.obs.model.rows();
-    // generic structure first: how many parameters can this model identify at all?
-    let structural = structural_set(nominal, &opts.obs, &candidates);
+    // generic structure first: how many parameters can this model identify at all? (the
+    // geometric ones: a term these poses do not determine is held at zero, never an error)
+    let structural = structural_set(nominal, &opts.obs, &geometric);
     let k = structural.identified.len();
     let needed = k.div_ceil(rows) + 1;
     if poses.len() < needed.max(3) {
@@ -396,14 +484,24 @@ pub fn identify_with(
         });
     }
     let initial = initial_model(nominal, poses, opts)?;
-    let (ident, sums) = identifiability::analyze_linearized(
+    let (mut ident, sums) = identifiability::analyze_linearized(
         &initial,
         poses,
         trig,
         &opts.obs,
-        &candidates,
+        &analysed,
         Some(&practical_bounds(opts)),
     );
+    ident
+        .dropped
+        .extend(no_lever.into_iter().map(|param| Dropped {
+            param,
+            reason: NO_LEVER_REASON.to_owned(),
+            kind: DropKind::Structural,
+            predicted_sigma: None,
+        }));
+    let order = |p: &ParamId| candidates.iter().position(|c| c == p);
+    ident.dropped.sort_by_key(|d| order(&d.param));
     // lost structurally on these poses is an error; held back as undetermined is a result
     let missing: Vec<String> = structural
         .identified

@@ -28,6 +28,7 @@ pub(crate) fn paper_setup(verify: usize) -> Setup {
             point_weights: None,
             solver: Options::default(),
             practical: PracticalBounds::default(),
+            nongeometric: Default::default(),
         },
         stage_travel_mm: 10.0,
         request: PlanRequest {

@@ -37,6 +37,7 @@ pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
         point_weights: None,
         solver: Options::default(),
         practical: PracticalBounds::default(),
+        nongeometric: Default::default(),
     }
 }
 

@@ -50,6 +50,7 @@ fn options() -> IdentifyOptions {
             noise_mm: 0.0,
             ..PracticalBounds::default()
         },
+        nongeometric: Default::default(),
     }
 }
 

@@ -28,6 +28,7 @@ fn small_op() -> (Vec<Observation>, IdentifyReport, Identification) {
         point_weights: None,
         solver: Default::default(),
         practical: PracticalBounds::default(),
+        nongeometric: Default::default(),
     };
     let (report, id) = calibrate(&nominal, &rows, &opts, 10.0).expect("identified");
     (rows, report, id)
