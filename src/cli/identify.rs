@@ -107,6 +107,11 @@ pub struct IdentifyArgs {
     /// Weight of direction rows (mm); default stage travel/√2.
     #[arg(long)]
     direction_weight_mm: Option<f64>,
+    /// Also identify non-geometric joint terms (§10): `compliance`, `harmonics` or both
+    /// (`compliance,harmonics`); the geometric model is fitted on the same data too and both
+    /// are reported (`nongeometric_terms`, `metrics_geometric`).
+    #[arg(long, value_name = "LIST")]
+    nongeometric: Option<String>,
     /// Levenberg–Marquardt iteration limit (a result that hits it is reported NOT converged).
     #[arg(long, default_value_t = DEFAULT_MAX_ITERATIONS)]
     max_iterations: usize,
@@ -477,7 +482,17 @@ fn resolve(
             .practical
             .bounds(a.tracker_weights.is_some())
             .map_err(input)?,
-        nongeometric: Default::default(),
+        nongeometric: match &a.nongeometric {
+            None => Default::default(),
+            Some(list) => crate_nongeometric(list)?,
+        },
     };
     Ok((robot, opts, travel, rows))
+}
+
+/// `--nongeometric LIST` as the identification's term set (a bad name: exit 2 with the reason).
+fn crate_nongeometric(list: &str) -> Result<cellcal::identify::Nongeometric, Failure> {
+    let families = cellcal::model::TermFamily::parse_list(list)
+        .map_err(|e| input(anyhow!("--nongeometric: {e}")))?;
+    Ok(cellcal::identify::Nongeometric::of(&families))
 }
