@@ -569,7 +569,11 @@ mod gravity_tests {
         let m = with_mass(3, [50.0, 20.0, 100.0], 5.0);
         let levers = gravity_levers(&m);
         assert_eq!(levers, vec![false, true, true, false, false, false]);
-        assert_eq!(gravity_levers(&tx60()), vec![false; 6]);
+        let massless = RobotModel {
+            masses: Vec::new(),
+            ..tx60()
+        };
+        assert_eq!(gravity_levers(&massless), vec![false; 6]);
     }
 }
 
