@@ -1,0 +1,3 @@
+//! Integration tests for the ur crate (one binary, several modules).
+
+mod golden;
