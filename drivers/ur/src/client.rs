@@ -615,22 +615,18 @@ impl RtdeClient {
             .recipe
             .clone()
             .ok_or_else(|| UrError::Protocol("RTDE: no output recipe set up".into()))?;
-        loop {
-            match self.next_package("RTDE data package").await? {
-                ServerPackage::Data { recipe: id, values } if id == recipe.id => {
-                    let values = decode_values(&recipe.types, &values)?;
-                    return Ok(DataPackage {
-                        values: recipe.names.iter().cloned().zip(values).collect(),
-                    });
-                }
-                ServerPackage::Data { recipe: id, .. } => {
-                    return Err(UrError::Protocol(format!(
-                        "RTDE data package for recipe {id}, expected {}",
-                        recipe.id
-                    )))
-                }
-                other => return Err(unexpected("data package", &other)),
+        match self.next_package("RTDE data package").await? {
+            ServerPackage::Data { recipe: id, values } if id == recipe.id => {
+                let values = decode_values(&recipe.types, &values)?;
+                Ok(DataPackage {
+                    values: recipe.names.iter().cloned().zip(values).collect(),
+                })
             }
+            ServerPackage::Data { recipe: id, .. } => Err(UrError::Protocol(format!(
+                "RTDE data package for recipe {id}, expected {}",
+                recipe.id
+            ))),
+            other => Err(unexpected("data package", &other)),
         }
     }
 

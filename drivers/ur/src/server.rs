@@ -151,12 +151,13 @@ async fn accept_loop(listener: TcpListener, controller: SimController, kind: Kin
                             }
                         };
                         tokio::select! {
-                            r = run => if let Err(e) = r {
-                                debug!("simulated UR {kind:?}: connection ended: {e}");
-                            },
+                            biased;
                             _ = drop_signal.changed() => {
                                 info!("simulated UR {kind:?}: connection dropped (fault)");
                             }
+                            r = run => if let Err(e) = r {
+                                debug!("simulated UR {kind:?}: connection ended: {e}");
+                            },
                         }
                     });
                 }

@@ -1,3 +1,7 @@
 //! Integration tests for the ur crate (one binary, several modules).
 
+mod common;
+mod corpus;
 mod golden;
+mod session;
+mod ur_rtde;
