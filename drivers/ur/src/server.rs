@@ -200,6 +200,9 @@ async fn dashboard_conn(stream: TcpStream, c: &SimController) -> std::io::Result
     }
 }
 
+/// Longest program the URScript receiver keeps.
+const MAX_PROGRAM: usize = 1 << 20;
+
 /// One URScript connection: each complete program (a `def`/`sec` ... `end` block, or one
 /// line outside a block) runs as soon as it is received. A block cut by the end of the
 /// connection does not run.
@@ -223,7 +226,10 @@ async fn script_conn(stream: TcpStream, c: &SimController) -> std::io::Result<()
             Some(b) => {
                 b.push_str(&line);
                 b.push('\n');
-                if t == "end" {
+                if b.len() > MAX_PROGRAM {
+                    warn!("simulated UR URScript: program over {MAX_PROGRAM} bytes dropped");
+                    block = None;
+                } else if t == "end" {
                     let text = block.take().unwrap_or_default();
                     let _ = c.run_script(&text);
                 }

@@ -331,3 +331,77 @@ fn urscript_refuses_what_a_controller_would_not_run_or_cellcal_must_not_send() {
     assert!(script::program("bad name", &[]).is_err());
     assert!(script::program("p", &["a\nb".into()]).is_err());
 }
+
+/// The output setup ur_rtde 1.6.5's `RTDEReceiveInterface(host)` sends to an e-Series
+/// controller (recorded from the client: `V` 0x0002, `v` twice, then this `O` at 500 Hz, the
+/// names each followed by a comma). It refuses a controller that answers `NOT_FOUND` to any.
+const UR_RTDE_1_6_5_RECIPE: &str = "timestamp,target_q,target_qd,target_qdd,target_current,\
+target_moment,actual_q,actual_qd,actual_current,joint_control_output,actual_TCP_pose,\
+actual_TCP_speed,actual_TCP_force,target_TCP_pose,target_TCP_speed,actual_digital_input_bits,\
+joint_temperatures,actual_execution_time,robot_mode,joint_mode,safety_mode,\
+actual_tool_accelerometer,speed_scaling,target_speed_fraction,actual_momentum,\
+actual_main_voltage,actual_robot_voltage,actual_robot_current,actual_joint_voltage,\
+actual_digital_output_bits,runtime_state,standard_analog_input0,standard_analog_input1,\
+standard_analog_output0,standard_analog_output1,robot_status_bits,safety_status_bits,\
+ft_raw_wrench,payload,payload_cog,payload_inertia,output_int_register_2,\
+output_int_register_12,output_int_register_13,output_int_register_14,output_int_register_15,\
+output_int_register_16,output_int_register_17,output_int_register_18,output_int_register_19,\
+output_double_register_12,output_double_register_13,output_double_register_14,\
+output_double_register_15,output_double_register_16,output_double_register_17,\
+output_double_register_18,output_double_register_19,";
+
+#[test]
+fn the_simulator_knows_every_variable_ur_rtde_asks_for_with_its_type() {
+    let mut pkg = (3u16 + 8 + UR_RTDE_1_6_5_RECIPE.len() as u16)
+        .to_be_bytes()
+        .to_vec();
+    pkg.push(b'O');
+    pkg.extend_from_slice(&500.0f64.to_be_bytes());
+    pkg.extend_from_slice(UR_RTDE_1_6_5_RECIPE.as_bytes());
+    let mut d = FrameDecoder::new();
+    d.push(&pkg);
+    let Some(ClientPackage::SetupOutputs { frequency, names }) = d.next_client().unwrap() else {
+        panic!("not a setup outputs package");
+    };
+    assert_eq!(frequency, 500.0);
+    assert_eq!(names.len(), 58);
+    // ur_rtde's robot_state.cpp types: 3 doubles for the accelerometer and payload_cog,
+    // 6 for the other vectors, int32 x6 for joint_mode
+    for n in &names {
+        let t = ur::vars::output_type(n).unwrap_or_else(|| panic!("{n} NOT_FOUND"));
+        let want = match n.as_str() {
+            "actual_tool_accelerometer" | "payload_cog" => RtdeType::Vector3d,
+            "joint_mode" => RtdeType::Vector6Int32,
+            "robot_mode" | "safety_mode" => RtdeType::Int32,
+            "runtime_state" | "robot_status_bits" | "safety_status_bits" => RtdeType::Uint32,
+            "actual_digital_input_bits" | "actual_digital_output_bits" => RtdeType::Uint64,
+            n if n.starts_with("output_int_register_") => RtdeType::Int32,
+            n if n.starts_with("target_")
+                || n.starts_with("actual_")
+                    && !matches!(
+                        n,
+                        "actual_execution_time"
+                            | "actual_momentum"
+                            | "actual_main_voltage"
+                            | "actual_robot_voltage"
+                            | "actual_robot_current"
+                    )
+                || matches!(
+                    n,
+                    "joint_control_output"
+                        | "joint_temperatures"
+                        | "ft_raw_wrench"
+                        | "payload_inertia"
+                ) =>
+            {
+                if n == "target_speed_fraction" {
+                    RtdeType::Double
+                } else {
+                    RtdeType::Vector6d
+                }
+            }
+            _ => RtdeType::Double,
+        };
+        assert_eq!(t, want, "{n}");
+    }
+}
