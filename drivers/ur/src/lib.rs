@@ -29,4 +29,4 @@ pub use client::{
 };
 pub use dashboard::{RobotMode, RuntimeState, SafetyMode};
 pub use server::{ServerConfig, UrServers};
-pub use sim::{ControllerConfig, Motion, SimController, TrapezoidMotion};
+pub use sim::{ControllerConfig, Motion, MotionFault, SimController, TrapezoidMotion};

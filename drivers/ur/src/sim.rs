@@ -39,6 +39,20 @@ pub trait Motion: Send + 'static {
     fn halt(&mut self, t: f64);
     /// Whether the joints still move at `t`.
     fn is_moving(&mut self, t: f64) -> bool;
+    /// A safety event the arm's own fault model raised by `t`, reported once (the
+    /// controller then halts the arm through [`Motion::halt`] and changes its safety mode).
+    fn fault(&mut self, _t: f64) -> Option<MotionFault> {
+        None
+    }
+}
+
+/// A safety event raised by a [`Motion`] (the embedding simulator's fault model).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MotionFault {
+    /// As [`SimController::protective_stop`].
+    ProtectiveStop,
+    /// As [`SimController::emergency_stop`] with the button pressed.
+    EmergencyStop,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -414,8 +428,30 @@ impl SimController {
             }
         }
         let t = self.t(now);
+        match s.motion.fault(t) {
+            Some(MotionFault::ProtectiveStop) => Self::apply_protective_stop(&mut s, t, now),
+            Some(MotionFault::EmergencyStop) => Self::apply_emergency_stop(&mut s, t),
+            None => {}
+        }
         Self::advance_program(&mut s, t);
         s
+    }
+
+    fn apply_protective_stop(s: &mut State, t: f64, now: Instant) {
+        s.motion.halt(t);
+        s.program = None;
+        s.safety_mode = SafetyMode::ProtectiveStop;
+        s.protective_stop_at = Some(now);
+        warn!("simulated UR: protective stop");
+    }
+
+    fn apply_emergency_stop(s: &mut State, t: f64) {
+        s.motion.halt(t);
+        s.program = None;
+        s.pending = None;
+        s.robot_mode = RobotMode::PowerOff;
+        s.safety_mode = SafetyMode::RobotEmergencyStop;
+        warn!("simulated UR: emergency stop pressed");
     }
 
     fn advance_program(s: &mut State, t: f64) {
@@ -489,11 +525,7 @@ impl SimController {
         let now = Instant::now();
         let t = self.t(now);
         let mut s = self.state(now);
-        s.motion.halt(t);
-        s.program = None;
-        s.safety_mode = SafetyMode::ProtectiveStop;
-        s.protective_stop_at = Some(now);
-        warn!("simulated UR: protective stop");
+        Self::apply_protective_stop(&mut s, t, now);
     }
 
     /// Emergency stop button pressed (`true`: arm stops, program ends, power off, safety
@@ -504,12 +536,7 @@ impl SimController {
         let t = self.t(now);
         let mut s = self.state(now);
         if pressed {
-            s.motion.halt(t);
-            s.program = None;
-            s.pending = None;
-            s.robot_mode = RobotMode::PowerOff;
-            s.safety_mode = SafetyMode::RobotEmergencyStop;
-            warn!("simulated UR: emergency stop pressed");
+            Self::apply_emergency_stop(&mut s, t);
         } else if s.safety_mode.is_emergency_stop() {
             s.safety_mode = SafetyMode::Normal;
             info!("simulated UR: emergency stop released");

@@ -282,3 +282,76 @@ async fn programs_that_do_not_compile_or_find_the_arm_not_running_do_not_run() {
     assert_eq!((run, refused), (0, 2), "{why:?}");
     assert!(why.unwrap().contains("set_digital_out"));
 }
+
+/// A [`TrapezoidMotion`] whose fault model raises `fault` 0.15 s into the first move.
+struct Collides {
+    inner: ur::TrapezoidMotion,
+    fault: ur::MotionFault,
+    at: Option<f64>,
+}
+
+impl ur::Motion for Collides {
+    fn sample(&mut self, t: f64) -> ur::sim::JointSample {
+        self.inner.sample(t)
+    }
+    fn movej(&mut self, t: f64, q: [f64; 6], a: f64, v: f64, min: f64) {
+        self.at.get_or_insert(t + 0.15);
+        self.inner.movej(t, q, a, v, min)
+    }
+    fn stopj(&mut self, t: f64, a: f64) {
+        self.inner.stopj(t, a)
+    }
+    fn halt(&mut self, t: f64) {
+        self.inner.halt(t)
+    }
+    fn is_moving(&mut self, t: f64) -> bool {
+        self.inner.is_moving(t)
+    }
+    fn fault(&mut self, t: f64) -> Option<ur::MotionFault> {
+        match self.at {
+            Some(at) if t >= at => {
+                self.at = Some(f64::INFINITY);
+                Some(self.fault)
+            }
+            _ => None,
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn faults_of_the_embedding_motion_become_the_controllers_safety_modes() {
+    for (fault, mode) in [
+        (ur::MotionFault::ProtectiveStop, SafetyMode::ProtectiveStop),
+        (
+            ur::MotionFault::EmergencyStop,
+            SafetyMode::RobotEmergencyStop,
+        ),
+    ] {
+        let motion = Collides {
+            inner: ur::TrapezoidMotion::new(HOME),
+            fault,
+            at: None,
+        };
+        let c = ur::SimController::new(fast(), Box::new(motion));
+        let s = ur::UrServers::start(
+            c.clone(),
+            &ur::ServerConfig::ephemeral(std::net::Ipv4Addr::LOCALHOST.into()),
+        )
+        .await
+        .unwrap();
+        let _d = make_running(&s).await;
+        let mut r = rtde(&s).await;
+        script(&s).movej(&[2.0; 6], 2.0, 1.0).await.unwrap();
+        let seen = follow(&mut r, |st| st.safety_mode == mode).await.unwrap();
+        let st = seen.last().unwrap();
+        assert!(seen.iter().any(|st| st.program_running()));
+        assert!(!st.program_running());
+        assert_eq!(st.actual_qd, [0.0; 6]);
+        assert!(max_abs_diff(&st.actual_q, &HOME) > 0.01, "never moved");
+        if fault == ur::MotionFault::EmergencyStop {
+            assert_eq!(st.robot_mode, RobotMode::PowerOff);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        assert_eq!(r.latest_state().await.unwrap().actual_q, st.actual_q);
+    }
+}
