@@ -3,5 +3,6 @@
 mod common;
 mod corpus;
 mod golden;
+mod props;
 mod session;
 mod ur_rtde;
