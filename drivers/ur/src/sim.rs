@@ -285,7 +285,8 @@ struct State {
     robot_mode: RobotMode,
     safety_mode: SafetyMode,
     remote_control: bool,
-    pending: Option<(Instant, RobotMode)>,
+    /// robot mode changes under way, in time order
+    pending: Vec<(Instant, RobotMode)>,
     program: Option<Program>,
     protective_stop_at: Option<Instant>,
     programs_run: u64,
@@ -395,7 +396,7 @@ impl SimController {
                     robot_mode: config.initial_mode,
                     safety_mode: SafetyMode::Normal,
                     remote_control: config.remote_control,
-                    pending: None,
+                    pending: Vec::new(),
                     program: None,
                     protective_stop_at: None,
                     programs_run: 0,
@@ -421,11 +422,12 @@ impl SimController {
     /// The state, with pending transitions and the program advanced to `now`.
     fn state(&self, now: Instant) -> MutexGuard<'_, State> {
         let mut s = self.inner.state.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some((at, mode)) = s.pending {
-            if now >= at {
-                s.robot_mode = mode;
-                s.pending = None;
+        while let Some(&(at, mode)) = s.pending.first() {
+            if now < at {
+                break;
             }
+            s.robot_mode = mode;
+            s.pending.remove(0);
         }
         let t = self.t(now);
         match s.motion.fault(t) {
@@ -448,7 +450,7 @@ impl SimController {
     fn apply_emergency_stop(s: &mut State, t: f64) {
         s.motion.halt(t);
         s.program = None;
-        s.pending = None;
+        s.pending.clear();
         s.robot_mode = RobotMode::PowerOff;
         s.safety_mode = SafetyMode::RobotEmergencyStop;
         warn!("simulated UR: emergency stop pressed");
@@ -621,20 +623,30 @@ impl SimController {
             Command::PowerOn => {
                 if s.robot_mode == RobotMode::PowerOff && !s.safety_mode.is_emergency_stop() {
                     s.robot_mode = RobotMode::PowerOn;
-                    s.pending = Some((now + cfg.power_on_delay, RobotMode::Idle));
+                    s.pending = vec![(now + cfg.power_on_delay, RobotMode::Idle)];
                 }
                 dashboard::POWERING_ON.into()
             }
             Command::PowerOff => {
                 s.motion.halt(t);
                 s.program = None;
-                s.pending = None;
+                s.pending.clear();
                 s.robot_mode = RobotMode::PowerOff;
                 dashboard::POWERING_OFF.into()
             }
             Command::BrakeRelease => {
-                if s.robot_mode == RobotMode::Idle && s.pending.is_none() {
-                    s.pending = Some((now + cfg.brake_release_delay, RobotMode::Running));
+                // from POWER_OFF the arm is powered on on the fly (UR's ROS driver documents
+                // it for `brake release`); not during an emergency stop
+                if s.robot_mode == RobotMode::PowerOff && !s.safety_mode.is_emergency_stop() {
+                    s.robot_mode = RobotMode::PowerOn;
+                    s.pending = vec![(now + cfg.power_on_delay, RobotMode::Idle)];
+                }
+                let releasing = s.pending.iter().any(|p| p.1 == RobotMode::Running);
+                let powering = s.robot_mode == RobotMode::PowerOn || !s.pending.is_empty();
+                if !releasing && (s.robot_mode == RobotMode::Idle || powering) {
+                    let from = s.pending.last().map_or(now, |p| p.0);
+                    s.pending
+                        .push((from + cfg.brake_release_delay, RobotMode::Running));
                 }
                 dashboard::BRAKE_RELEASING.into()
             }

@@ -17,9 +17,6 @@ async fn dashboard_powers_on_releases_brakes_and_reports_modes() {
     assert_eq!(d.banner(), dashboard::BANNER);
     assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOff);
     assert!(d.is_in_remote_control().await.unwrap());
-    // brake release while powered off changes nothing
-    d.brake_release().await.unwrap();
-    assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOff);
     d.power_on().await.unwrap();
     assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOn);
     wait_mode(&mut d, RobotMode::Idle).await;
@@ -41,6 +38,10 @@ async fn dashboard_powers_on_releases_brakes_and_reports_modes() {
     d.stop().await.unwrap();
     d.power_off().await.unwrap();
     assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOff);
+    // brake release while powered off powers on on the fly, then releases
+    d.brake_release().await.unwrap();
+    assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOn);
+    wait_mode(&mut d, RobotMode::Running).await;
     d.quit().await.unwrap();
 }
 
@@ -215,8 +216,9 @@ async fn emergency_stop_powers_off_until_power_on_and_brake_release() {
     .pop()
     .unwrap();
     assert_eq!(st.robot_mode, RobotMode::PowerOff);
-    // power on does nothing while the button is pressed
+    // power on and brake release do nothing while the button is pressed
     d.power_on().await.unwrap();
+    d.brake_release().await.unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
     assert_eq!(d.robot_mode().await.unwrap(), RobotMode::PowerOff);
     c.emergency_stop(false);
