@@ -357,3 +357,26 @@ async fn faults_of_the_embedding_motion_become_the_controllers_safety_modes() {
         assert_eq!(r.latest_state().await.unwrap().actual_q, st.actual_q);
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dropped_next_data_futures_lose_or_split_no_package() {
+    let (_c, s) = start(fast()).await;
+    let mut r = RtdeClient::connect(s.rtde, TIMEOUT).await.unwrap();
+    r.setup_outputs(&STATE_RECIPE, 500.0).await.unwrap();
+    r.start().await.unwrap();
+    let mut last = 0.0;
+    let (mut got, mut dropped) = (0, 0);
+    while got < 200 {
+        // a deadline shorter than the 2 ms period drops many reads part way
+        match tokio::time::timeout(Duration::from_micros(700), r.next_data()).await {
+            Ok(p) => {
+                let st = ur::RobotState::from_package(&p.unwrap()).unwrap();
+                assert!(st.timestamp > last, "{} after {last}", st.timestamp);
+                last = st.timestamp;
+                got += 1;
+            }
+            Err(_) => dropped += 1,
+        }
+    }
+    assert!(dropped > 0, "no read was dropped");
+}
