@@ -161,15 +161,27 @@ pub fn calibrate(
     opts: &IdentifyOptions,
     stage_travel_mm: f64,
 ) -> Result<(IdentifyReport, Identification), CalibrateError> {
-    if opts.nongeometric.is_empty() {
-        return calibrate_one(robot, rows, opts, stage_travel_mm);
+    if !rows.iter().any(|o| o.set == PoseSet::Ident) {
+        return Err(CalibrateError::NoIdentRows);
     }
-    let (extended, ext_id) = calibrate_one(robot, rows, opts, stage_travel_mm)?;
+    let (ident, verify) = split_measured(rows, opts.obs.model, stage_travel_mm)?;
+    // one joint table for both fits, the analysis, every linearisation and the ident metrics
+    let trig = JointTrig::of(&ident);
+    let data = Sets {
+        rows,
+        ident: &ident,
+        verify: &verify,
+        trig: &trig,
+    };
+    if opts.nongeometric.is_empty() {
+        return calibrate_one(robot, &data, opts);
+    }
+    let (extended, ext_id) = calibrate_one(robot, &data, opts)?;
     let geometric_opts = IdentifyOptions {
         nongeometric: Nongeometric::default(),
         ..*opts
     };
-    let (geometric, geo_id) = calibrate_one(robot, rows, &geometric_opts, stage_travel_mm)?;
+    let (geometric, geo_id) = calibrate_one(robot, &data, &geometric_opts)?;
     let terms = term_rows(&ext_id);
     let verify_rms =
         |r: &IdentifyReport| r.metrics.verify.as_ref().map(|v| v.after.position_rms_mm);
@@ -232,29 +244,37 @@ fn status_of(id: &Identification, e: &crate::identify::Estimate) -> ParamStatus 
     }
 }
 
-/// Run the identify pipeline on data-set rows for one parameter set (the geometric one, or it
-/// with the terms of `opts.nongeometric`).
+/// The data of one calibration, read once for every fit: the rows, their two sets as measured
+/// poses and the ident set's joint table.
+struct Sets<'a> {
+    rows: &'a [Observation],
+    ident: &'a [Measured],
+    verify: &'a [Measured],
+    trig: &'a JointTrig,
+}
+
+/// Run the identify pipeline on the calibration's data for one parameter set (the geometric
+/// one, or it with the terms of `opts.nongeometric`).
 fn calibrate_one(
     robot: &RobotModel,
-    rows: &[Observation],
+    data: &Sets,
     opts: &IdentifyOptions,
-    stage_travel_mm: f64,
 ) -> Result<(IdentifyReport, Identification), CalibrateError> {
-    if !rows.iter().any(|o| o.set == PoseSet::Ident) {
-        return Err(CalibrateError::NoIdentRows);
-    }
+    let Sets {
+        rows,
+        ident,
+        verify,
+        trig,
+    } = *data;
     let model = opts.obs.model;
-    let (ident, verify) = split_measured(rows, model, stage_travel_mm)?;
     if !opts.identify_base {
-        if let Some(e) = frame_far_from_base(robot, &ident) {
+        if let Some(e) = frame_far_from_base(robot, ident) {
             return Err(e);
         }
     }
-    // one joint table for the identification and the metrics of the ident set
-    let trig = JointTrig::of(&ident);
-    let id = identify_with(robot, &ident, &trig, opts)?;
+    let id = identify_with(robot, ident, trig, opts)?;
     let bounds = quality_bounds(opts);
-    let axis = stage_axis_check(&id.initial, &ident, &opts.obs);
+    let axis = stage_axis_check(&id.initial, ident, &opts.obs);
     if let Some(c) = axis.filter(|c| {
         c.angle_rad > bounds.stage_axis_error_rad || c.scatter_rad > bounds.stage_axis_error_rad
     }) {
@@ -271,8 +291,8 @@ fn calibrate_one(
         BeforeAfter { before, after }
     };
     let metrics = MetricsJson {
-        ident: m(&ident, Some(&trig)),
-        verify: (!verify.is_empty()).then(|| m(&verify, None)),
+        ident: m(ident, Some(trig)),
+        verify: (!verify.is_empty()).then(|| m(verify, None)),
     };
     let names: Vec<String> = id
         .identifiability

@@ -179,9 +179,9 @@ fn on_geometric_data_the_terms_come_out_within_3_sigma_of_zero() {
     }
     let extended = verify_rms(&r.report.metrics);
     let geometric = verify_rms(r.report.metrics_geometric.as_ref().expect("geometric fit"));
-    // measured 1.028× (OP, 300 poses, 51 parameters against 30); the 1.01 is not met
+    // 1.028× before terms indistinguishable from zero were held there (docs/method.md §10)
     assert!(
-        extended <= 1.05 * geometric,
+        extended <= 1.01 * geometric,
         "extended {extended} mm, geometric {geometric} mm"
     );
 }

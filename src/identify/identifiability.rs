@@ -134,15 +134,19 @@ pub enum DropKind {
     Dependent,
     /// The poses barely move it: its predicted σ exceeds its bound even on its own.
     PoorlyDetermined,
+    /// A non-geometric term these poses determine but whose estimate is within
+    /// [`super::TERM_SIGNIFICANCE_SIGMAS`] σ of zero: held there.
+    NotSignificant,
 }
 
 impl DropKind {
-    /// Contract name: `structural`, `dependent`, `poorly_determined`.
+    /// Contract name: `structural`, `dependent`, `poorly_determined`, `not_significant`.
     pub fn name(self) -> &'static str {
         match self {
             DropKind::Structural => "structural",
             DropKind::Dependent => "dependent",
             DropKind::PoorlyDetermined => "poorly_determined",
+            DropKind::NotSignificant => "not_significant",
         }
     }
 }

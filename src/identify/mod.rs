@@ -19,7 +19,7 @@ pub mod robust;
 pub mod solver;
 pub mod tracker_noise;
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::{DMatrix, DVector, Vector3};
 use rand::{Rng, SeedableRng};
 
 pub use identifiability::{DropKind, Dropped, Identifiability, PracticalBounds};
@@ -423,6 +423,125 @@ pub fn term_candidates(
     })
 }
 
+/// A non-geometric term is held at zero when its estimate lies within this many standard
+/// deviations of zero: on data without the effect every term would otherwise fit noise.
+pub const TERM_SIGNIFICANCE_SIGMAS: f64 = 3.0;
+
+/// How far (in their own σ) holding terms at zero may move the other estimates: a term that is
+/// small only because a correlated one took its part stays (its part would bias the other).
+pub const TERM_HOLD_MAX_SHIFT_SIGMAS: f64 = 1.0;
+
+/// The identified terms of `fit` to hold at zero: within [`TERM_SIGNIFICANCE_SIGMAS`] σ of their
+/// initial value (σ from the fit's own σ0), taken from the least significant on while holding
+/// them all moves no other estimate by more than [`TERM_HOLD_MAX_SHIFT_SIGMAS`] of its σ (the
+/// conditional mean given the held ones at zero) — as held-back parameters with their reason.
+fn insignificant_terms(
+    initial: &RobotModel,
+    fit: &solver::Solution<RobotModel>,
+    params: &[ParamId],
+    used: usize,
+    opts: &IdentifyOptions,
+) -> Vec<Dropped> {
+    if !params.iter().any(ParamId::is_term) {
+        return Vec::new();
+    }
+    let sigma0_sq = unit_variance(fit.final_cost, used, opts.obs.model, params.len());
+    let Covariance { std, correlation } = covariance(fit.normal_matrix.clone(), sigma0_sq);
+    // estimates in their own σ: the correlation matrix is their covariance
+    let z: Vec<f64> = params
+        .iter()
+        .zip(&std)
+        .map(|(p, s)| (p.value(&fit.state) - p.value(initial)) / s)
+        .collect();
+    if z.iter().any(|v| !v.is_finite()) {
+        return Vec::new();
+    }
+    let mut candidates: Vec<usize> = (0..params.len())
+        .filter(|&i| params[i].is_term() && z[i].abs() < TERM_SIGNIFICANCE_SIGMAS)
+        .collect();
+    candidates.sort_by(|&a, &b| z[a].abs().total_cmp(&z[b].abs()));
+    let shift_ok = |held: &[usize]| {
+        let h = held.len();
+        let r_hh = DMatrix::from_fn(h, h, |a, b| correlation[(held[a], held[b])]);
+        let z_h = DVector::from_fn(h, |a, _| z[held[a]]);
+        let Some(w) = r_hh.cholesky().map(|c| c.solve(&z_h)) else {
+            return false;
+        };
+        // together: the cost they would add (in σ0²) is a χ² of h degrees of freedom
+        let joint = z_h.dot(&w);
+        joint <= chi_square_bound(h, TERM_SIGNIFICANCE_SIGMAS)
+            && (0..params.len()).filter(|k| !held.contains(k)).all(|k| {
+                let shift: f64 = (0..h).map(|a| correlation[(k, held[a])] * w[a]).sum();
+                shift.abs() <= TERM_HOLD_MAX_SHIFT_SIGMAS
+            })
+    };
+    let mut held: Vec<usize> = Vec::new();
+    for i in candidates {
+        held.push(i);
+        if !shift_ok(&held) {
+            held.pop();
+        }
+    }
+    held.sort_unstable();
+    held.into_iter()
+        .map(|i| Dropped {
+            param: params[i],
+            reason: format!(
+                "not significant: its estimate is {:.1} σ from zero (below \
+                 {TERM_SIGNIFICANCE_SIGMAS} σ); held at zero",
+                z[i].abs()
+            ),
+            kind: DropKind::NotSignificant,
+            predicted_sigma: Some(std[i]),
+        })
+        .collect()
+}
+
+/// `fit` with parameters `held` set back to their initial values and the others moved to the
+/// optimum given that, by one Gauss–Newton step on `fit`'s normal equations (the fit converged,
+/// so the step is the constrained optimum to second order in the small terms); its normal
+/// matrix is the kept parameters' block. `None` when that block is not positive definite.
+fn hold_at_initial(
+    fit: &solver::Solution<RobotModel>,
+    params: &[ParamId],
+    held: &[ParamId],
+    initial: &RobotModel,
+    poses: &[Measured],
+    trig: &JointTrig,
+    obs: &ObsConfig,
+) -> Option<solver::Solution<RobotModel>> {
+    let (h, k): (Vec<usize>, Vec<usize>) =
+        (0..params.len()).partition(|&i| held.contains(&params[i]));
+    let n = &fit.normal_matrix;
+    let d_h = DVector::from_fn(h.len(), |a, _| {
+        params[h[a]].value(initial) - params[h[a]].value(&fit.state)
+    });
+    let n_kk = DMatrix::from_fn(k.len(), k.len(), |a, b| n[(k[a], k[b])]);
+    let n_kh = DMatrix::from_fn(k.len(), h.len(), |a, b| n[(k[a], h[b])]);
+    let d_k = -n_kk.clone().cholesky()?.solve(&(n_kh * &d_h));
+    let mut step = vec![0.0; params.len()];
+    h.iter().zip(d_h.iter()).for_each(|(&i, d)| step[i] = *d);
+    k.iter().zip(d_k.iter()).for_each(|(&i, d)| step[i] = *d);
+    let state = params::retract(&fit.state, params, &step);
+    let kept: Vec<ParamId> = k.iter().map(|&i| params[i]).collect();
+    let final_cost = CalibProblem::with_trig(poses, trig, obs, &kept).cost(&state);
+    Some(solver::Solution {
+        state,
+        final_cost,
+        normal_matrix: n_kk,
+        ..fit.clone()
+    })
+}
+
+/// The χ² value of `dof` degrees of freedom exceeded with the probability of a normal deviate
+/// beyond `sigmas` (one-sided), by the Wilson–Hilferty cube-root approximation (within 1 % of
+/// the exact quantile from 1 degree of freedom at 3 σ).
+fn chi_square_bound(dof: usize, sigmas: f64) -> f64 {
+    let k = dof as f64;
+    let v = 2.0 / (9.0 * k);
+    k * (1.0 - v + sigmas * v.sqrt()).powi(3)
+}
+
 /// Identify the parameter errors of `nominal` from identification poses.
 pub fn identify(
     nominal: &RobotModel,
@@ -512,27 +631,51 @@ pub fn identify_with(
     if !missing.is_empty() {
         return Err(IdentifyError::RankDeficient { missing });
     }
-    let params = ident.identified.clone();
-    let problem = CalibProblem::with_trig(poses, trig, &opts.obs, &params);
-    // the analysis linearised at the initial model already: start the solver from it
-    let start = sums
-        .linearization(&params, opts.obs.direction_weight_mm)
-        .unwrap_or_else(|| problem.linearize(&initial));
-    let (fit, rejected) = match opts.robust {
-        None => (
-            solver::solve_from(&problem, initial.clone(), start, &opts.solver),
-            Vec::new(),
-        ),
-        Some(loss) => robust::solve_robust(
-            &initial,
-            start,
-            poses,
-            &opts.obs,
-            &params,
-            loss,
-            &opts.solver,
-        )?,
+    let mut params = ident.identified.clone();
+    let solve = |params: &[ParamId], x0: &RobotModel, start: Option<crate::lsq::Linearization>| {
+        let problem = CalibProblem::with_trig(poses, trig, &opts.obs, params);
+        let start = start.unwrap_or_else(|| problem.linearize(x0));
+        match opts.robust {
+            None => Ok((
+                solver::solve_from(&problem, x0.clone(), start, &opts.solver),
+                Vec::new(),
+            )),
+            Some(loss) => {
+                robust::solve_robust(x0, start, poses, &opts.obs, params, loss, &opts.solver)
+            }
+        }
     };
+    // the analysis linearised at the initial model already: start the solver from it
+    let start = sums.linearization(&params, opts.obs.direction_weight_mm);
+    let (mut fit, mut rejected) = solve(&params, &initial, start)?;
+    // a term whose estimate these data cannot tell from zero is held there and the fit redone
+    // from where it stood: it would only fit the noise (docs/method.md §10)
+    let insignificant =
+        insignificant_terms(&initial, &fit, &params, poses.len() - rejected.len(), opts);
+    if !insignificant.is_empty() {
+        let held: Vec<ParamId> = insignificant.iter().map(|d| d.param).collect();
+        let constrained = match opts.robust {
+            None => hold_at_initial(&fit, &params, &held, &initial, poses, trig, &opts.obs),
+            Some(_) => None,
+        };
+        params.retain(|p| !held.contains(p));
+        ident.identified.retain(|p| !held.contains(p));
+        ident.dropped.extend(insignificant);
+        ident.dropped.sort_by_key(|d| order(&d.param));
+        fit = match constrained {
+            Some(f) => f,
+            None => {
+                let back: Vec<f64> = held
+                    .iter()
+                    .map(|p| p.value(&initial) - p.value(&fit.state))
+                    .collect();
+                let x0 = params::retract(&fit.state, &held, &back);
+                let (f, r) = solve(&params, &x0, None)?;
+                rejected = r;
+                f
+            }
+        };
+    }
     let used = poses.len() - rejected.len();
     let sigma0_sq = unit_variance(fit.final_cost, used, opts.obs.model, params.len());
     let Covariance { std, correlation } = covariance(fit.normal_matrix, sigma0_sq);
@@ -540,12 +683,16 @@ pub fn identify_with(
     let base_dr =
         to_rotation_vector(&(corrected.base_rotation * initial.base_rotation.transpose()));
     let held = setup_quantities(opts);
+    // the terms come last in the analysis' order, so they decide nothing about the geometry:
+    // left out here, the analysis runs on the geometric columns only
+    let geometric_identified: Vec<ParamId> =
+        params.iter().filter(|p| !p.is_term()).copied().collect();
     let setup_relative = identifiability::setup_relative(
         &corrected,
         poses,
         trig,
         &opts.obs,
-        &params,
+        &geometric_identified,
         &held,
         Some(&practical_bounds(opts)),
     )

@@ -11,12 +11,14 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_from, Frames, Pose};
-use crate::model::{gravity_torques, ParamKind, RobotModel, TermKind};
+use crate::model::kinematics::{forward, forward_from, torques_of_frames, Frames, Pose};
+use crate::model::{ParamKind, RobotModel, TermKind};
 
 thread_local! {
     /// Per-thread frames of the chain, so the hot loop does not allocate.
     static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
+    /// The bare chain's frames for the gravity torques.
+    static BARE: RefCell<Frames> = const { RefCell::new(Frames::new()) };
 }
 
 /// Which quantities the identification uses; spelled `position`, `np`, `op`, `full` in every
@@ -272,21 +274,53 @@ pub fn residual_into<S: JacobianSink>(
                 }
             )
         };
+        let wants_terms = sink.wanted() && params.iter().any(ParamId::is_term);
+        // the pose's sines: the table's when given, else computed once here when a term needs them
+        let own: Vec<(f64, f64)>;
+        let q_sin_cos = match q_sin_cos {
+            None if model.has_terms() || wants_terms => {
+                own = meas.q.iter().map(|q| q.sin_cos()).collect();
+                Some(own.as_slice())
+            }
+            sc => sc,
+        };
         let tau = (model.has_compliance() || (sink.wanted() && params.iter().any(wants_torque)))
-            .then(|| gravity_torques(model, &meas.q));
-        if model.has_terms() {
-            let angles: Vec<f64> = meas
-                .q
-                .iter()
-                .zip(model.joint_corrections_with(&meas.q, tau.as_deref()))
-                .map(|(q, d)| q + d)
-                .collect();
-            forward_from(&base, &model.joints, &angles, None, f);
-        } else {
-            forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
+            .then(|| {
+                BARE.with(|bare| {
+                    let bare = &mut *bare.borrow_mut();
+                    forward_from(&Pose::identity(), &model.joints, &meas.q, q_sin_cos, bare);
+                    torques_of_frames(model, bare)
+                })
+            });
+        let torque = |j: usize| {
+            tau.as_deref()
+                .and_then(|t| t.get(j))
+                .copied()
+                .unwrap_or(0.0)
+        };
+        match q_sin_cos {
+            Some(sc) if model.has_terms() => {
+                // q + Δθ(q) and its sines by the sum identities: one sine per joint, for Δθ
+                let (angles, angle_sc): (Vec<f64>, Vec<(f64, f64)>) = meas
+                    .q
+                    .iter()
+                    .zip(sc)
+                    .enumerate()
+                    .map(|(j, (q, &(s, c)))| {
+                        let d = model
+                            .terms
+                            .get(j)
+                            .map_or(0.0, |t| t.correction_trig((s, c), torque(j)));
+                        let (sd, cd) = d.sin_cos();
+                        (q + d, (s * cd + c * sd, c * cd - s * sd))
+                    })
+                    .unzip();
+                forward_from(&base, &model.joints, &angles, Some(&angle_sc), f);
+            }
+            _ => forward_from(&base, &model.joints, &meas.q, q_sin_cos, f),
         }
         let basis = TermBasis {
-            q: &meas.q,
+            sin_cos: q_sin_cos.unwrap_or(&[]),
             tau: tau.as_deref(),
         };
         residual_jacobian_with(model, meas, cfg, params, res, sink, f, &basis);
@@ -296,7 +330,8 @@ pub fn residual_into<S: JacobianSink>(
 /// What the non-geometric terms' columns multiply the joint's θ column by at one pose: the
 /// commanded joint values and, when a compliance is wanted, the gravity torques.
 struct TermBasis<'a> {
-    q: &'a [f64],
+    /// `sin_cos` of the commanded joint values (empty when no term is wanted).
+    sin_cos: &'a [(f64, f64)],
     tau: Option<&'a [f64]>,
 }
 
@@ -304,7 +339,7 @@ impl TermBasis<'_> {
     /// The basis of term `kind` of joint `joint`.
     fn of(&self, joint: usize, kind: TermKind) -> f64 {
         let tau = self.tau.and_then(|t| t.get(joint)).copied().unwrap_or(0.0);
-        kind.basis(self.q[joint], tau)
+        kind.basis_trig(self.sin_cos[joint], tau)
     }
 }
 

@@ -58,12 +58,18 @@ impl TermKind {
     /// What multiplies the coefficient at commanded joint value `q` (rad) with gravity torque
     /// `tau` (N·m) about the joint.
     pub fn basis(self, q: f64, tau: f64) -> f64 {
+        self.basis_trig(q.sin_cos(), tau)
+    }
+
+    /// [`TermKind::basis`] given `(sin q, cos q)`: the double angle by identities, so a pose's
+    /// table of sines serves every term without another sine.
+    pub fn basis_trig(self, (s, c): (f64, f64), tau: f64) -> f64 {
         match self {
             TermKind::Compliance => tau,
-            TermKind::SinQ => q.sin(),
-            TermKind::CosQ => q.cos(),
-            TermKind::Sin2Q => (2.0 * q).sin(),
-            TermKind::Cos2Q => (2.0 * q).cos(),
+            TermKind::SinQ => s,
+            TermKind::CosQ => c,
+            TermKind::Sin2Q => 2.0 * s * c,
+            TermKind::Cos2Q => (c - s) * (c + s),
         }
     }
 }
@@ -179,9 +185,14 @@ impl JointTerms {
 
     /// `Δθ` of this joint at commanded value `q` with gravity torque `tau` (rad).
     pub fn correction(&self, q: f64, tau: f64) -> f64 {
+        self.correction_trig(q.sin_cos(), tau)
+    }
+
+    /// [`JointTerms::correction`] given `(sin q, cos q)`.
+    pub fn correction_trig(&self, sc: (f64, f64), tau: f64) -> f64 {
         TermKind::ALL
             .into_iter()
-            .map(|k| self.get(k) * k.basis(q, tau))
+            .map(|k| self.get(k) * k.basis_trig(sc, tau))
             .sum()
     }
 }
