@@ -3,12 +3,14 @@
 
 use std::hint::black_box;
 
+use cellcal::calibrate::calibrate;
 use cellcal::dataset::to_measured;
 use cellcal::identify::observation::residual_jacobian;
 use cellcal::identify::solver::Options;
 use cellcal::identify::{
-    all_params, identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds,
+    all_params, identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel, PracticalBounds,
 };
+use cellcal::model::TermFamily;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::Vector3;
@@ -100,5 +102,41 @@ fn bench_pose(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_identify, bench_pose);
+/// Issue 21's time figure: OP at 10 000 poses on the TX60 with its masses, the geometric
+/// identification against the one with both term families (`identify`), and the whole
+/// `calibrate` (which with terms also fits the geometric model to judge them).
+fn bench_nongeometric(c: &mut Criterion) {
+    let (_, rows) = setup(10_000, Vector3::y());
+    let nominal =
+        cellcal::model::load_robot(std::path::Path::new("config/robots/staubli_tx60.toml"))
+            .expect("robot file");
+    let mut g = c.benchmark_group("nongeometric_10000_op");
+    g.sample_size(10);
+    for (name, families) in [
+        ("geometric", Vec::new()),
+        ("compliance_harmonics", TermFamily::ALL.to_vec()),
+    ] {
+        let opts = IdentifyOptions {
+            obs: ObsConfig::new(ObsModel::Op, 10.0),
+            identify_base: false,
+            identify_tool: false,
+            registered_base: false,
+            robust: None,
+            point_weights: None,
+            solver: Options::default(),
+            practical: PracticalBounds::default(),
+            nongeometric: Nongeometric::of(&families),
+        };
+        let meas = to_measured(&rows, ObsModel::Op, 10.0).expect("convert");
+        g.bench_function(format!("identify_{name}"), |b| {
+            b.iter(|| identify(&nominal, black_box(&meas), &opts).expect("identify"))
+        });
+        g.bench_function(format!("calibrate_{name}"), |b| {
+            b.iter(|| calibrate(&nominal, black_box(&rows), &opts, 10.0).expect("calibrate"))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_identify, bench_pose, bench_nongeometric);
 criterion_main!(benches);
