@@ -3,10 +3,17 @@
 //! result with the terms that verifies better than the geometric model, and `identify --store`
 //! re-identifies it with the same terms.
 
+use cellcal::analysis::evaluate;
+use cellcal::calibrate::calibrate;
+use cellcal::identify::{Nongeometric, ObsModel};
+use cellcal::model::{RobotModel, TermFamily};
+use cellcal::simulate::{truth, SimConfig};
 use cellcal::store::Store;
+use nalgebra::Vector3;
 use serde_json::Value;
 
 use crate::campaign::{config_text, run_in_process};
+use crate::common::{measured, options, paper_truth, sim};
 use crate::reproduce::{cellcal, json};
 
 /// The simulated cell of `config/cell.sim.toml` with the typical non-geometric errors of its
@@ -57,6 +64,15 @@ async fn a_campaign_told_nongeometric_stores_the_terms_and_verifies_better_than_
         f.floor_mm
     );
     assert!(identified >= 15, "{identified} terms identified");
+    // 100 identification poses for the full term set: the verdict says it is too large
+    let codes: Vec<&str> = v["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .filter_map(|w| w["code"].as_str())
+        .collect();
+    assert!(codes.contains(&"nongeometric_too_large"), "{codes:?}");
+    assert!(!codes.contains(&"nongeometric_not_better"), "{codes:?}");
     assert!(
         extended < 0.95 * geometric,
         "extended {extended} mm, geometric {geometric} mm"
@@ -79,4 +95,63 @@ async fn a_campaign_told_nongeometric_stores_the_terms_and_verifies_better_than_
     assert_eq!(again["nongeometric_terms"], v["nongeometric_terms"]);
     assert_eq!(again["metrics"], v["metrics"]);
     assert_eq!(again["metrics_geometric"], v["metrics_geometric"]);
+}
+
+/// The paper's true TX60 with the typical non-geometric errors of seed 1 (`simulate-data
+/// --nongeometric-errors typical`).
+pub(crate) fn truth_with_typical_terms() -> RobotModel {
+    truth::apply_terms(
+        &paper_truth(),
+        &truth::TermErrors {
+            typical_seed: Some(1),
+            ..Default::default()
+        },
+    )
+    .expect("typical terms")
+}
+
+/// `nongeometric_too_large` follows the noise: with 100 identification poses the full term set
+/// leaves the extended model's verification error measurably above the floor and the verdict
+/// says so; with 300 it is at the floor and the verdict is quiet.
+#[test]
+fn the_verdict_says_when_the_term_set_is_too_large_for_the_poses() {
+    let truth = truth_with_typical_terms();
+    let mut opts = options(ObsModel::Op, Vector3::y());
+    opts.nongeometric = Nongeometric::of(&TermFamily::ALL);
+    for (ident, too_large) in [(100, true), (300, false)] {
+        let data = sim(
+            &truth,
+            &SimConfig {
+                poses: ident + 300,
+                ident,
+                ..SimConfig::default()
+            },
+        );
+        let (_, verify) = measured(&data.observations, &opts);
+        let floor = evaluate(&truth, &verify, &opts.obs).position_rms_mm;
+        let (r, _) = calibrate(&cellcal::model::tx60(), &data.observations, &opts, 10.0)
+            .expect("identifies");
+        let rms = |m: &cellcal::calibrate::identify_json::MetricsJson| {
+            m.verify.as_ref().expect("verify").after.position_rms_mm
+        };
+        let (e, g) = (
+            rms(&r.metrics),
+            rms(r.metrics_geometric.as_ref().expect("geo")),
+        );
+        let k = r.identified.len();
+        let predicted = (1.0 + k as f64 / (3 * ident) as f64).sqrt();
+        let codes: Vec<&str> = r.warnings.iter().map(|w| w.code.as_str()).collect();
+        eprintln!(
+            "{ident} poses, {k} parameters: extended {:.3}× the floor (predicted {predicted:.3}), \
+             geometric {:.3}×; {codes:?}",
+            e / floor,
+            g / floor
+        );
+        assert_eq!(
+            codes.contains(&"nongeometric_too_large"),
+            too_large,
+            "{codes:?}"
+        );
+        assert!(e < g, "extended {e} mm, geometric {g} mm");
+    }
 }
