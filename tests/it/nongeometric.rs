@@ -13,7 +13,9 @@ use nalgebra::Vector3;
 use serde_json::Value;
 
 use crate::campaign::{config_text, run_in_process};
-use crate::common::{measured, options, paper_truth, sim};
+use crate::cli::{robot, simulate_poses};
+use crate::common::{measured, options, paper_truth, sim, tx60};
+use crate::compensate::{compensate, misses, output_joints, well_inside};
 use crate::reproduce::{cellcal, json};
 
 /// The simulated cell of `config/cell.sim.toml` with the typical non-geometric errors of its
@@ -154,4 +156,100 @@ fn the_verdict_says_when_the_term_set_is_too_large_for_the_poses() {
         );
         assert!(e < g, "extended {e} mm, geometric {g} mm");
     }
+}
+
+/// `identify --nongeometric compliance,harmonics --model-out` on simulated data whose truth has
+/// the typical terms writes a model file that carries the terms with the masses and gravity
+/// they were identified with and loads back; `cellcal compensate` with it puts the TRUE robot
+/// on tool targets better than the geometric model file of the same data does.
+#[test]
+fn the_extended_model_file_loads_back_with_its_terms_and_compensates_better() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = simulate_poses(dir.path(), 400, 300, &["--nongeometric-errors", "typical"]);
+    let truth = truth_with_typical_terms();
+    let identify = |name: &str, extra: &[&str]| {
+        let model = dir.path().join(format!("{name}.toml"));
+        let mut args = vec!["identify", "--model", "op"];
+        args.extend_from_slice(extra);
+        let out = cellcal(
+            &args,
+            &[
+                ("--robot", &robot()),
+                ("--data", &data),
+                ("--model-out", &model),
+                ("--json", &dir.path().join(format!("{name}.json"))),
+            ],
+        );
+        assert!(
+            out.status.code() == Some(0),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = std::fs::read_to_string(&model).expect("model written");
+        (model, text)
+    };
+    let (ext_path, ext_text) = identify("extended", &["--nongeometric", "compliance,harmonics"]);
+    let (geo_path, geo_text) = identify("geometric", &[]);
+    let ext = cellcal::model::parse_robot(&ext_text, &ext_path).expect("loads back");
+    let geo = cellcal::model::parse_robot(&geo_text, &geo_path).expect("loads back");
+    let nominal = tx60();
+    assert!(ext.has_terms(), "the extended model file carries the terms");
+    assert!(ext_text.contains("Non-geometric terms (docs/method.md §10)"));
+    assert_eq!(
+        (&ext.masses, ext.gravity),
+        (&nominal.masses, nominal.gravity),
+        "with the masses and gravity they were identified with"
+    );
+    assert!(geo.terms.is_empty() && !geo_text.contains("compliance_rad_per_nm"));
+    // the terms in the file are the JSON's
+    let v = json(&dir.path().join("extended.json"));
+    for t in v["nongeometric_terms"].as_array().expect("terms") {
+        let Some(cellcal::identify::ParamId::Term { joint, kind }) =
+            cellcal::identify::ParamId::from_name(t["name"].as_str().expect("name"))
+        else {
+            panic!("{t} names no term")
+        };
+        assert_eq!(
+            ext.term(joint, kind),
+            t["value"].as_f64().expect("value"),
+            "{t}"
+        );
+    }
+
+    // tool targets of the true robot around the default start (one branch), well inside the
+    // limits
+    let start = [0.0f64, 30.0, 90.0, 0.0, 45.0, 0.0].map(f64::to_radians);
+    let qs: Vec<Vec<f64>> = (0..40)
+        .map(|k| {
+            (start.iter().enumerate())
+                .map(|(i, v)| v + 0.4 * ((k * (i + 2)) as f64 * 0.7).sin())
+                .collect()
+        })
+        .collect();
+    assert!(qs.iter().all(|q| well_inside(&nominal, q)));
+    let want: Vec<Vector3<f64>> = qs
+        .iter()
+        .map(|q| cellcal::model::kinematics::measured_point(&truth, q))
+        .collect();
+    let mut csv = String::from("id,x_mm,y_mm,z_mm\n");
+    for (i, p) in want.iter().enumerate() {
+        csv.push_str(&format!("t{i},{},{},{}\n", p.x, p.y, p.z));
+    }
+    let targets = dir.path().join("t.csv");
+    std::fs::write(&targets, csv).expect("write");
+    let miss = |model: &std::path::Path| {
+        let out = dir.path().join("j.csv");
+        let (code, err) = compensate(model, "--targets", &targets, &out);
+        assert_eq!(code, Some(0), "{err}");
+        misses(&truth, &output_joints(&out), &want)
+    };
+    let ((ext_max, ext_mean), (geo_max, geo_mean)) = (miss(&ext_path), miss(&geo_path));
+    eprintln!(
+        "compensated on the true robot: extended model mean {ext_mean:.4} mm (max \
+         {ext_max:.4}), geometric model mean {geo_mean:.4} mm (max {geo_max:.4})"
+    );
+    assert!(
+        ext_mean < 0.5 * geo_mean,
+        "extended {ext_mean} mm, geometric {geo_mean} mm"
+    );
 }
