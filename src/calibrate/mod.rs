@@ -13,7 +13,7 @@ pub mod setup;
 
 pub use campaign_time::CampaignTime;
 pub use identify_json::{
-    IdentCheck, IdentStop, IdentifyReport, KeptModel, ParamStatus, StopReason, TermJson,
+    IdentCheck, IdentStop, IdentifyReport, KeptModel, MassJson, ParamStatus, StopReason, TermJson,
 };
 pub use quality::{Quality, QualityWarning};
 pub use result::{
@@ -194,6 +194,7 @@ pub fn calibrate(
         KeptModel::Extended
     });
     report.metrics_extended = metrics_extended;
+    report.set_torque_model(robot);
     report.judge(&quality_bounds(opts));
     Ok((report, id))
 }
@@ -343,6 +344,8 @@ fn calibrate_one(
         metrics_geometric: None,
         nongeometric_kept: None,
         metrics_extended: None,
+        gravity: None,
+        masses: Vec::new(),
     };
     report.judge(&bounds);
     Ok((report, id))

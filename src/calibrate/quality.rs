@@ -575,6 +575,8 @@ mod tests {
             metrics_geometric: None,
             nongeometric_kept: None,
             metrics_extended: None,
+            gravity: None,
+            masses: Vec::new(),
         }
     }
 
