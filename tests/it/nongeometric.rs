@@ -253,3 +253,78 @@ fn the_extended_model_file_loads_back_with_its_terms_and_compensates_better() {
         "extended {ext_mean} mm, geometric {geo_mean} mm"
     );
 }
+
+/// `identify --nongeometric compliance,harmonics --report` on simulated data with terms: in a
+/// real headless Chromium the report's "Non-geometric terms" section shows the terms (30 rows,
+/// the held ones with their reason), the torque model's masses and the before / geometric /
+/// extended comparison, without console errors; a screenshot of it goes to
+/// `target/screenshots/nongeometric-report.png`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_report_of_an_identification_with_terms_shows_them_in_chromium() {
+    use crate::browser::{browser, by_id, chromedriver, console_errors, screenshot_from, shown};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = simulate_poses(dir.path(), 300, 200, &["--nongeometric-errors", "typical"]);
+    let html = dir.path().join("report.html");
+    let out = cellcal(
+        &[
+            "identify",
+            "--model",
+            "op",
+            "--nongeometric",
+            "compliance,harmonics",
+        ],
+        &[
+            ("--robot", &robot()),
+            ("--data", &data),
+            ("--report", &html),
+        ],
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let Some(driver) = chromedriver() else {
+        return;
+    };
+    let c = browser(&driver).await;
+    c.goto(&format!("file://{}", html.display()))
+        .await
+        .expect("open the report");
+    for id in [
+        "nongeometric",
+        "nongeometric-comparison",
+        "nongeometric-terms",
+        "torque-model",
+    ] {
+        assert!(shown(&c, id).await, "#{id} shown");
+    }
+    let section = by_id(&c, "nongeometric").await.text().await.expect("text");
+    for want in [
+        "Terms asked for: compliance, harmonics",
+        "the extended model (geometric + terms) was handed over",
+        "compliance2",
+        "cos_2q6",
+        "held at zero",
+        "µrad/(N·m)",
+        "verification",
+    ] {
+        assert!(section.contains(want), "{want}: {section}");
+    }
+    assert!(!section.contains("A geometric identification"), "{section}");
+    let rows: serde_json::Value = c
+        .execute(
+            "const s = document.getElementById('nongeometric');\
+             return Array.from(s.querySelectorAll('table')).map((t) => t.rows.length);",
+            vec![],
+        )
+        .await
+        .expect("tables");
+    // comparison: header + 2 sets × 3 rows; terms: header + 30; masses: header + 6
+    assert_eq!(rows, serde_json::json!([7, 31, 7]), "table rows");
+    screenshot_from(&c, "nongeometric", "nongeometric-report.png").await;
+    let errors = console_errors(&c, &driver).await;
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+    c.close().await.expect("close");
+}
