@@ -24,8 +24,9 @@
 //! candidate term, `value` its absolute coefficient in `unit` — `rad/(N·m)` or `rad` —,
 //! `sigma` null when held at zero, `reason` why it is held), `metrics_geometric` (like `metrics`,
 //! for the geometric model fitted to the same data; `metrics` describes the model handed
-//! over), `nongeometric_kept` (`extended` | `geometric`: the model handed over) and, when the
-//! geometric one was kept, `metrics_extended`. The terms are in `identified`,
+//! over), `nongeometric_kept` (`extended` | `geometric`: the model handed over), when the
+//! geometric one was kept, `metrics_extended`, and the torque model's inputs: `gravity` (unit
+//! vector, robot base frame) and `masses` (`{frame, at_mm, kg}`; absent when the robot has none). The terms are in `identified`,
 //! `not_identifiable` and `correlation` (every parameter of the fit) but not in `parameters`,
 //! whose rows are the geometric model's (`nominal + error` of an MDH, base or tool value).
 
@@ -33,7 +34,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::analysis::metrics::Metrics;
 use crate::identify::{BeforeBase, DropKind, Dropped};
-use crate::model::TermFamily;
+use crate::model::{Mass, RobotModel, TermFamily};
 
 /// `{name, reason, kind, predicted_sigma}` of a parameter held at nominal.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -138,6 +139,28 @@ pub struct TermJson {
     /// Why it is held at zero (null when identified).
     #[serde(default)]
     pub reason: Option<String>,
+}
+
+/// One lumped mass of the torque model an identification with terms used (`masses`, §10).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MassJson {
+    /// The MDH frame it is fixed in (1…n).
+    pub frame: usize,
+    /// Its centre of mass in that frame (mm).
+    pub at_mm: [f64; 3],
+    /// Its mass (kg).
+    pub kg: f64,
+}
+
+impl MassJson {
+    /// The JSON row of mass `m`.
+    pub fn of(m: &Mass) -> MassJson {
+        MassJson {
+            frame: m.frame,
+            at_mm: m.at.into(),
+            kg: m.kg,
+        }
+    }
 }
 
 /// Which model a calibration with non-geometric terms handed over.
@@ -286,6 +309,23 @@ pub struct IdentifyReport {
     /// The extended model's metrics when the geometric one was kept (absent otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub metrics_extended: Option<MetricsJson>,
+    /// The torque model's direction of gravity (unit vector, robot base frame) of an
+    /// identification with terms (absent without terms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity: Option<[f64; 3]>,
+    /// The torque model's lumped masses of an identification with terms (absent without terms,
+    /// or when the robot model has none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub masses: Vec<MassJson>,
+}
+
+impl IdentifyReport {
+    /// Name the torque model of `robot` (`gravity`, `masses`): the inputs of the gravity
+    /// torques an identification with terms computed its compliance with.
+    pub fn set_torque_model(&mut self, robot: &RobotModel) {
+        self.gravity = Some(robot.gravity.into());
+        self.masses = robot.masses.iter().map(MassJson::of).collect();
+    }
 }
 
 /// Why a campaign stopped measuring identification poses.

@@ -13,7 +13,7 @@ pub mod setup;
 
 pub use campaign_time::CampaignTime;
 pub use identify_json::{
-    IdentCheck, IdentStop, IdentifyReport, KeptModel, ParamStatus, StopReason, TermJson,
+    IdentCheck, IdentStop, IdentifyReport, KeptModel, MassJson, ParamStatus, StopReason, TermJson,
 };
 pub use quality::{Quality, QualityWarning};
 pub use result::{
@@ -206,6 +206,7 @@ pub fn calibrate(
         KeptModel::Extended
     });
     report.metrics_extended = metrics_extended;
+    report.set_torque_model(robot);
     report.judge(&quality_bounds(opts));
     Ok((report, id))
 }
@@ -363,6 +364,8 @@ fn calibrate_one(
         metrics_geometric: None,
         nongeometric_kept: None,
         metrics_extended: None,
+        gravity: None,
+        masses: Vec::new(),
     };
     report.judge(&bounds);
     Ok((report, id))

@@ -22,7 +22,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::campaign_time::CampaignTime;
-use super::identify_json::IdentifyReport;
+use super::identify_json::{IdentifyReport, KeptModel};
 use crate::analysis::metrics::pose_errors;
 use crate::dataset::{split, to_measured, ConvertError, Observation};
 use crate::identify::params::ParamId;
@@ -69,13 +69,14 @@ struct StoredForm<'a> {
 impl CalibrationResult {
     /// The result of identification `id` (its contract `report`; `base`: where the corrected
     /// model's base comes from), without per-pose errors ([`CalibrationResult::with_residuals`]
-    /// adds them).
+    /// adds them). The corrected model holds every MDH value and, when `id` is an extended
+    /// identification (§10), every term's absolute value.
     pub fn of(report: IdentifyReport, id: &Identification, base: BaseSource) -> CalibrationResult {
         let corrected = CorrectedModel {
             values: id
                 .estimates
                 .iter()
-                .filter(|e| matches!(e.param, ParamId::Mdh { .. }))
+                .filter(|e| matches!(e.param, ParamId::Mdh { .. } | ParamId::Term { .. }))
                 .map(|e| ParamValue {
                     param: e.param,
                     value: e.nominal + e.error,
@@ -215,10 +216,12 @@ pub struct ParamValue {
 }
 
 /// The corrected model: every model parameter's identified absolute value, base and tool. The
-/// nominal model gives what an identification does not touch (name, joint limits).
+/// nominal model gives what an identification does not touch (name, joint limits, masses,
+/// gravity).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CorrectedModel {
-    /// Absolute values of the model's parameters (every MDH parameter of every joint).
+    /// Absolute values of the model's parameters (every MDH parameter of every joint; with the
+    /// extended model handed over, every non-geometric term too, §10).
     pub values: Vec<ParamValue>,
     /// Base translation (mm), robot base → measurement frame.
     pub base_translation_mm: [f64; 3],
@@ -232,9 +235,22 @@ pub struct CorrectedModel {
 
 impl CorrectedModel {
     /// The corrected model of a contract alone (a result stored before the typed result): each
-    /// MDH row's `nominal + error` under the parameter its name names; rows whose name names
-    /// none are left out (and [`CorrectedModel::model`] then says which is missing).
+    /// MDH row's `nominal + error` under the parameter its name names, and each term's value
+    /// when the extended model was handed over; rows whose name names none are left out (and
+    /// [`CorrectedModel::model`] then says which is missing).
     pub fn from_report(report: &IdentifyReport) -> CorrectedModel {
+        let extended = report.nongeometric_kept == Some(KeptModel::Extended);
+        let terms = report
+            .nongeometric_terms
+            .iter()
+            .filter(|_| extended)
+            .filter_map(|t| {
+                let param = ParamId::from_name(&t.name)?;
+                matches!(param, ParamId::Term { .. }).then_some(ParamValue {
+                    param,
+                    value: t.value,
+                })
+            });
         CorrectedModel {
             values: report
                 .parameters
@@ -246,6 +262,7 @@ impl CorrectedModel {
                         value: p.nominal + p.error,
                     })
                 })
+                .chain(terms)
                 .collect(),
             base_translation_mm: report.base.translation_mm,
             base_rotation_vector_rad: report.base.rotation_vector_rad,
@@ -254,7 +271,9 @@ impl CorrectedModel {
         }
     }
 
-    /// `nominal` with these values, base and tool (limits kept; the name marked identified).
+    /// `nominal` with these values, base and tool (limits, masses and gravity kept; the name
+    /// marked identified). Term values (§10) replace the nominal model's; a model whose terms
+    /// are all zero has none (its model file is a geometric one, byte for byte).
     pub fn model(&self, nominal: &RobotModel) -> Result<RobotModel, ModelFileError> {
         let result_dof = self
             .values
@@ -281,6 +300,17 @@ impl CorrectedModel {
                 }
                 *mdh.get_mut(kind) = v.value;
             }
+        }
+        for v in &self.values {
+            if let ParamId::Term { joint, kind } = v.param {
+                if !v.value.is_finite() {
+                    return Err(ModelFileError::NotFinite(v.param.name()));
+                }
+                *m.term_mut(joint, kind) = v.value;
+            }
+        }
+        if !m.has_terms() {
+            m.terms.clear();
         }
         let finite = |name: &str, v: &[f64; 3]| {
             if v.iter().all(|x| x.is_finite()) {

@@ -1183,7 +1183,7 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
         point_weights: None,
         solver: Options::default(),
         practical: PracticalBounds::default(),
-        nongeometric: Default::default(),
+        nongeometric: cfg.campaign.nongeometric_terms(),
     }
 }
 

@@ -16,7 +16,7 @@ use cellcal::dataset::{
     parse_vec3, read_csv, read_text, CsvSetup, Observation, ReadError, Required,
 };
 use cellcal::identify::solver::{Options, DEFAULT_MAX_ITERATIONS};
-use cellcal::identify::{IdentifyOptions, ObsConfig, ObsModel, RobustLoss};
+use cellcal::identify::{IdentifyOptions, Nongeometric, ObsConfig, ObsModel, RobustLoss};
 use cellcal::model::load_robot;
 use cellcal::model::rotation::from_rotation_vector;
 use cellcal::model::{RobotModel, SignedAxis};
@@ -482,17 +482,21 @@ fn resolve(
             .practical
             .bounds(a.tracker_weights.is_some())
             .map_err(input)?,
-        nongeometric: match &a.nongeometric {
-            None => Default::default(),
-            Some(list) => crate_nongeometric(list)?,
+        // a stored campaign's terms and `nongeometric_keep`; --nongeometric replaces the families
+        nongeometric: match (&a.nongeometric, campaign) {
+            (None, c) => c.map(|c| c.nongeometric).unwrap_or_default(),
+            (Some(list), c) => Nongeometric {
+                keep: c.map(|c| c.nongeometric.keep).unwrap_or_default(),
+                ..crate_nongeometric(list)?
+            },
         },
     };
     Ok((robot, opts, travel, rows))
 }
 
 /// `--nongeometric LIST` as the identification's term set (a bad name: exit 2 with the reason).
-fn crate_nongeometric(list: &str) -> Result<cellcal::identify::Nongeometric, Failure> {
+fn crate_nongeometric(list: &str) -> Result<Nongeometric, Failure> {
     let families = cellcal::model::TermFamily::parse_list(list)
         .map_err(|e| input(anyhow!("--nongeometric: {e}")))?;
-    Ok(cellcal::identify::Nongeometric::of(&families))
+    Ok(Nongeometric::of(&families))
 }

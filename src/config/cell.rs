@@ -6,10 +6,10 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::auth::{Role, TokenDigest};
-use crate::identify::ObsModel;
+use crate::identify::{Nongeometric, NongeometricKeep, ObsModel};
 use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
-use crate::model::SignedAxis;
+use crate::model::{SignedAxis, TermFamily};
 
 pub use super::rules::InvalidKey;
 use super::rules::{positive, rule};
@@ -312,6 +312,12 @@ pub struct CampaignSection {
     /// With `stop_when = "predicted"`: identification poses per block (an identification after
     /// each); unset: [`CampaignSection::stop_block_for`].
     pub stop_block: Option<usize>,
+    /// Families of non-geometric joint terms identified with the MDH errors (§10: `compliance`,
+    /// `harmonics`, each at most once); empty: a geometric identification.
+    pub nongeometric: Vec<TermFamily>,
+    /// With terms, the model handed over: `extended` (always the one with the terms) or
+    /// `better` (the one with the lower verification position RMS).
+    pub nongeometric_keep: NongeometricKeep,
 }
 
 /// `campaign.stop_when`: measure every planned identification pose, or stop once the
@@ -360,6 +366,8 @@ impl Default for CampaignSection {
             stop_remaining_gain: DEFAULT_STOP_REMAINING_GAIN,
             target_verify_mm: None,
             stop_block: None,
+            nongeometric: Vec::new(),
+            nongeometric_keep: NongeometricKeep::Extended,
         }
     }
 }
@@ -1097,7 +1105,23 @@ impl CampaignSection {
                 ),
             )?;
         }
+        for (i, f) in self.nongeometric.iter().enumerate() {
+            rule(
+                !self.nongeometric[..i].contains(f),
+                "campaign.nongeometric",
+                format!("`{f}` is given twice"),
+            )?;
+        }
         Ok(())
+    }
+
+    /// The non-geometric terms a campaign identifies with ([`Nongeometric`]): the families of
+    /// `nongeometric` and the model `nongeometric_keep` hands over.
+    pub fn nongeometric_terms(&self) -> Nongeometric {
+        Nongeometric {
+            keep: self.nongeometric_keep,
+            ..Nongeometric::of(&self.nongeometric)
+        }
     }
 
     /// Identification poses per block of the stop rule: `stop_block`, or else the fewest poses
@@ -1152,6 +1176,53 @@ impl SetupSection {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nongeometric_keys_default_to_none_reach_the_identification_and_bad_ones_are_named() {
+        let p = Path::new("c.toml");
+        let c = parse_cell_config("", p).unwrap().campaign;
+        assert!(c.nongeometric.is_empty());
+        assert_eq!(c.nongeometric_keep, NongeometricKeep::Extended);
+        assert_eq!(c.nongeometric_terms(), Nongeometric::default());
+        let c = parse_cell_config(
+            "[campaign]\nnongeometric = [\"harmonics\", \"compliance\"]\n\
+             nongeometric_keep = \"better\"\n",
+            p,
+        )
+        .unwrap()
+        .campaign;
+        let terms = c.nongeometric_terms();
+        assert!(terms.compliance && terms.harmonics);
+        assert_eq!(terms.keep, NongeometricKeep::Better);
+        let only = parse_cell_config("[campaign]\nnongeometric = [\"compliance\"]\n", p)
+            .unwrap()
+            .campaign
+            .nongeometric_terms();
+        assert_eq!(only.families(), vec![TermFamily::Compliance]);
+        for (text, want) in [
+            (
+                "[campaign]\nnongeometric = [\"gravity\"]\n",
+                "unknown variant `gravity`, expected `compliance` or `harmonics`",
+            ),
+            (
+                "[campaign]\nnongeometric = [\"harmonics\", \"compliance\", \"harmonics\"]\n",
+                "c.toml: campaign.nongeometric: `harmonics` is given twice",
+            ),
+            (
+                "[campaign]\nnongeometric = \"harmonics\"\n",
+                "campaign.nongeometric",
+            ),
+            (
+                "[campaign]\nnongeometric_keep = \"best\"\n",
+                "unknown variant `best`, expected `extended` or `better`",
+            ),
+        ] {
+            let e = parse_cell_config(text, p).unwrap_err().to_string();
+            let key = text.lines().nth(1).and_then(|l| l.split(' ').next());
+            let key = format!("c.toml: campaign.{}", key.unwrap_or_default());
+            assert!(e.starts_with(&key) && e.contains(want), "{text}: {e}");
+        }
+    }
 
     #[test]
     fn stop_keys_default_to_every_planned_pose_and_their_rules_name_the_key() {

@@ -1,56 +1,11 @@
 //! The non-geometric part of a result as the views show it (docs/method.md §10): the terms with
-//! their values, σ and status, and the before / geometric / extended comparison per set, each
-//! number with the JSON pointer it comes from.
-//!
-//! STAND-IN until the `terms` branch lands its result fields: [`TermJson`] and [`KeptModel`]
-//! mirror the names posted for `calibrate::identify_json`, and [`Extended::of`] finds no terms
-//! in a result yet.
+//! their values, σ and status, the torque model's inputs and the before / geometric / extended
+//! comparison per set, each number with the JSON pointer it comes from.
 
-use crate::calibrate::identify_json::{BeforeAfter, MetricsJson, ParamStatus};
-use crate::calibrate::IdentifyReport;
+use crate::calibrate::identify_json::{BeforeAfter, MassJson, MetricsJson, ParamStatus};
+use crate::calibrate::{IdentifyReport, KeptModel, TermJson};
 use crate::model::TermFamily;
 use crate::units::human::{fmt_fixed, fmt_mrad};
-
-/// One non-geometric term of an identification with terms (`nongeometric_terms`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct TermJson {
-    /// Public name (`compliance2`, `sin_q3`, `cos_2q6`).
-    pub name: String,
-    /// Joint number (1-based).
-    pub joint: usize,
-    /// `compliance`, `sin_q`, `cos_q`, `sin_2q` or `cos_2q`.
-    pub kind: String,
-    /// The identified coefficient (absolute; 0 when held), in `unit`.
-    pub value: f64,
-    /// Its standard deviation (null when not identified).
-    pub sigma: Option<f64>,
-    /// `rad/(N·m)` (compliance) or `rad` (harmonic).
-    pub unit: String,
-    /// `identified`, `setup_relative` or `not_identified` (held at zero).
-    pub status: ParamStatus,
-    /// Why it is held at zero (null when identified).
-    pub reason: Option<String>,
-}
-
-/// One lumped mass of the torque model (`masses`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct MassJson {
-    /// The MDH frame it is fixed in (1…n).
-    pub frame: usize,
-    /// Its centre of mass in that frame (mm).
-    pub at_mm: [f64; 3],
-    /// Its mass (kg).
-    pub kg: f64,
-}
-
-/// Which model a calibration with non-geometric terms handed over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum KeptModel {
-    /// The geometric model with the terms.
-    Extended,
-    /// The geometric model alone.
-    Geometric,
-}
 
 /// The non-geometric part of one result.
 #[derive(Debug, Clone, Copy)]
@@ -109,9 +64,22 @@ impl<'a> Column<'a> {
 }
 
 impl<'a> Extended<'a> {
-    /// The non-geometric part of `r`, `None` for a geometric identification.
-    pub fn of(_r: &'a IdentifyReport) -> Option<Extended<'a>> {
-        None
+    /// The non-geometric part of `r`, `None` for a geometric identification (or a result that
+    /// lacks the geometric fit's metrics or the model handed over).
+    pub fn of(r: &'a IdentifyReport) -> Option<Extended<'a>> {
+        if r.nongeometric.is_empty() {
+            return None;
+        }
+        Some(Extended {
+            families: &r.nongeometric,
+            terms: &r.nongeometric_terms,
+            metrics: &r.metrics,
+            geometric: r.metrics_geometric.as_ref()?,
+            extended_not_kept: r.metrics_extended.as_ref(),
+            kept: r.nongeometric_kept?,
+            gravity: r.gravity,
+            masses: &r.masses,
+        })
     }
 
     /// The three columns of the comparison: before (the nominal model), geometric and extended

@@ -12,7 +12,6 @@
 
 use crate::calibrate::result::{corrected_model, BaseSource, CalibrationResult, ModelFileError};
 use crate::calibrate::IdentifyReport;
-use crate::identify::params::ParamId;
 use crate::model::file::write_robot;
 use crate::model::{JointTerms, RobotModel};
 
@@ -83,34 +82,6 @@ fn header(report: &IdentifyReport, provenance: &[String], base: BaseSource) -> V
     h
 }
 
-/// The corrected model of `result` with its non-geometric terms (§10): the MDH values, base and
-/// tool of [`corrected_model`], then each term value the result's corrected model holds
-/// (`ParamId::Term`, absolute); a term the result does not give keeps the nominal model's, the
-/// masses and gravity are the nominal model's — the ones the identification computed the
-/// gravity torques with. A model whose terms are all zero has none (its file is a geometric
-/// one, byte for byte).
-pub fn corrected_model_with_terms(
-    result: &CalibrationResult,
-    nominal: &RobotModel,
-) -> Result<RobotModel, ModelFileError> {
-    let mut m = corrected_model(result, nominal)?;
-    for v in &result.corrected.values {
-        if let ParamId::Term { joint, kind } = v.param {
-            if joint >= m.dof() {
-                return Err(ModelFileError::Parameter(v.param.name()));
-            }
-            if !v.value.is_finite() {
-                return Err(ModelFileError::NotFinite(v.param.name()));
-            }
-            *m.term_mut(joint, kind) = v.value;
-        }
-    }
-    if !m.has_terms() {
-        m.terms.clear();
-    }
-    Ok(m)
-}
-
 /// The header line naming the terms a model carries (none: no line, so a geometric model's
 /// file is as before).
 fn terms_line(m: &RobotModel) -> Option<String> {
@@ -145,7 +116,7 @@ pub fn corrected_model_toml(
     provenance: &[String],
     base: BaseSource,
 ) -> Result<String, ModelFileError> {
-    let m = corrected_model_with_terms(result, nominal)?;
+    let m = corrected_model(result, nominal)?;
     let mut h = header(&result.report, provenance, base);
     if let Some(line) = terms_line(&m) {
         let at = h.len() - 1;

@@ -6,9 +6,10 @@ use std::time::Duration;
 
 use crate::analysis::metrics::Metrics;
 use crate::calibrate::identify_json::ParameterJson;
+use crate::calibrate::KeptModel;
 use crate::calibrate::{CampaignTime, IdentifyReport, ParamStatus, Quality, SetupResult};
 use crate::identify::DropKind;
-use crate::report::extended::{change_percent, term_value_sigma, Extended, KeptModel};
+use crate::report::extended::{change_percent, term_value_sigma, Extended};
 use crate::units::human::{
     fmt_deg, fmt_duration, fmt_fixed, fmt_mm, fmt_mm3, fmt_mrad, fmt_sig, NO_NUMBER,
 };

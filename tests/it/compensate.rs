@@ -40,7 +40,7 @@ fn true_target(truth: &RobotModel, q: &[f64], orientation: Option<&RobotModel>) 
 
 /// Joints at least 2° inside every limit, the elbow at least 0.1 rad from stretched (q3 = 0):
 /// a target whose correction cannot run into a limit or across the elbow singularity.
-fn well_inside(m: &RobotModel, q: &[f64]) -> bool {
+pub(crate) fn well_inside(m: &RobotModel, q: &[f64]) -> bool {
     let margin = 2f64.to_radians();
     q[2].abs() >= 0.1
         && q.iter()
@@ -256,7 +256,12 @@ fn compensate_csv_files_name_bad_cells() {
 
 /// `cellcal compensate --robot TX60 --identified ID --MODE INPUT --out OUT`: exit code and
 /// stderr.
-fn compensate(identified: &Path, mode: &str, input: &Path, out: &Path) -> (Option<i32>, String) {
+pub(crate) fn compensate(
+    identified: &Path,
+    mode: &str,
+    input: &Path,
+    out: &Path,
+) -> (Option<i32>, String) {
     let o = cellcal()
         .args(["compensate", "--robot"])
         .arg(robot())
@@ -507,7 +512,7 @@ fn truth_with_terms() -> RobotModel {
 }
 
 /// Joints of the `--joints` or `--targets` output file `path` (rad, columns q1…q6).
-fn output_joints(path: &Path) -> Vec<Vec<f64>> {
+pub(crate) fn output_joints(path: &Path) -> Vec<Vec<f64>> {
     std::fs::read_to_string(path)
         .expect("written")
         .lines()
@@ -523,7 +528,7 @@ fn output_joints(path: &Path) -> Vec<Vec<f64>> {
 }
 
 /// Largest and mean distance (mm) of the true robot's tool at `joints` from `want`.
-fn misses(truth: &RobotModel, joints: &[Vec<f64>], want: &[Vector3<f64>]) -> (f64, f64) {
+pub(crate) fn misses(truth: &RobotModel, joints: &[Vec<f64>], want: &[Vector3<f64>]) -> (f64, f64) {
     let d: Vec<f64> = joints
         .iter()
         .zip(want)

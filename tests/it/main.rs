@@ -30,6 +30,7 @@ mod iso9283;
 mod journal;
 mod messages;
 mod model_out;
+mod nongeometric;
 mod order;
 mod paper;
 mod paths;

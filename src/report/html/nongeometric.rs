@@ -8,11 +8,9 @@ use std::fmt::Write;
 use super::page::{
     cell, header_row, json_attrs, json_cell, json_shown, json_text, missing, num_cell,
 };
-use crate::calibrate::identify_json::ParamStatus;
-use crate::calibrate::IdentifyReport;
-use crate::report::extended::{
-    change_percent, term_unit, term_value, Extended, KeptModel, MassJson, TermJson,
-};
+use crate::calibrate::identify_json::{MassJson, ParamStatus};
+use crate::calibrate::{IdentifyReport, KeptModel, TermJson};
+use crate::report::extended::{change_percent, term_unit, term_value, Extended};
 use crate::units::human::{fmt_fixed, fmt_mm};
 
 /// The comparison's rows: label and the metric's JSON key.

@@ -220,81 +220,50 @@ fn tagged(html: &str) -> Vec<(String, String)> {
         .collect()
 }
 
+/// An OP identification with both families of terms of simulated data whose true robot has the
+/// typical terms (seed 1): its result.
+fn small_op_with_terms() -> IdentifyReport {
+    let nominal = tx60();
+    let truth = truth::apply_terms(
+        &truth::apply_errors(&nominal, &truth::paper_errors()).expect("paper errors"),
+        &truth::TermErrors {
+            typical_seed: Some(1),
+            ..Default::default()
+        },
+    )
+    .expect("typical terms");
+    let cfg = SimConfig {
+        poses: 300,
+        ident: 200,
+        ..SimConfig::default()
+    };
+    let rows = simulate(&nominal, &truth, &cfg)
+        .expect("sampled")
+        .observations;
+    let opts = IdentifyOptions {
+        obs: ObsConfig::new(ObsModel::Op, 10.0),
+        identify_base: false,
+        identify_tool: false,
+        registered_base: false,
+        robust: None,
+        point_weights: None,
+        solver: Default::default(),
+        practical: PracticalBounds::default(),
+        nongeometric: crate::identify::Nongeometric::of(&crate::model::TermFamily::ALL),
+    };
+    calibrate(&nominal, &rows, &opts, 10.0)
+        .expect("identified")
+        .0
+}
+
 #[test]
 fn the_nongeometric_section_shows_terms_torque_model_and_comparison_each_number_the_json_s() {
     use crate::calibrate::identify_json::ParamStatus;
-    use crate::model::TermFamily;
-    use crate::report::extended::{Extended, KeptModel, MassJson, TermJson};
-    let (_, report, _) = small_op();
-    let term =
-        |name: &str, joint, kind: &str, value, sigma, unit: &str, reason: Option<&str>| TermJson {
-            name: name.into(),
-            joint,
-            kind: kind.into(),
-            value,
-            sigma,
-            unit: unit.into(),
-            status: if sigma.is_some() {
-                ParamStatus::Identified
-            } else {
-                ParamStatus::NotIdentified
-            },
-            reason: reason.map(Into::into),
-        };
-    let terms = vec![
-        term(
-            "compliance2",
-            2,
-            "compliance",
-            2.5e-6,
-            Some(1.5e-8),
-            "rad/(N·m)",
-            None,
-        ),
-        term("sin_q3", 3, "sin_q", -1.5e-4, Some(2e-6), "rad", None),
-        term(
-            "sin_q6",
-            6,
-            "sin_q",
-            0.0,
-            None,
-            "rad",
-            Some("not observable: the tool is on axis 6"),
-        ),
-    ];
-    let mut geometric = report.metrics.clone();
-    let v = geometric.verify.as_mut().expect("verify");
-    v.after.position_mean_mm *= 1.25;
-    let masses = vec![MassJson {
-        frame: 2,
-        at_mm: [-150.0, 0.0, 120.5],
-        kg: 8.4,
-    }];
-    let x = Extended {
-        families: &[TermFamily::Compliance, TermFamily::Harmonics],
-        terms: &terms,
-        metrics: &report.metrics,
-        geometric: &geometric,
-        extended_not_kept: None,
-        kept: KeptModel::Extended,
-        gravity: Some([0.0, 0.0, -1.0]),
-        masses: &masses,
-    };
-    let html = super::nongeometric::render(&x);
-    let mut json = serde_json::to_value(&report).expect("JSON");
-    json["metrics_geometric"] = serde_json::to_value(&geometric).expect("JSON");
-    json["gravity"] = serde_json::json!([0.0, 0.0, -1.0]);
-    json["masses"] = serde_json::json!([{"frame": 2, "at_mm": [-150.0, 0.0, 120.5], "kg": 8.4}]);
-    json["nongeometric_terms"] = serde_json::Value::Array(
-        terms
-            .iter()
-            .map(|t| {
-                serde_json::json!({"name": t.name, "joint": t.joint, "kind": t.kind,
-                    "value": t.value, "sigma": t.sigma, "unit": t.unit,
-                    "status": t.status.name(), "reason": t.reason})
-            })
-            .collect(),
-    );
+    use crate::report::extended::{term_value, Extended};
+    let report = small_op_with_terms();
+    let x = Extended::of(&report).expect("a result with terms");
+    let html = super::nongeometric::section(&report);
+    let json = serde_json::to_value(&report).expect("JSON");
     let pairs = tagged(&html);
     for (pointer, shown) in &pairs {
         let want = json
@@ -308,51 +277,72 @@ fn the_nongeometric_section_shows_terms_torque_model_and_comparison_each_number_
             other => panic!("{pointer}: {other}"),
         }
     }
+    let index = |name: &str| {
+        (report.nongeometric_terms.iter())
+            .position(|t| t.name == name)
+            .unwrap_or_else(|| panic!("{name} listed"))
+    };
+    let (c2, c1, s3) = (index("compliance2"), index("compliance1"), index("sin_q3"));
+    let identified = |i: usize| report.nongeometric_terms[i].status == ParamStatus::Identified;
+    assert!(identified(c2) && identified(s3) && !identified(c1));
     let seen = |p: &str| pairs.iter().any(|(q, _)| q == p);
+    let masses = report.masses.len();
+    assert_eq!(masses, tx60().masses.len(), "the robot file's masses");
     for p in [
-        "/metrics/verify/before/position_mean_mm",
-        "/metrics_geometric/verify/after/position_rms_mm",
-        "/metrics/verify/after/position_max_mm",
-        "/metrics/ident/after/position_mean_mm",
-        "/nongeometric_terms/0/value",
-        "/nongeometric_terms/0/sigma",
-        "/nongeometric_terms/2/reason",
-        "/nongeometric_terms/2/status",
-        "/gravity/2",
-        "/masses/0/at_mm/2",
-        "/masses/0/kg",
-        "/masses/0/frame",
+        "/metrics/verify/before/position_mean_mm".to_owned(),
+        "/metrics_geometric/verify/after/position_rms_mm".to_owned(),
+        "/metrics/verify/after/position_max_mm".to_owned(),
+        "/metrics/ident/after/position_mean_mm".to_owned(),
+        format!("/nongeometric_terms/{c2}/value"),
+        format!("/nongeometric_terms/{c2}/sigma"),
+        format!("/nongeometric_terms/{s3}/value"),
+        format!("/nongeometric_terms/{c1}/reason"),
+        format!("/nongeometric_terms/{c1}/status"),
+        "/gravity/2".to_owned(),
+        format!("/masses/{}/at_mm/2", masses - 1),
+        format!("/masses/{}/kg", masses - 1),
+        "/masses/0/frame".to_owned(),
     ] {
-        assert!(seen(p), "{p} not shown");
+        assert!(seen(&p), "{p} not shown");
     }
     // units for people: compliance in µrad/(N·m), harmonics in mrad; the change vs geometric
+    let (t2, t3) = (
+        &report.nongeometric_terms[c2],
+        &report.nongeometric_terms[s3],
+    );
+    for t in [t2, t3] {
+        let shown = format!(">{}</td>", term_value(t, t.value));
+        assert!(html.contains(&shown), "{shown}: {html}");
+    }
     assert!(
-        html.contains(">2.500</td>") && html.contains("± 0.015"),
+        html.contains("µrad/(N·m)") && html.contains("held at zero"),
         "{html}"
     );
-    assert!(html.contains(">-0.150</td>"), "{html}");
+    let verify = |m: &crate::calibrate::identify_json::MetricsJson| {
+        m.verify.as_ref().expect("verify").after.position_mean_mm
+    };
+    let change = crate::report::extended::change_percent(
+        verify(report.metrics_geometric.as_ref().expect("geometric")),
+        verify(&report.metrics),
+    )
+    .expect("a change");
     assert!(
-        html.contains("-20.0 %"),
-        "verification mean −20 % vs geometric: {html}"
+        change < -20.0,
+        "the extended model verifies better: {change} %"
     );
-    assert!(html.contains("held at zero"), "{html}");
+    let change = format!("{} %", crate::units::human::fmt_fixed(change, 1));
+    assert!(html.contains(&change), "{change}: {html}");
 
     // the printed summary shows the same
-    let mut text = String::new();
-    super::super::summary::tests_support::extended_lines(&mut text, &x);
+    let text = crate::report::summary_text(&report);
+    let mut lines = String::new();
+    super::super::summary::tests_support::extended_lines(&mut lines, &x);
+    assert!(text.contains(&lines[..lines.find("\nBefore").unwrap_or(lines.len())]));
     assert!(
-        text.contains(
-            "compliance2  joint 2  compliance         2.500 ± 0.015 µrad/(N·m)  identified"
-        ),
+        text.contains("compliance2  joint 2  compliance ") && text.contains("identified"),
         "{text}"
     );
-    assert!(
-        text.contains("held at zero: not observable: the tool is on axis 6"),
-        "{text}"
-    );
-    assert!(
-        text.contains("masses: frame 2 at (-150.000, 0.000, 120.500) mm 8.400 kg"),
-        "{text}"
-    );
-    assert!(text.contains("-20.0 %"), "{text}");
+    assert!(text.contains("held at zero: "), "{text}");
+    assert!(text.contains("masses: frame 1 at ("), "{text}");
+    assert!(lines.contains(&change), "{lines}");
 }
