@@ -10,8 +10,8 @@ pub mod sim;
 
 pub use cell::{
     load_cell_config, parse_cell_config, parse_sim_config, ApiSection, ApiToken, CampaignSection,
-    CellConfig, ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotSection, SetupSection,
-    StageMode, StageSection, StopWhen, TrackerSection, DEFAULT_STOP_MIN_GAIN, MAX_DEVICE_MS,
-    MAX_POSES,
+    CellConfig, ConfigError, DeviceMode, InvalidKey, Iso9283Section, RobotProtocol, RobotSection,
+    SetupSection, StageMode, StageSection, StopWhen, TrackerSection, DEFAULT_STOP_MIN_GAIN,
+    MAX_DEVICE_MS, MAX_POSES,
 };
 pub use sim::SimWorldConfig;
