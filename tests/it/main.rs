@@ -54,5 +54,6 @@ mod stop;
 mod store;
 mod terminal;
 mod timing;
+mod ur;
 mod validation;
 mod zaber_motion;
