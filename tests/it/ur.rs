@@ -489,3 +489,36 @@ async fn ur_rtde_reads_cellcal_sim_while_a_movej_of_the_ur_adapter_runs() {
     assert_eq!(err.kind, FaultKind::Timeout, "{err}");
     sim.kill().await.expect("stop cellcal sim");
 }
+
+/// The shipped UR robot files carry UR's published link masses (kg) and joint speeds: the UR5
+/// the same masses as the converted real-data file, the UR10 its own row; every joint ±360°.
+#[test]
+fn ur5_and_ur10_files_carry_the_published_masses_and_joint_speeds() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ur5 = load_robot(&root.join("config/robots/ur5.toml")).expect("ur5");
+    let ur10 = load_robot(&root.join("config/robots/ur10.toml")).expect("ur10");
+    let real = load_robot(&root.join("tests/data/realdata/ur5/robot.toml")).expect("realdata");
+    assert_eq!(ur5.masses, real.masses, "UR5: the converted published set");
+    let kg = |m: &cellcal::model::RobotModel| m.masses.iter().map(|m| m.kg).collect::<Vec<_>>();
+    assert_eq!(kg(&ur5), [3.7, 8.393, 2.33, 1.219, 1.219, 0.1879]);
+    assert_eq!(kg(&ur10), [7.1, 12.7, 4.27, 2.0, 2.0, 0.365]);
+    for (m, k) in ur10.masses.iter().zip(1..) {
+        assert_eq!(m.frame, k, "one mass per link frame");
+    }
+    assert!((ur10.masses[1].at - nalgebra::Vector3::new(380.0, 0.0, 158.0)).norm() < 1e-9);
+    let deg_s = |m: &cellcal::model::RobotModel| {
+        MotionLimits::of(m, 100.0)
+            .speed_rad_s
+            .iter()
+            .map(|v| (v.to_degrees() * 1e6).round() / 1e6)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(deg_s(&ur5), [180.0; 6]);
+    assert_eq!(deg_s(&ur10), [120.0, 120.0, 180.0, 180.0, 180.0, 180.0]);
+    for m in [&ur5, &ur10] {
+        for l in &m.limits {
+            assert!((l.max - 360f64.to_radians()).abs() < 1e-9, "{}", m.name);
+            assert!((l.min + 360f64.to_radians()).abs() < 1e-9, "{}", m.name);
+        }
+    }
+}
