@@ -19,14 +19,16 @@ use crate::cell::{
     EmsconTracker, EmsconTrackerConfig, LinkRobot, LinkRobotConfig, Prompter, ZaberStageAdapter,
     ZaberStageAdapterConfig,
 };
+use crate::cell::{UrRobot, UrRobotConfig};
 use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
-use crate::config::{CellConfig, DeviceMode, SimWorldConfig, StageMode, StopWhen};
+use crate::config::{CellConfig, DeviceMode, RobotProtocol, SimWorldConfig, StageMode, StopWhen};
 use crate::dataset::PoseSet;
 use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
 use crate::model::{load_robot, RobotModel};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
+use crate::plan::motion::MotionLimits;
 use crate::plan::selection::DesignSetup;
 use crate::plan::{
     campaign_router, count_via_points, order_times, plan_campaign, CampaignEstimate, Plan,
@@ -308,7 +310,7 @@ pub async fn open_session_with(
         estimate: stored,
     } = prepared;
     let sim = simulated_cell(&cfg, &nominal, robot_secret.clone()).await?;
-    let devices = cell_devices(&cfg, sim.as_ref(), robot_secret, prompter)?;
+    let devices = cell_devices(&cfg, &nominal, sim.as_ref(), robot_secret, prompter)?;
     let resumed = model_of_resumed.is_some();
     let mut cfg = cfg;
     if let Some(v) = cfg.iso9283.as_ref().and_then(|i| i.speed_pct) {
@@ -727,6 +729,7 @@ async fn simulated_cell(
 /// simulated cell only supplies the defaults a section leaves unset).
 fn cell_devices(
     cfg: &CellConfig,
+    nominal: &RobotModel,
     sim: Option<&RunningSimCell>,
     robot_secret: SharedSecret,
     prompter: Arc<dyn Prompter>,
@@ -738,17 +741,31 @@ fn cell_devices(
             ..EmsconTrackerConfig::default()
         },
     };
-    let robot = match (sim, cfg.robot_controller.mode) {
-        (Some(s), DeviceMode::Sim) => s.robot_config(),
-        _ => LinkRobotConfig {
-            address: cfg.robot_controller.address.clone(),
-            secret: Some(robot_secret),
-            ..LinkRobotConfig::default()
-        },
+    let robot: Box<dyn crate::cell::Robot> = match cfg.robot_controller.protocol {
+        RobotProtocol::Robotlink => {
+            let robot = match (sim, cfg.robot_controller.mode) {
+                (Some(s), DeviceMode::Sim) => s.robot_config(),
+                _ => LinkRobotConfig {
+                    address: cfg.robot_controller.address.clone(),
+                    secret: Some(robot_secret),
+                    ..LinkRobotConfig::default()
+                },
+            };
+            Box::new(LinkRobot::new(robot.with_section(&cfg.robot_controller)))
+        }
+        RobotProtocol::Ur => {
+            let limits = MotionLimits::of(nominal, 100.0);
+            let mut ur = UrRobotConfig::from_section(&cfg.robot_controller, limits);
+            if let (Some(s), DeviceMode::Sim) = (sim, cfg.robot_controller.mode) {
+                s.ur_robot_config(&cfg.robot_controller, &mut ur)
+                    .map_err(|e| SessionError::Invalid(e.to_string()))?;
+            }
+            Box::new(UrRobot::new(ur))
+        }
     };
     Ok(Devices {
         tracker: Box::new(EmsconTracker::new(tracker.with_section(&cfg.tracker))),
-        robot: Box::new(LinkRobot::new(robot.with_section(&cfg.robot_controller))),
+        robot,
         stage: stage_device(cfg, sim, prompter)?,
     })
 }

@@ -5,11 +5,13 @@
 //! convert at the protocol edge (robotlink speaks degrees, Zaber microsteps).
 //!
 //! Adapters: [`EmsconTracker`] (Leica emScon TPI), [`LinkRobot`] (robotlink line protocol),
+//! [`UrRobot`] (Universal Robots Dashboard, RTDE and URScript),
 //! [`ZaberStageAdapter`] (Zaber ASCII stage), [`ManualStage`] (micrometer set by the technician,
 //! optionally read by an RS-232 gauge); prompters [`ScriptedPrompter`] and [`ChannelPrompter`].
 
 pub mod prompt;
 pub mod robot_link;
+pub mod robot_ur;
 pub mod stage_manual;
 pub mod stage_zaber;
 #[cfg(test)]
@@ -18,6 +20,7 @@ pub mod tracker_emscon;
 
 pub use prompt::{ChannelPrompter, PendingPrompt, ScriptedPrompter};
 pub use robot_link::{controller_secret, LinkRobot, LinkRobotConfig, RobotSecretError};
+pub use robot_ur::{UrRobot, UrRobotConfig};
 pub use stage_manual::{GaugeReader, ManualStage, ManualStageConfig};
 pub use stage_zaber::{ZaberStageAdapter, ZaberStageAdapterConfig};
 pub use tracker_emscon::{EmsconTracker, EmsconTrackerConfig};

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use tracing::info;
 
 use super::{CellError, DeviceKind, FaultKind, Robot};
-use crate::config::{DeviceMode, RobotSection};
+use crate::config::{DeviceMode, RobotProtocol, RobotSection};
 
 /// Configuration of a [`LinkRobot`] (serde: every field has a default).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -84,11 +84,14 @@ pub enum RobotSecretError {
 from_cause!(SecretError => RobotSecretError::File);
 
 /// The secret shared with the robot controller: read from `[robot_controller] secret_file`
-/// (required for a real controller); a simulated controller without one gets a fresh random
-/// secret, which only this process knows.
+/// (required for a real robotlink controller); a simulated controller or a UR controller
+/// without one gets a fresh random secret, which only this process knows.
 pub fn controller_secret(section: &RobotSection) -> Result<SharedSecret, RobotSecretError> {
     match (&section.secret_file, section.mode) {
         (Some(path), _) => Ok(SharedSecret::read_file(path)?),
+        // a UR controller needs none (and its section takes none): only the simulated
+        // Stäubli of this process would see it
+        (None, _) if section.protocol == RobotProtocol::Ur => Ok(SharedSecret::generate()?),
         (None, DeviceMode::Sim) => Ok(SharedSecret::generate()?),
         (None, DeviceMode::Real) => Err(RobotSecretError::NotSet),
     }

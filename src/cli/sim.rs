@@ -100,7 +100,10 @@ pub fn run(a: SimCellArgs) -> Result<(), Failure> {
             .map_err(input)?;
         let mut lines = vec![
             format!("tracker {}", cell.tracker_addr),
-            format!("robot {}", cell.robot_addr),
+            match &cell.ur {
+                Some(ur) => format!("robot ur {}", ur.host),
+                None => format!("robot {}", cell.robot_addr),
+            },
             format!("stage {}", cell.stage_path.as_deref().unwrap_or("manual")),
         ];
         if let Some(g) = &cell.gauge_path {

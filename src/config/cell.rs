@@ -11,6 +11,7 @@ use crate::measure::tool_frame::ToolFramePlanRequest;
 use crate::model::checked_toml::parse_checked;
 use crate::model::{SignedAxis, TermFamily};
 
+use super::protocol::RobotProtocol;
 pub use super::rules::InvalidKey;
 use super::rules::{positive, rule};
 use super::sim::SimWorldConfig;
@@ -103,9 +104,18 @@ impl Default for TrackerSection {
 pub struct RobotSection {
     /// `sim` or `real`.
     pub mode: DeviceMode,
-    /// robotlink server address (real mode), `host:port`; the controller application listens
+    /// `robotlink` (Stäubli, the default) or `ur` (Universal Robots).
+    pub protocol: RobotProtocol,
+    /// robotlink: server address (real mode), `host:port`; the controller application listens
     /// on [`robotlink::DEFAULT_PORT`] (11100) unless the site set another port on the pendant.
+    /// ur: the controller's host (name or IP address, no port).
     pub address: String,
+    /// ur: Dashboard server port; unset: 29999.
+    pub dashboard_port: Option<u16>,
+    /// ur: RTDE port; unset: 30004.
+    pub rtde_port: Option<u16>,
+    /// ur: URScript client interface port; unset: 30002 (secondary interface).
+    pub script_port: Option<u16>,
     /// Speed (percent of the controller's maximum).
     pub speed_pct: f64,
     /// Time allowed for a move to settle (ms).
@@ -135,7 +145,11 @@ impl Default for RobotSection {
     fn default() -> Self {
         RobotSection {
             mode: DeviceMode::Sim,
+            protocol: RobotProtocol::Robotlink,
             address: format!("127.0.0.1:{}", robotlink::DEFAULT_PORT),
+            dashboard_port: None,
+            rtde_port: None,
+            script_port: None,
             speed_pct: 20.0,
             settle_timeout_ms: 60_000,
             max_attempts: 3,
@@ -753,7 +767,7 @@ pub fn parse_cell_config(text: &str, path: &Path) -> Result<CellConfig, ConfigEr
         None if simulated => Some(SimWorldConfig::default()),
         None => None,
     }
-    .map(|s| simulated_world(s, &f.stage, path))
+    .map(|s| simulated_world(s, &f.stage, f.robot_controller.protocol, path))
     .transpose()?;
     let iso9283 = f.iso9283.map(|i| Iso9283Section {
         compensated_model: i.compensated_model.map(resolve),
@@ -803,6 +817,8 @@ pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, Confi
         stage: StageSection,
         #[serde(default)]
         sim: SimWorldConfig,
+        #[serde(default)]
+        robot_controller: RobotSection,
     }
     let f: SimFile = parse_checked(text, path)?;
     f.stage.check().map_err(|e| ConfigError::Invalid {
@@ -810,7 +826,7 @@ pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, Confi
         key: e.key,
         message: e.message,
     })?;
-    simulated_world(f.sim, &f.stage, path)
+    simulated_world(f.sim, &f.stage, f.robot_controller.protocol, path)
 }
 
 /// The checked `[sim]` world of the cell: its rules, its `errors` file resolved against the
@@ -819,6 +835,7 @@ pub fn parse_sim_config(text: &str, path: &Path) -> Result<SimWorldConfig, Confi
 fn simulated_world(
     mut sim: SimWorldConfig,
     stage: &StageSection,
+    protocol: RobotProtocol,
     path: &Path,
 ) -> Result<SimWorldConfig, ConfigError> {
     let invalid = |e: InvalidKey| ConfigError::Invalid {
@@ -827,6 +844,17 @@ fn simulated_world(
         message: e.message,
     };
     sim.check().map_err(invalid)?;
+    rule(
+        sim.robot_protocol.is_none_or(|p| p == protocol),
+        "sim.robot_protocol",
+        format!(
+            "contradicts robot_controller.protocol = \"{}\": the simulated controller follows \
+             [robot_controller]; delete sim.robot_protocol",
+            protocol.name()
+        ),
+    )
+    .map_err(invalid)?;
+    sim.robot_protocol = Some(protocol);
     if !matches!(sim.errors.as_str(), "paper" | "random" | "none" | "") {
         let dir = path.parent().unwrap_or(Path::new("."));
         sim.errors = dir.join(&sim.errors).to_string_lossy().into_owned();
@@ -963,6 +991,40 @@ impl RobotSection {
                 "robot_controller.settle_ms",
                 format!("must be in 0..={MAX_DEVICE_MS} ms, got {ms}"),
             )?;
+        }
+        for (key, port) in [
+            ("robot_controller.dashboard_port", self.dashboard_port),
+            ("robot_controller.rtde_port", self.rtde_port),
+            ("robot_controller.script_port", self.script_port),
+        ] {
+            if let Some(p) = port {
+                rule(
+                    self.protocol == RobotProtocol::Ur,
+                    key,
+                    "only a UR controller (protocol = \"ur\") takes it",
+                )?;
+                rule(p > 0, key, "must be in 1..=65535")?;
+            }
+        }
+        if self.protocol == RobotProtocol::Ur {
+            rule(
+                self.secret_file.is_none(),
+                "robot_controller.secret_file",
+                "a UR controller (protocol = \"ur\") has no shared secret: remove the key",
+            )?;
+            if self.mode == DeviceMode::Real {
+                rule(
+                    !self.address.trim().is_empty()
+                        && self.address.parse::<std::net::SocketAddr>().is_err()
+                        && !self.address.contains(' '),
+                    "robot_controller.address",
+                    format!(
+                        "a UR controller's host (name or IP address, no port; ports are \
+                         dashboard_port, rtde_port, script_port), got {:?}",
+                        self.address
+                    ),
+                )?;
+            }
         }
         Ok(())
     }
@@ -1755,7 +1817,12 @@ mod tests {
         assert_eq!(sim.errors, "/etc/cellcal/errors.toml");
         // a simulated device without a [sim] table: the default world, checked the same way
         let c = parse_cell_config("", p).unwrap();
-        assert_eq!(c.sim, Some(SimWorldConfig::default()));
+        let resolved = SimWorldConfig {
+            // unset in the file: it follows `[robot_controller] protocol`
+            robot_protocol: Some(RobotProtocol::Robotlink),
+            ..SimWorldConfig::default()
+        };
+        assert_eq!(c.sim, Some(resolved));
         let real = "[tracker]\nmode = \"real\"\n[robot_controller]\nmode = \"real\"\n\
                     [stage]\nmode = \"real\"\nrange_mm = [0, 60]\n";
         assert_eq!(parse_cell_config(real, p).unwrap().sim, None);

@@ -5,6 +5,7 @@
 
 pub mod cell;
 pub mod diff;
+mod protocol;
 mod rules;
 pub mod sim;
 
@@ -14,4 +15,5 @@ pub use cell::{
     StageMode, StageSection, StopWhen, TrackerSection, DEFAULT_STOP_MIN_GAIN, MAX_DEVICE_MS,
     MAX_POSES, REAL_MEASURE_MS,
 };
+pub use protocol::RobotProtocol;
 pub use sim::SimWorldConfig;

@@ -7,6 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::protocol::RobotProtocol;
 use super::rules::{positive, rule, InvalidKey};
 use crate::model::{RobotModel, SignedAxis};
 use crate::plan::MotionLimits;
@@ -109,6 +110,12 @@ pub struct SimWorldConfig {
     pub robot_allow: Vec<std::net::IpAddr>,
     /// Robot arm power at start.
     pub robot_power_on: bool,
+    /// The simulated controller: `robotlink` (Stäubli) or `ur` (Universal Robots); unset: the
+    /// cell's `[robot_controller] protocol` (set when the cell configuration is parsed).
+    pub robot_protocol: Option<RobotProtocol>,
+    /// Loopback address whose standard ports (29999, 30001–30004) the simulated UR controller
+    /// serves.
+    pub ur_host: std::net::IpAddr,
     /// Initial joints (deg).
     pub initial_joints_deg: [f64; 6],
     /// Fault injection.
@@ -162,6 +169,8 @@ impl Default for SimWorldConfig {
                 std::net::Ipv6Addr::LOCALHOST.into(),
             ],
             robot_power_on: false,
+            robot_protocol: None,
+            ur_host: std::net::Ipv4Addr::LOCALHOST.into(),
             initial_joints_deg: [0.0, 0.0, 90.0, 0.0, 45.0, 0.0],
             faults: SimFaults::default(),
             stage_address: (1, 1),
@@ -242,6 +251,14 @@ impl SimWorldConfig {
             "sim.nongeometric_errors",
             "\"typical\" generates the compliance and harmonic errors: give it or \
              compliance_rad_per_nm / harmonics_urad, not both",
+        )?;
+        rule(
+            self.ur_host.is_loopback(),
+            "sim.ur_host",
+            format!(
+                "must be a loopback address (127.x.y.z or ::1), got {}",
+                self.ur_host
+            ),
         )?;
         let p = self.faults.tracker.beam_break_probability;
         rule(

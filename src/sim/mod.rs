@@ -11,6 +11,7 @@ pub mod fake;
 pub mod technician;
 #[cfg(test)]
 mod tests;
+pub mod ur;
 pub mod world;
 
 use std::future::Future;
@@ -137,6 +138,9 @@ pub struct RunningSimCell {
     pub stage_sim: Option<StageSim>,
     /// Gauge faults, when `gauge = true`.
     pub gauge_faults: Option<Arc<Mutex<GaugeFaults>>>,
+    /// The simulated UR controller, when `robot_protocol = "ur"` (then no robotlink server
+    /// runs and `robot_addr` is 127.0.0.1:0, where nothing listens).
+    pub ur: Option<ur::UrSimCell>,
     /// The configuration the cell runs with.
     pub config: SimWorldConfig,
     /// The secret the simulated controller's clients must prove (never shown).
@@ -161,6 +165,23 @@ impl RunningSimCell {
             wait_margin_ms: 2000,
             secret: Some(self.robot_secret.clone()),
         }
+    }
+
+    /// Points the UR adapter `ur` (built from `section`) at this cell's simulated UR
+    /// controller; an error when the cell simulates a robotlink controller.
+    pub fn ur_robot_config(
+        &self,
+        section: &crate::config::RobotSection,
+        ur: &mut crate::cell::UrRobotConfig,
+    ) -> Result<(), SimError> {
+        let sim = self.ur.as_ref().ok_or_else(|| {
+            SimError::Config(
+                "the simulated cell runs a robotlink controller, not a UR one (sim.robot_protocol)"
+                    .into(),
+            )
+        })?;
+        sim.adapter_config(section, ur);
+        Ok(())
     }
 
     /// Stage adapter settings for this cell (stage mode `zaber`): its pty, the simulated
@@ -295,9 +316,16 @@ pub async fn start_cell_with(
     let robot_faults = robot_faults(&cfg);
 
     let tracker_listener = bind(cfg.tracker_port, "tracker").await?;
-    let robot_listener = bind(cfg.robot_port, "robot").await?;
     let tracker_addr = local_addr(&tracker_listener, "tracker")?;
-    let robot_addr = local_addr(&robot_listener, "robot")?;
+    let (robot_listener, robot_addr, ur) =
+        if cfg.robot_protocol == Some(crate::config::RobotProtocol::Ur) {
+            let ur = ur::UrSimCell::start(world.clone(), &cfg).await?;
+            (None, SocketAddr::from(([127, 0, 0, 1], 0)), Some(ur))
+        } else {
+            let l = bind(cfg.robot_port, "robot").await?;
+            let a = local_addr(&l, "robot")?;
+            (Some(l), a, None)
+        };
     let stage_pty = match &stage_sim {
         Some(sim) => {
             Some(
@@ -323,22 +351,12 @@ pub async fn start_cell_with(
         measuring_time_scale: cfg.measuring_scale(),
         ..emscon::ServerOptions::default()
     };
-    let tasks = vec![
+    let mut tasks = vec![
         serve_tracker(
             tracker_listener,
             Arc::new(SimTrackerBackend::new(world.clone())),
             tracker_faults.clone(),
             tracker_options,
-            stop_rx.clone(),
-        ),
-        serve_robot(
-            robot_listener,
-            Arc::new(SimRobotBackend::new(world.clone())),
-            robot_faults.clone(),
-            robotlink::ServerAccess {
-                allow: cfg.robot_allow.clone(),
-                ..robotlink::ServerAccess::loopback(robot_secret.clone())
-            },
             stop_rx.clone(),
         ),
         // the ptys close when the cell stops
@@ -352,6 +370,18 @@ pub async fn start_cell_with(
         }),
         stop_on(shutdown, stop_tx.clone()),
     ];
+    if let Some(l) = robot_listener {
+        tasks.push(serve_robot(
+            l,
+            Arc::new(SimRobotBackend::new(world.clone())),
+            robot_faults.clone(),
+            robotlink::ServerAccess {
+                allow: cfg.robot_allow.clone(),
+                ..robotlink::ServerAccess::loopback(robot_secret.clone())
+            },
+            stop_rx.clone(),
+        ));
+    }
     info!(%tracker_addr, %robot_addr, ?stage_path, ?gauge_path, "simulated cell listening");
     Ok(RunningSimCell {
         tracker_addr,
@@ -363,6 +393,7 @@ pub async fn start_cell_with(
         robot_faults,
         stage_sim,
         gauge_faults,
+        ur,
         config: cfg,
         robot_secret,
         stop_tx,

@@ -12,6 +12,7 @@ use cellcal::cell::{
     ManualStageConfig, PromptContext, Robot, ScriptedPrompter, Stage, StagePosition, Tracker,
     ZaberStageAdapter,
 };
+use cellcal::config::RobotProtocol;
 use cellcal::model::forward;
 use cellcal::sim::{lock_world, start_cell, RunningSimCell, SimWorldConfig, StageMode};
 use nalgebra::Vector3;
@@ -671,8 +672,11 @@ fn config_file_documents_the_defaults() {
     assert_eq!(sim.base_rotation_vector_deg, Some([0.3, -0.2, 155.0]));
     assert_eq!(sim.stage_misalignment_mrad, [1.5, 0.0, -2.5]);
     assert_eq!(sim.tracker_position_mm, [0.0; 3]);
+    // `robot_protocol` unset in the file: it follows `[robot_controller] protocol` (robotlink)
+    assert_eq!(sim.robot_protocol, Some(RobotProtocol::Robotlink));
     assert_eq!(
         SimWorldConfig {
+            robot_protocol: None,
             tool_mm: None,
             base_translation_mm: None,
             base_rotation_vector_deg: None,

@@ -55,5 +55,6 @@ mod stop;
 mod store;
 mod terminal;
 mod timing;
+mod ur;
 mod validation;
 mod zaber_motion;
