@@ -3,12 +3,16 @@
 //! `cargo build --release --example identify_profile`, then e.g.
 //! `valgrind --tool=callgrind --collect-atstart=no --toggle-collect='cellcal::identify::identify'
 //! target/release/examples/identify_profile op 100 1` (model, poses, calls, and `miss` to make
-//! every call miss the memo of the structural identifiability check, as a first call does).
+//! every call miss the memo of the structural identifiability check, as a first call does;
+//! `terms` to identify compliance and harmonics too).
 //! Prints the best time per call over batches of ten calls and the estimates.
 
 use cellcal::dataset::to_measured;
 use cellcal::identify::solver::Options;
-use cellcal::identify::{identify, IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
+use cellcal::identify::{
+    identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel, PracticalBounds,
+};
+use cellcal::model::TermFamily;
 use cellcal::simulate::{self, truth, SimConfig};
 use nalgebra::Vector3;
 
@@ -18,7 +22,9 @@ fn main() {
     let n: usize = args.get(2).map_or(100, |s| s.parse().expect("poses"));
     let calls: usize = args.get(3).map_or(1, |s| s.parse().expect("calls"));
     // "miss": every call misses the structural memo (a joint limit moved by one ulp per call)
-    let miss = args.get(4).is_some_and(|s| s == "miss");
+    let miss = args[4.min(args.len())..].iter().any(|s| s == "miss");
+    // "terms": with compliance and harmonics (issue 21's time figure)
+    let terms = args[4.min(args.len())..].iter().any(|s| s == "terms");
     let axis = if model == ObsModel::Np {
         Vector3::x()
     } else {
@@ -46,7 +52,11 @@ fn main() {
         point_weights: None,
         solver: Options::default(),
         practical: PracticalBounds::default(),
-        nongeometric: Default::default(),
+        nongeometric: if terms {
+            Nongeometric::of(&TermFamily::ALL)
+        } else {
+            Nongeometric::default()
+        },
     };
     // best batch of 10 calls: least disturbed by other load on the machine
     let mut last = None;

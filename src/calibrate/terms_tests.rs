@@ -72,6 +72,8 @@ struct Run {
     id: Identification,
     /// Verification position RMS of the true robot (the noise floor, mm).
     floor_mm: f64,
+    /// The identification poses.
+    ident: Vec<crate::identify::Measured>,
 }
 
 fn run(with_terms: bool, ident: usize, families: &[TermFamily]) -> Run {
@@ -89,13 +91,14 @@ fn run(with_terms: bool, ident: usize, families: &[TermFamily]) -> Run {
         .expect("sampled")
         .observations;
     let opts = options(families);
-    let (_, verify) = split_measured(&rows, opts.obs.model, 10.0).expect("rows");
+    let (ident, verify) = split_measured(&rows, opts.obs.model, 10.0).expect("rows");
     let floor_mm = evaluate(&truth, &verify, &opts.obs).position_rms_mm;
     let (report, id) = calibrate(&nominal, &rows, &opts, 10.0).expect("identified");
     Run {
         report,
         id,
         floor_mm,
+        ident,
     }
 }
 
@@ -183,5 +186,28 @@ fn on_geometric_data_the_terms_come_out_within_3_sigma_of_zero() {
     assert!(
         extended <= 1.01 * geometric,
         "extended {extended} mm, geometric {geometric} mm"
+    );
+}
+
+#[test]
+fn with_terms_held_the_cost_of_the_quadratic_model_is_the_cost_of_the_data() {
+    use crate::identify::problem::CalibProblem;
+    use crate::identify::{DropKind, JointTrig};
+    use crate::lsq::Problem;
+    let r = run(false, 300, &TermFamily::ALL);
+    let held = r.id.identifiability.dropped.iter();
+    let held = held.filter(|d| d.kind == DropKind::NotSignificant).count();
+    assert!(held > 0, "no term held: nothing checked");
+    let opts = options(&TermFamily::ALL);
+    let ident = &r.ident;
+    let params = &r.id.identifiability.identified;
+    let trig = JointTrig::of(ident);
+    let problem = CalibProblem::with_trig(ident, &trig, &opts.obs, params);
+    let exact = problem.cost(&r.id.corrected);
+    // the quadratic model's third-order remainder: 2e-7 here, 1e-7 of σ0
+    assert!(
+        (r.id.final_cost - exact).abs() <= 1e-6 * exact,
+        "{held} terms held: predicted cost {} against {exact} from the data",
+        r.id.final_cost
     );
 }

@@ -500,15 +500,13 @@ fn insignificant_terms(
 /// `fit` with parameters `held` set back to their initial values and the others moved to the
 /// optimum given that, by one Gauss–Newton step on `fit`'s normal equations (the fit converged,
 /// so the step is the constrained optimum to second order in the small terms); its normal
-/// matrix is the kept parameters' block. `None` when that block is not positive definite.
+/// matrix is the kept parameters' block and its cost the fit's plus what the same quadratic
+/// model adds (no pass over the data). `None` when that block is not positive definite.
 fn hold_at_initial(
     fit: &solver::Solution<RobotModel>,
     params: &[ParamId],
     held: &[ParamId],
     initial: &RobotModel,
-    poses: &[Measured],
-    trig: &JointTrig,
-    obs: &ObsConfig,
 ) -> Option<solver::Solution<RobotModel>> {
     let (h, k): (Vec<usize>, Vec<usize>) =
         (0..params.len()).partition(|&i| held.contains(&params[i]));
@@ -523,14 +521,29 @@ fn hold_at_initial(
     h.iter().zip(d_h.iter()).for_each(|(&i, d)| step[i] = *d);
     k.iter().zip(d_k.iter()).for_each(|(&i, d)| step[i] = *d);
     let state = params::retract(&fit.state, params, &step);
-    let kept: Vec<ParamId> = k.iter().map(|&i| params[i]).collect();
-    let final_cost = CalibProblem::with_trig(poses, trig, obs, &kept).cost(&state);
     Some(solver::Solution {
         state,
-        final_cost,
+        final_cost: fit.final_cost + held_cost(n, &h, &d_h, &k, &d_k),
         normal_matrix: n_kk,
         ..fit.clone()
     })
+}
+
+/// The cost that moving the parameters `h` by `d_h` and `k` by the constrained optimum `d_k`
+/// adds at a converged fit with normal matrix `n`, by the same quadratic model:
+/// `½(d_hᵀN_hh d_h − d_kᵀN_kk d_k)` (the Schur complement's form in `d_h`, ≥ 0).
+fn held_cost(
+    n: &DMatrix<f64>,
+    h: &[usize],
+    d_h: &DVector<f64>,
+    k: &[usize],
+    d_k: &DVector<f64>,
+) -> f64 {
+    let form = |idx: &[usize], d: &DVector<f64>| {
+        let m = DMatrix::from_fn(idx.len(), idx.len(), |a, b| n[(idx[a], idx[b])]);
+        d.dot(&(m * d))
+    };
+    (0.5 * (form(h, d_h) - form(k, d_k))).max(0.0)
 }
 
 /// The χ² value of `dof` degrees of freedom exceeded with the probability of a normal deviate
@@ -655,7 +668,7 @@ pub fn identify_with(
     if !insignificant.is_empty() {
         let held: Vec<ParamId> = insignificant.iter().map(|d| d.param).collect();
         let constrained = match opts.robust {
-            None => hold_at_initial(&fit, &params, &held, &initial, poses, trig, &opts.obs),
+            None => hold_at_initial(&fit, &params, &held, &initial),
             Some(_) => None,
         };
         params.retain(|p| !held.contains(p));

@@ -109,6 +109,11 @@ impl SplitSums {
 /// tiles of an odd width.
 const GEMM_TILE: usize = 8;
 
+/// Rows of the Gram matrix per product in a fold: only the upper triangle is formed, band by
+/// band (a multiple of [`GEMM_TILE`]; narrower bands skip more of the lower triangle but pack
+/// the right factor more often).
+const GRAM_BAND: usize = 24;
+
 /// Rows of `[J r]` over some of the problem's columns, gathered in blocks and folded into
 /// normal-equation sums one block at a time: one matrix product per block gives
 /// `[J r]ᵀ[J r]`, which holds `JᵀJ`, `Jᵀr` (last column) and `rᵀr` (corner) at once.
@@ -163,11 +168,25 @@ impl Folder {
         &mut self.block[start..self.rows * stride]
     }
 
+    /// Fold the block's rows into the upper triangle of the Gram matrix (`[J r]ᵀ[J r]` is
+    /// symmetric: [`finish`](Self::finish) mirrors it), one product per band of
+    /// [`GRAM_BAND`] rows, both factors read in place.
     fn flush(&mut self) {
+        let s = self.stride();
         if self.rows > 0 {
-            let filled = &self.block[..self.rows * self.stride()];
-            let m = DMatrixView::from_slice(filled, self.stride(), self.rows);
-            self.gram.gemm(1.0, &m, &m.transpose(), 1.0);
+            let filled = &self.block[..self.rows * s];
+            // M = [J r]ᵀ (the block's rows are its columns) and Mᵀ, views of the same entries
+            let m = DMatrixView::from_slice(filled, s, self.rows);
+            let mt = DMatrixView::from_slice_with_strides(filled, self.rows, s, s, 1);
+            for top in (0..s).step_by(GRAM_BAND) {
+                let band = GRAM_BAND.min(s - top);
+                self.gram.view_mut((top, top), (band, s - top)).gemm(
+                    1.0,
+                    &m.rows(top, band),
+                    &mt.columns(top, s - top),
+                    1.0,
+                );
+            }
         }
         self.rows = 0;
     }
@@ -175,6 +194,7 @@ impl Folder {
     /// The sums over all the problem's columns (zero in columns not held).
     pub fn finish(mut self) -> NormalSums {
         self.flush();
+        self.gram.fill_lower_triangle_with_upper_triangle();
         let w = self.cols.len();
         let g = &self.gram;
         let sums = NormalSums {

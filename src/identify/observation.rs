@@ -11,14 +11,40 @@ use nalgebra::{Matrix3, Vector3};
 use std::cell::RefCell;
 
 use super::params::ParamId;
-use crate::model::kinematics::{forward, forward_from, torques_of_frames, Frames, Pose};
+use crate::model::kinematics::{forward, forward_from, sin_cos_small, torques_into, Frames, Pose};
 use crate::model::{ParamKind, RobotModel, TermKind};
 
 thread_local! {
-    /// Per-thread frames of the chain, so the hot loop does not allocate.
-    static FRAMES: RefCell<Frames> = const { RefCell::new(Frames::new()) };
-    /// The bare chain's frames for the gravity torques.
-    static BARE: RefCell<Frames> = const { RefCell::new(Frames::new()) };
+    /// Per-thread buffers of [`residual_into`], so the hot loop does not allocate.
+    static SCRATCH: RefCell<Scratch> = const { RefCell::new(Scratch::new()) };
+}
+
+/// What [`residual_into`] computes on the way to one pose's residual.
+struct Scratch {
+    /// The chain's frames (measurement frame).
+    frames: Frames,
+    /// The bare chain's frames (robot base frame), for the gravity torques.
+    bare: Frames,
+    /// `sin_cos` of the joint values when no table gives them.
+    q_sin_cos: Vec<(f64, f64)>,
+    /// The joint values with their non-geometric corrections, and their `sin_cos`.
+    angles: Vec<f64>,
+    angle_sin_cos: Vec<(f64, f64)>,
+    /// Gravity torques about each joint (N·m; empty when no term needs them).
+    tau: Vec<f64>,
+}
+
+impl Scratch {
+    const fn new() -> Scratch {
+        Scratch {
+            frames: Frames::new(),
+            bare: Frames::new(),
+            q_sin_cos: Vec::new(),
+            angles: Vec::new(),
+            angle_sin_cos: Vec::new(),
+            tau: Vec::new(),
+        }
+    }
 }
 
 /// Which quantities the identification uses; spelled `position`, `np`, `op`, `full` in every
@@ -259,8 +285,15 @@ pub fn residual_into<S: JacobianSink>(
     res: &mut [f64],
     sink: &mut S,
 ) {
-    FRAMES.with(|cell| {
-        let f = &mut *cell.borrow_mut();
+    SCRATCH.with(|cell| {
+        let Scratch {
+            frames: f,
+            bare,
+            q_sin_cos: own,
+            angles,
+            angle_sin_cos,
+            tau,
+        } = &mut *cell.borrow_mut();
         let base = Pose {
             r: model.base_rotation,
             p: model.base_translation,
@@ -276,52 +309,50 @@ pub fn residual_into<S: JacobianSink>(
         };
         let wants_terms = sink.wanted() && params.iter().any(ParamId::is_term);
         // the pose's sines: the table's when given, else computed once here when a term needs them
-        let own: Vec<(f64, f64)>;
         let q_sin_cos = match q_sin_cos {
             None if model.has_terms() || wants_terms => {
-                own = meas.q.iter().map(|q| q.sin_cos()).collect();
+                own.clear();
+                own.extend(meas.q.iter().map(|q| q.sin_cos()));
                 Some(own.as_slice())
             }
             sc => sc,
         };
-        let tau = (model.has_compliance() || (sink.wanted() && params.iter().any(wants_torque)))
-            .then(|| {
-                BARE.with(|bare| {
-                    let bare = &mut *bare.borrow_mut();
-                    forward_from(&Pose::identity(), &model.joints, &meas.q, q_sin_cos, bare);
-                    torques_of_frames(model, bare)
-                })
-            });
-        let torque = |j: usize| {
-            tau.as_deref()
-                .and_then(|t| t.get(j))
-                .copied()
-                .unwrap_or(0.0)
-        };
+        let wants_tau =
+            model.has_compliance() || (sink.wanted() && params.iter().any(wants_torque));
+        tau.clear();
         match q_sin_cos {
             Some(sc) if model.has_terms() => {
-                // q + Δθ(q) and its sines by the sum identities: one sine per joint, for Δθ
-                let (angles, angle_sc): (Vec<f64>, Vec<(f64, f64)>) = meas
-                    .q
-                    .iter()
-                    .zip(sc)
-                    .enumerate()
-                    .map(|(j, (q, &(s, c)))| {
-                        let d = model
-                            .terms
-                            .get(j)
-                            .map_or(0.0, |t| t.correction_trig((s, c), torque(j)));
-                        let (sd, cd) = d.sin_cos();
-                        (q + d, (s * cd + c * sd, c * cd - s * sd))
-                    })
-                    .unzip();
-                forward_from(&base, &model.joints, &angles, Some(&angle_sc), f);
+                if wants_tau {
+                    forward_from(&Pose::identity(), &model.joints, &meas.q, q_sin_cos, bare);
+                    torques_into(model, bare, &model.gravity, tau);
+                }
+                // q + Δθ(q) and its sines by the sum identities: no sine of a joint value
+                angles.clear();
+                angle_sin_cos.clear();
+                for (j, (q, &(s, c))) in meas.q.iter().zip(sc).enumerate() {
+                    let torque = tau.get(j).copied().unwrap_or(0.0);
+                    let d = model
+                        .terms
+                        .get(j)
+                        .map_or(0.0, |t| t.correction_trig((s, c), torque));
+                    let (sd, cd) = sin_cos_small(d);
+                    angles.push(q + d);
+                    angle_sin_cos.push((s * cd + c * sd, c * cd - s * sd));
+                }
+                forward_from(&base, &model.joints, angles, Some(angle_sin_cos), f);
             }
-            _ => forward_from(&base, &model.joints, &meas.q, q_sin_cos, f),
+            _ => {
+                forward_from(&base, &model.joints, &meas.q, q_sin_cos, f);
+                // without corrections these are the bare chain's frames turned into the
+                // measurement frame: the torques with gravity turned alike
+                if wants_tau {
+                    torques_into(model, f, &(model.base_rotation * model.gravity), tau);
+                }
+            }
         }
         let basis = TermBasis {
             sin_cos: q_sin_cos.unwrap_or(&[]),
-            tau: tau.as_deref(),
+            tau: (!tau.is_empty()).then_some(tau.as_slice()),
         };
         residual_jacobian_with(model, meas, cfg, params, res, sink, f, &basis);
     });
@@ -429,6 +460,8 @@ impl Columns<'_> {
     #[inline(always)]
     fn emit<const N: usize, S: JacobianSink>(&self, dirs: &[Vector3<f64>; N], sink: &mut S) {
         let turn = |axis: &Vector3<f64>| dirs.map(|d| self.wd * axis.cross(&d));
+        // the θ column of the last term's joint: the terms of a joint come together
+        let mut theta: Option<(usize, Vector3<f64>, [Vector3<f64>; N])> = None;
         for (c, par) in self.params.iter().enumerate() {
             let (dp, dd) = match par {
                 ParamId::Mdh { joint, kind } => {
@@ -459,12 +492,17 @@ impl Columns<'_> {
                 ParamId::StageAxis(_) => (Vector3::zeros(), [Vector3::zeros(); N]),
                 // Δθ_j = coefficient · basis: the joint's θ column times the basis
                 ParamId::Term { joint, kind } => {
-                    let j = self.frames.joint_axes(*joint);
+                    let (dp, dd) = match theta {
+                        Some((j, dp, dd)) if j == *joint => (dp, dd),
+                        _ => {
+                            let j = self.frames.joint_axes(*joint);
+                            let (dp, dd) = (j.z.cross(&(self.p - j.origin)), turn(&j.z));
+                            theta = Some((*joint, dp, dd));
+                            (dp, dd)
+                        }
+                    };
                     let b = self.basis.of(*joint, *kind);
-                    (
-                        b * j.z.cross(&(self.p - j.origin)),
-                        turn(&j.z).map(|d| b * d),
-                    )
+                    (b * dp, dd.map(|d| b * d))
                 }
             };
             sink.column(c, &(self.w * dp), &dd);

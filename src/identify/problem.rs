@@ -7,7 +7,7 @@ use nalgebra::{DVector, Vector3};
 
 use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
 use super::observation::{
-    residual_into, residual_jacobian, turns_directions, JacobianSink, Measured, ObsConfig, RowMajor,
+    residual_into, turns_directions, JacobianSink, Measured, ObsConfig, RowMajor,
 };
 use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
@@ -121,15 +121,22 @@ impl<'a> CalibProblem<'a> {
         self.trig.pose(i)
     }
 
+    /// `rᵀr` of pose `i` at a state (its sines from the joint table; `res` has a pose's rows).
+    fn squared_residual(&self, state: &RobotModel, i: usize, res: &mut [f64]) -> f64 {
+        let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+        let mut none = RowMajor {
+            jac: &mut [],
+            np: self.params.len(),
+        };
+        residual_into(state, p, t, self.cfg, self.params, res, &mut none);
+        res.iter().map(|r| r * r).sum()
+    }
+
     /// Weighted residual norm of each pose at a state.
     pub fn pose_norms(&self, state: &RobotModel) -> Vec<f64> {
         let mut res = vec![0.0; self.cfg.model.rows()];
-        self.poses
-            .iter()
-            .map(|p| {
-                residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
-                res.iter().map(|r| r * r).sum::<f64>().sqrt()
-            })
+        (0..self.poses.len())
+            .map(|i| self.squared_residual(state, i, &mut res).sqrt())
             .collect()
     }
 }
@@ -322,12 +329,10 @@ impl Problem for CalibProblem<'_> {
     fn cost(&self, state: &RobotModel) -> f64 {
         let parts = split_map(self.poses.len(), |range| {
             let mut res = vec![0.0; self.cfg.model.rows()];
-            let mut cost = 0.0;
-            for p in self.poses[range].iter().filter(|p| p.weight != 0.0) {
-                residual_jacobian(state, p, self.cfg, self.params, &mut res, &mut []);
-                cost += res.iter().map(|r| r * r).sum::<f64>();
-            }
-            cost
+            range
+                .filter(|&i| self.poses[i].weight != 0.0)
+                .map(|i| self.squared_residual(state, i, &mut res))
+                .sum::<f64>()
         });
         0.5 * parts.iter().sum::<f64>()
     }
