@@ -4,7 +4,8 @@
 //! `valgrind --tool=callgrind --collect-atstart=no --toggle-collect='cellcal::identify::identify'
 //! target/release/examples/identify_profile op 100 1` (model, poses, calls, and `miss` to make
 //! every call miss the memo of the structural identifiability check, as a first call does;
-//! `terms` to identify compliance and harmonics too).
+//! `terms` to identify compliance and harmonics too, `truth-terms` for a simulated robot that
+//! has them).
 //! Prints the best time per call over batches of ten calls and the estimates.
 
 use cellcal::dataset::to_measured;
@@ -12,7 +13,7 @@ use cellcal::identify::solver::Options;
 use cellcal::identify::{
     identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel, PracticalBounds,
 };
-use cellcal::model::TermFamily;
+use cellcal::model::{TermFamily, TermKind};
 use cellcal::simulate::{self, truth, SimConfig};
 use nalgebra::Vector3;
 
@@ -25,13 +26,25 @@ fn main() {
     let miss = args[4.min(args.len())..].iter().any(|s| s == "miss");
     // "terms": with compliance and harmonics (issue 21's time figure)
     let terms = args[4.min(args.len())..].iter().any(|s| s == "terms");
+    // "truth-terms": the simulated robot has compliance and harmonic errors too
+    let truth_terms = args[4.min(args.len())..].iter().any(|s| s == "truth-terms");
     let axis = if model == ObsModel::Np {
         Vector3::x()
     } else {
         Vector3::y()
     };
     let mut nominal = cellcal::model::tx60();
-    let truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
+    let mut truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
+    if truth_terms {
+        // a few tenths of a milliradian, as in the calibration's tests
+        *truth.term_mut(1, TermKind::Compliance) = 4e-6;
+        *truth.term_mut(2, TermKind::Compliance) = 6e-6;
+        for j in 0..5 {
+            for (k, v) in TermKind::ALL[1..].iter().zip([2e-4, -1e-4, 0.5e-4, 1e-4]) {
+                *truth.term_mut(j, *k) = v * if j % 2 == 0 { 1.0 } else { -0.7 };
+            }
+        }
+    }
     let cfg = SimConfig {
         poses: n,
         ident: n,

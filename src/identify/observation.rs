@@ -222,12 +222,14 @@ pub fn residual_jacobian(
 ) {
     let np = params.len();
     debug_assert!(jac.is_empty() || cfg.model.rows() * np <= jac.len());
+    let needs = ColumnNeeds::of(params);
     residual_into(
         model,
         meas,
         None,
         cfg,
         params,
+        needs,
         res,
         &mut RowMajor { jac, np },
     );
@@ -274,14 +276,45 @@ impl JacobianSink for RowMajor<'_> {
     }
 }
 
+/// What the columns of a set of parameters need of each pose besides the chain's frames,
+/// found once for a pass over the poses instead of once per pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ColumnNeeds {
+    /// A non-geometric term is among the parameters: its basis needs the pose's sines.
+    terms: bool,
+    /// A compliance is: its basis needs the gravity torques.
+    torques: bool,
+}
+
+impl ColumnNeeds {
+    /// The needs of the columns of `params`.
+    pub fn of(params: &[ParamId]) -> ColumnNeeds {
+        ColumnNeeds {
+            terms: params.iter().any(ParamId::is_term),
+            torques: params.iter().any(|p| {
+                matches!(
+                    p,
+                    ParamId::Term {
+                        kind: TermKind::Compliance,
+                        ..
+                    }
+                )
+            }),
+        }
+    }
+}
+
 /// Weighted residual (`rows` entries) of one pose, and its Jacobian into `sink`; `q_sin_cos`:
-/// `sin_cos` of the pose's joint values when known (see [`forward_from`]).
+/// `sin_cos` of the pose's joint values when known (see [`forward_from`]); `needs`:
+/// [`ColumnNeeds::of`] `params`.
+#[allow(clippy::too_many_arguments)]
 pub fn residual_into<S: JacobianSink>(
     model: &RobotModel,
     meas: &Measured,
     q_sin_cos: Option<&[(f64, f64)]>,
     cfg: &ObsConfig,
     params: &[ParamId],
+    needs: ColumnNeeds,
     res: &mut [f64],
     sink: &mut S,
 ) {
@@ -298,16 +331,7 @@ pub fn residual_into<S: JacobianSink>(
             r: model.base_rotation,
             p: model.base_translation,
         };
-        let wants_torque = |p: &ParamId| {
-            matches!(
-                p,
-                ParamId::Term {
-                    kind: TermKind::Compliance,
-                    ..
-                }
-            )
-        };
-        let wants_terms = sink.wanted() && params.iter().any(ParamId::is_term);
+        let wants_terms = sink.wanted() && needs.terms;
         // the pose's sines: the table's when given, else computed once here when a term needs them
         let q_sin_cos = match q_sin_cos {
             None if model.has_terms() || wants_terms => {
@@ -317,8 +341,7 @@ pub fn residual_into<S: JacobianSink>(
             }
             sc => sc,
         };
-        let wants_tau =
-            model.has_compliance() || (sink.wanted() && params.iter().any(wants_torque));
+        let wants_tau = model.has_compliance() || (sink.wanted() && needs.torques);
         tau.clear();
         match q_sin_cos {
             Some(sc) if model.has_terms() => {

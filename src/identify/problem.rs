@@ -7,7 +7,7 @@ use nalgebra::{DVector, Vector3};
 
 use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
 use super::observation::{
-    residual_into, turns_directions, JacobianSink, Measured, ObsConfig, RowMajor,
+    residual_into, turns_directions, ColumnNeeds, JacobianSink, Measured, ObsConfig, RowMajor,
 };
 use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
@@ -73,6 +73,8 @@ pub struct CalibProblem<'a> {
     turning: Vec<usize>,
     /// Per column, its index among `turning`.
     dir_col: Vec<Option<usize>>,
+    /// What the columns need of each pose.
+    needs: ColumnNeeds,
 }
 
 impl<'a> CalibProblem<'a> {
@@ -113,6 +115,7 @@ impl<'a> CalibProblem<'a> {
             trig,
             turning,
             dir_col,
+            needs: ColumnNeeds::of(params),
         }
     }
 
@@ -128,7 +131,16 @@ impl<'a> CalibProblem<'a> {
             jac: &mut [],
             np: self.params.len(),
         };
-        residual_into(state, p, t, self.cfg, self.params, res, &mut none);
+        residual_into(
+            state,
+            p,
+            t,
+            self.cfg,
+            self.params,
+            self.needs,
+            res,
+            &mut none,
+        );
         res.iter().map(|r| r * r).sum()
     }
 
@@ -245,7 +257,16 @@ impl CalibProblem<'_> {
                 dir_col: &self.dir_col,
             };
             let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
-            residual_into(state, p, t, cfg, self.params, &mut res, &mut sink);
+            residual_into(
+                state,
+                p,
+                t,
+                cfg,
+                self.params,
+                self.needs,
+                &mut res,
+                &mut sink,
+            );
             sink.residuals(&res, k, self.turning.len());
         }
         (pos.finish(), dir.finish())
@@ -271,12 +292,30 @@ impl CalibProblem<'_> {
                 jac: &mut jac,
                 np: k,
             };
-            residual_into(state, p, t, self.cfg, self.params, &mut r0, &mut sink);
+            residual_into(
+                state,
+                p,
+                t,
+                self.cfg,
+                self.params,
+                self.needs,
+                &mut r0,
+                &mut sink,
+            );
             let mut none = RowMajor {
                 jac: &mut [],
                 np: k,
             };
-            residual_into(moved, p, t, self.cfg, self.params, &mut r1, &mut none);
+            residual_into(
+                moved,
+                p,
+                t,
+                self.cfg,
+                self.params,
+                self.needs,
+                &mut r1,
+                &mut none,
+            );
             for (row, (a, b)) in jac.chunks_exact(k).zip(r0.iter().zip(&r1)) {
                 let jv: f64 = row.iter().zip(v).map(|(j, x)| j * x).sum();
                 let c = b - a - h * jv;
