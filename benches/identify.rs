@@ -6,10 +6,7 @@ use std::hint::black_box;
 use cellcal::calibrate::calibrate;
 use cellcal::dataset::to_measured;
 use cellcal::identify::observation::residual_jacobian;
-use cellcal::identify::solver::Options;
-use cellcal::identify::{
-    all_params, identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel, PracticalBounds,
-};
+use cellcal::identify::{all_params, identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel};
 use cellcal::model::TermFamily;
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -53,17 +50,7 @@ fn bench_identify(c: &mut Criterion) {
         for n in [100usize, 1000, 10_000] {
             let mut obs = ObsConfig::new(model, 10.0);
             obs.stage_axis = axis;
-            let opts = IdentifyOptions {
-                obs,
-                identify_base: false,
-                identify_tool: false,
-                registered_base: false,
-                robust: None,
-                point_weights: None,
-                solver: Options::default(),
-                practical: PracticalBounds::default(),
-                nongeometric: Default::default(),
-            };
+            let opts = IdentifyOptions::new(obs);
             let meas = to_measured(&rows[..n], model, 10.0).expect("convert");
             g.bench_with_input(BenchmarkId::new(model.name(), n), &meas, |b, m| {
                 b.iter(|| identify(&nominal, black_box(m), &opts).expect("identify"))
@@ -117,15 +104,8 @@ fn bench_nongeometric(c: &mut Criterion) {
         ("compliance_harmonics", TermFamily::ALL.to_vec()),
     ] {
         let opts = IdentifyOptions {
-            obs: ObsConfig::new(ObsModel::Op, 10.0),
-            identify_base: false,
-            identify_tool: false,
-            registered_base: false,
-            robust: None,
-            point_weights: None,
-            solver: Options::default(),
-            practical: PracticalBounds::default(),
             nongeometric: Nongeometric::of(&families),
+            ..IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0))
         };
         let meas = to_measured(&rows, ObsModel::Op, 10.0).expect("convert");
         g.bench_function(format!("identify_{name}"), |b| {

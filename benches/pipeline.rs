@@ -12,7 +12,6 @@ use std::path::Path;
 use cellcal::analysis::metrics::evaluate_pair;
 use cellcal::calibrate::calibrate;
 use cellcal::dataset::{read_csv, split_measured, write_csv, Required};
-use cellcal::identify::solver::Options;
 use cellcal::identify::{identify, IdentifyOptions, JointTrig, ObsConfig, ObsModel};
 use cellcal::model::tx60;
 use cellcal::simulate::{self, truth, SimConfig};
@@ -44,17 +43,7 @@ fn bench_pipeline(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("temp dir");
     let path = write_data(dir.path());
     let robot = tx60();
-    let opts = IdentifyOptions {
-        obs: ObsConfig::new(ObsModel::Op, 10.0),
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Options::default(),
-        practical: Default::default(),
-        nongeometric: Default::default(),
-    };
+    let opts = IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0));
     let read = || read_csv(&path, 6, OP).expect("read").1;
     let rows = read();
     let (ident, _) = split_measured(&rows, ObsModel::Op, 10.0).expect("convert");

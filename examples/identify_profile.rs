@@ -9,10 +9,7 @@
 //! Prints the best time per call over batches of ten calls and the estimates.
 
 use cellcal::dataset::to_measured;
-use cellcal::identify::solver::Options;
-use cellcal::identify::{
-    identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel, PracticalBounds,
-};
+use cellcal::identify::{identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel};
 use cellcal::model::{TermFamily, TermKind};
 use cellcal::simulate::{self, truth, SimConfig};
 use nalgebra::Vector3;
@@ -57,19 +54,12 @@ fn main() {
     let mut obs = ObsConfig::new(model, 10.0);
     obs.stage_axis = axis;
     let opts = IdentifyOptions {
-        obs,
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Options::default(),
-        practical: PracticalBounds::default(),
         nongeometric: if terms {
             Nongeometric::of(&TermFamily::ALL)
         } else {
             Nongeometric::default()
         },
+        ..IdentifyOptions::new(obs)
     };
     // best batch of 10 calls: least disturbed by other load on the machine
     let mut last = None;

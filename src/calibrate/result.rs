@@ -475,7 +475,7 @@ fn errors_of(model: &RobotModel, poses: &[Measured], obs: &ObsConfig) -> Vec<Pos
 mod tests {
     use super::*;
     use crate::calibrate::calibrate_result;
-    use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
+    use crate::identify::{IdentifyOptions, ObsConfig, ObsModel};
     use crate::model::tx60;
     use crate::simulate::{simulate, truth, SimConfig};
 
@@ -490,17 +490,7 @@ mod tests {
         let rows = simulate(&nominal, &truth, &cfg)
             .expect("sampled")
             .observations;
-        let opts = IdentifyOptions {
-            obs: ObsConfig::new(ObsModel::Op, 10.0),
-            identify_base: false,
-            identify_tool: false,
-            registered_base: false,
-            robust: None,
-            point_weights: None,
-            solver: Default::default(),
-            practical: PracticalBounds::default(),
-            nongeometric: Default::default(),
-        };
+        let opts = IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0));
         let (r, _) = calibrate_result(&nominal, &rows, &opts, 10.0, BaseSource::Nominal)
             .expect("identified");
         (r, nominal)

@@ -6,7 +6,7 @@ use nalgebra::Vector3;
 use super::*;
 use crate::analysis::metrics::evaluate;
 use crate::dataset::split_measured;
-use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, ParamId, PracticalBounds};
+use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, ParamId};
 use crate::model::{tx60, Mass, TermFamily, TermKind};
 use crate::simulate::{simulate, truth, SimConfig};
 
@@ -55,15 +55,8 @@ fn true_terms(m: &mut RobotModel) {
 
 fn options(families: &[TermFamily]) -> IdentifyOptions {
     IdentifyOptions {
-        obs: ObsConfig::new(ObsModel::Op, 10.0),
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Default::default(),
-        practical: PracticalBounds::default(),
         nongeometric: Nongeometric::of(families),
+        ..IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0))
     }
 }
 

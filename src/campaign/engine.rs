@@ -41,8 +41,7 @@ use crate::cell::{
 };
 use crate::config::CellConfig;
 use crate::dataset::{Observation, PoseSet};
-use crate::identify::solver::Options;
-use crate::identify::{IdentifyOptions, ObsConfig, PracticalBounds};
+use crate::identify::{IdentifyOptions, ObsConfig};
 use crate::iso9283::IsoReport;
 use crate::model::RobotModel;
 use crate::plan::iso9283::IsoPlan;
@@ -1175,15 +1174,10 @@ pub fn identify_options(cfg: &CellConfig) -> IdentifyOptions {
         obs.stage_axis = u;
     }
     IdentifyOptions {
-        obs,
         identify_base: cfg.campaign.identify_base,
         identify_tool: cfg.campaign.identify_tool,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Options::default(),
-        practical: PracticalBounds::default(),
         nongeometric: cfg.campaign.nongeometric_terms(),
+        ..IdentifyOptions::new(obs)
     }
 }
 

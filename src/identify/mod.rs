@@ -65,6 +65,25 @@ pub struct IdentifyOptions {
     pub nongeometric: Nongeometric,
 }
 
+impl IdentifyOptions {
+    /// The defaults for observation `obs`: robot parameters only (no base, no tool, the robot
+    /// file's own base), equal weights, no robust refit, the default solver and bounds, no
+    /// non-geometric terms.
+    pub fn new(obs: ObsConfig) -> IdentifyOptions {
+        IdentifyOptions {
+            obs,
+            identify_base: false,
+            identify_tool: false,
+            registered_base: false,
+            robust: None,
+            point_weights: None,
+            solver: solver::Options::default(),
+            practical: PracticalBounds::default(),
+            nongeometric: Nongeometric::default(),
+        }
+    }
+}
+
 /// Which families of non-geometric joint terms an identification adds to the geometric
 /// parameters (§10): a copyable set of [`TermFamily`]s, empty by default.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

@@ -7,8 +7,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::*;
 use crate::identify::observation::{ObsConfig, ObsModel};
-use crate::identify::{PracticalBounds, TrackerNoise};
-use crate::lsq::Options;
+use crate::identify::TrackerNoise;
 use crate::plan::Workspace;
 
 /// The paper's setup (docs/method.md §7): TX60, OP with the stage along +y, ball at the flange
@@ -19,17 +18,7 @@ pub(crate) fn paper_setup(verify: usize) -> Setup {
     let tracker_mm = Vector3::new(2550.0, 0.0, 0.0);
     Setup {
         nominal: crate::model::tx60(),
-        opts: IdentifyOptions {
-            obs,
-            identify_base: false,
-            identify_tool: false,
-            registered_base: false,
-            robust: None,
-            point_weights: None,
-            solver: Options::default(),
-            practical: PracticalBounds::default(),
-            nongeometric: Default::default(),
-        },
+        opts: IdentifyOptions::new(obs),
         stage_travel_mm: 10.0,
         request: PlanRequest {
             workspace: Workspace::default(),

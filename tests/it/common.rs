@@ -5,10 +5,9 @@ use std::path::{Path, PathBuf};
 
 use cellcal::analysis::evaluate;
 use cellcal::dataset::{split, to_measured, Observation};
-use cellcal::identify::solver::Options;
 use cellcal::identify::{
     all_params, structural_set, DropKind, Identification, IdentifyOptions, Measured, ObsConfig,
-    ObsModel, PracticalBounds,
+    ObsModel,
 };
 use cellcal::model::RobotModel;
 use cellcal::simulate::{self, truth, SimConfig, SimData};
@@ -28,17 +27,7 @@ pub fn sim(truth: &RobotModel, cfg: &SimConfig) -> SimData {
 pub fn options(model: ObsModel, axis: Vector3<f64>) -> IdentifyOptions {
     let mut obs = ObsConfig::new(model, 10.0);
     obs.stage_axis = axis;
-    IdentifyOptions {
-        obs,
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Options::default(),
-        practical: PracticalBounds::default(),
-        nongeometric: Default::default(),
-    }
+    IdentifyOptions::new(obs)
 }
 
 pub fn measured(rows: &[Observation], opts: &IdentifyOptions) -> (Vec<Measured>, Vec<Measured>) {

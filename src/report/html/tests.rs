@@ -3,7 +3,7 @@ use crate::analysis::significance::significance;
 use crate::calibrate::calibrate;
 use crate::dataset::Observation;
 use crate::identify::Identification;
-use crate::identify::{IdentifyOptions, ObsConfig, ObsModel, PracticalBounds};
+use crate::identify::{IdentifyOptions, ObsConfig, ObsModel};
 use crate::model::tx60;
 use crate::simulate::{simulate, truth, SimConfig};
 
@@ -19,17 +19,7 @@ fn small_op() -> (Vec<Observation>, IdentifyReport, Identification) {
     let rows = simulate(&nominal, &truth, &cfg)
         .expect("sampled")
         .observations;
-    let opts = IdentifyOptions {
-        obs: ObsConfig::new(ObsModel::Op, 10.0),
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Default::default(),
-        practical: PracticalBounds::default(),
-        nongeometric: Default::default(),
-    };
+    let opts = IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0));
     let (report, id) = calibrate(&nominal, &rows, &opts, 10.0).expect("identified");
     (rows, report, id)
 }
@@ -241,15 +231,8 @@ fn small_op_with_terms() -> IdentifyReport {
         .expect("sampled")
         .observations;
     let opts = IdentifyOptions {
-        obs: ObsConfig::new(ObsModel::Op, 10.0),
-        identify_base: false,
-        identify_tool: false,
-        registered_base: false,
-        robust: None,
-        point_weights: None,
-        solver: Default::default(),
-        practical: PracticalBounds::default(),
         nongeometric: crate::identify::Nongeometric::of(&crate::model::TermFamily::ALL),
+        ..IdentifyOptions::new(ObsConfig::new(ObsModel::Op, 10.0))
     };
     calibrate(&nominal, &rows, &opts, 10.0)
         .expect("identified")
