@@ -14,6 +14,7 @@
 //!   check;
 //! - stage P1 and P2 = P1 + travel inside `stage.range_mm`;
 //! - the tracker position is finite;
+//! - `campaign.nongeometric` asks for compliance only of a robot file with masses;
 //! - a campaign to resume exists (the store is read, never created).
 
 use std::path::{Path, PathBuf};
@@ -24,7 +25,7 @@ use crate::config::CellConfig;
 use crate::dataset::PoseSet;
 use crate::identify::{all_params, structural_set, ObsModel};
 use crate::measure::tool_frame::plan_tool_frame;
-use crate::model::{RobotModel, SignedAxis};
+use crate::model::{RobotModel, SignedAxis, TermFamily};
 use crate::plan::target_ok;
 use crate::store::{Store, StoreError};
 
@@ -96,6 +97,9 @@ pub enum Infeasible {
     /// The tracker position is not finite.
     #[error("tracker.position_mm: {0:?} is not three finite numbers")]
     TrackerPosition([f64; 3]),
+    /// Compliance is asked for, but the robot file gives no mass to make a gravity torque.
+    #[error("campaign.nongeometric: compliance multiplies the gravity torque of the robot's masses, but the robot file has no [[masses]]: add them (docs/configuration.md) or leave compliance out")]
+    ComplianceWithoutMasses,
 }
 
 /// Why a session may not start: an infeasible configuration, or a campaign to resume that is
@@ -206,7 +210,17 @@ pub fn check_campaign(
     check_tracker(cfg)?;
     check_stage_range(cfg)?;
     check_home(cfg, nominal)?;
+    check_terms(cfg, nominal)?;
     check_ident_poses(cfg, nominal, model, ident)
+}
+
+/// Compliance needs masses: without them every compliance would be held at zero, unasked.
+fn check_terms(cfg: &CellConfig, nominal: &RobotModel) -> Result<(), Infeasible> {
+    let compliance = cfg.campaign.nongeometric.contains(&TermFamily::Compliance);
+    if compliance && nominal.masses.is_empty() {
+        return Err(Infeasible::ComplianceWithoutMasses);
+    }
+    Ok(())
 }
 
 /// The model is one a 1D stage along `axis` can measure (module doc).
@@ -344,6 +358,27 @@ mod tests {
             Err(Infeasible::TooFewIdentPoses { needed_poses, .. }) => needed_poses,
             other => panic!("{text}: {other:?}"),
         }
+    }
+
+    #[test]
+    fn compliance_needs_the_robot_files_masses() {
+        let text = "[campaign]\nnongeometric = [\"harmonics\", \"compliance\"]\n";
+        assert_eq!(check(text), Ok(()), "the shipped TX60 has masses");
+        let cfg = parse_cell_config(text, Path::new("cell.toml")).unwrap();
+        let mut bare = tx60();
+        bare.masses.clear();
+        let e = check_campaign(&cfg, &bare, cfg.campaign.ident).unwrap_err();
+        assert_eq!(e, Infeasible::ComplianceWithoutMasses);
+        assert!(e.to_string().starts_with("campaign.nongeometric: "), "{e}");
+        let harmonics = parse_cell_config(
+            "[campaign]\nnongeometric = [\"harmonics\"]\n",
+            Path::new("cell.toml"),
+        )
+        .unwrap();
+        assert_eq!(
+            check_campaign(&harmonics, &bare, harmonics.campaign.ident),
+            Ok(())
+        );
     }
 
     #[test]

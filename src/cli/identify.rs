@@ -491,6 +491,13 @@ fn resolve(
             },
         },
     };
+    if opts.nongeometric.compliance && robot.masses.is_empty() {
+        return Err(input(anyhow!(
+            "--nongeometric compliance: compliance multiplies the gravity torque of the robot's \
+             masses, but the robot file has no [[masses]]: add them (docs/configuration.md) or \
+             leave compliance out"
+        )));
+    }
     Ok((robot, opts, travel, rows))
 }
 

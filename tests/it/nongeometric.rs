@@ -336,3 +336,40 @@ async fn the_report_of_an_identification_with_terms_shows_them_in_chromium() {
     assert!(errors.is_empty(), "console errors: {errors:#?}");
     c.close().await.expect("close");
 }
+
+/// Compliance of a robot file without `[[masses]]` would be held at zero on every joint: the
+/// command refuses it (exit 2, the reason named) and identifies harmonics alone.
+#[test]
+fn compliance_of_a_robot_file_without_masses_is_refused_with_the_reason() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = simulate_poses(dir.path(), 60, 40, &[]);
+    let text = std::fs::read_to_string(robot()).expect("robot file");
+    assert!(text.contains("[[masses]]"), "the shipped file has masses");
+    let bare: String = text
+        .split("[[masses]]")
+        .next()
+        .expect("before the masses")
+        .to_owned();
+    let bare_path = dir.path().join("no_masses.toml");
+    std::fs::write(&bare_path, bare).expect("write");
+    let run = |terms: &str| {
+        cellcal(
+            &["identify", "--model", "op", "--nongeometric", terms],
+            &[("--robot", &bare_path), ("--data", &data)],
+        )
+    };
+    let out = run("harmonics,compliance");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--nongeometric compliance:") && err.contains("no [[masses]]"),
+        "{err}"
+    );
+    let out = run("harmonics");
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
