@@ -95,9 +95,6 @@ pub struct CampaignOverrides {
     pub seed: Option<u64>,
     /// Observation model: `position`, `np`, `op` or `full`.
     pub model: Option<String>,
-    /// Families of non-geometric joint terms identified with the geometry: `compliance`,
-    /// `harmonics` (each at most once; `[]`: a geometric identification).
-    pub nongeometric: Option<Vec<String>>,
 }
 
 impl CampaignOverrides {
@@ -109,13 +106,6 @@ impl CampaignOverrides {
             c.model = m
                 .parse()
                 .map_err(|e| DaemonError::BadRequest(format!("campaign.model: {e}")))?;
-        }
-        if let Some(names) = &self.nongeometric {
-            c.nongeometric = names
-                .iter()
-                .map(|n| n.parse())
-                .collect::<Result<_, _>>()
-                .map_err(|e| DaemonError::BadRequest(format!("campaign.nongeometric: {e}")))?;
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);
@@ -1488,41 +1478,5 @@ async fn pump_prompts(
         });
         // a store that cannot journal also stops the engine, which reports it
         let _ = journal_event(&store, id, &control, event).await;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::config::parse_cell_config;
-    use crate::model::TermFamily;
-
-    fn apply(body: &str) -> Result<CellConfig, String> {
-        let mut cfg = parse_cell_config("", std::path::Path::new("cell.toml")).unwrap();
-        let o: CampaignOverrides = serde_json::from_str(body).map_err(|e| e.to_string())?;
-        o.apply(&mut cfg).map(|()| cfg).map_err(|e| e.to_string())
-    }
-
-    #[test]
-    fn a_campaigns_terms_can_be_chosen_per_request_and_bad_ones_are_named() {
-        let c = apply(r#"{"nongeometric": ["harmonics", "compliance"]}"#).unwrap();
-        assert_eq!(
-            c.campaign.nongeometric,
-            [TermFamily::Harmonics, TermFamily::Compliance]
-        );
-        assert!(apply("{}").unwrap().campaign.nongeometric.is_empty());
-        assert!(apply(r#"{"nongeometric": []}"#)
-            .unwrap()
-            .campaign
-            .nongeometric
-            .is_empty());
-        let e = apply(r#"{"nongeometric": ["gravity"]}"#).unwrap_err();
-        assert!(
-            e.contains("campaign.nongeometric: `gravity` is not one of compliance, harmonics"),
-            "{e}"
-        );
-        let e = apply(r#"{"nongeometric": ["harmonics", "harmonics"]}"#).unwrap_err();
-        assert!(e.contains("campaign.nongeometric"), "{e}");
-        assert!(apply(r#"{"nongeometric": "harmonics"}"#).is_err(), "a list");
     }
 }
