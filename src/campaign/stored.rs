@@ -108,11 +108,11 @@ pub fn load_stored(
     let label = PathBuf::from(format!("campaign {id}.toml"));
     let mut cfg = parse_cell_config(&row.config_toml, &label)
         .map_err(|cause| StoredError::Config { id, cause })?;
-    if row.config_toml.trim().is_empty() {
-        // an imported campaign: its recorded model (an unknown name keeps the default, `op`)
-        if let Ok(m) = row.model.parse() {
-            cfg.campaign.model = m;
-        }
+    // the model the campaign ran with: a request's override (REST `model`) is recorded there,
+    // not in the configuration text; an imported campaign has no configuration (an unknown
+    // name keeps the configuration's, for an import the default `op`)
+    if let Ok(m) = row.model.parse() {
+        cfg.campaign.model = m;
     }
     let mut nominal = match robot {
         Some(r) => r,
