@@ -40,7 +40,7 @@ use crate::campaign::{
     journal_event, run_campaign, CampaignCommand, CampaignEvent, Control, Journalled, Outcome,
 };
 use crate::cell::{Answer, ChannelPrompter, PendingPrompt, PromptContext, CONFIRM_CLEAR};
-use crate::config::CellConfig;
+use crate::config::{CampaignSection, CellConfig};
 use crate::dataset::PoseSet;
 use crate::metrics::Metrics;
 use crate::progress::Progress;
@@ -95,17 +95,85 @@ pub struct CampaignOverrides {
     pub seed: Option<u64>,
     /// Observation model: `position`, `np`, `op` or `full`.
     pub model: Option<String>,
+    /// Families of non-geometric joint terms identified with the geometry: `compliance`,
+    /// `harmonics` (each at most once; `[]`: a geometric identification).
+    pub nongeometric: Option<Vec<String>>,
 }
 
 impl CampaignOverrides {
     /// Apply to a configuration, with the same checks as the configuration file
-    /// ([`crate::config::CampaignSection::check`]).
+    /// ([`crate::config::CampaignSection::check`]), and write the overridden keys into its text
+    /// (comments and everything else kept): the campaign stores the configuration it runs with,
+    /// so a resume, `identify --store` and the report read the overrides back.
     pub fn apply(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
+        self.apply_values(cfg)?;
+        cfg.text = self.written_into(&cfg.text, &cfg.campaign)?;
+        let back = crate::config::parse_cell_config(&cfg.text, &cfg.path)
+            .map_err(|e| DaemonError::BadRequest(format!("the overridden configuration: {e}")))?;
+        if back.campaign != cfg.campaign {
+            return Err(DaemonError::BadRequest(
+                "the overrides do not read back from the configuration text".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The overridden `[campaign]` keys of `text` set to their values in `c`.
+    fn written_into(&self, text: &str, c: &CampaignSection) -> Result<String, DaemonError> {
+        use toml_edit::{value, Array, DocumentMut, Item};
+        let mut doc: DocumentMut = text
+            .parse()
+            .map_err(|e| DaemonError::BadRequest(format!("the configuration text: {e}")))?;
+        let count = |key: &str, n: u64| {
+            i64::try_from(n)
+                .map(value)
+                .map_err(|_| DaemonError::BadRequest(format!("campaign.{key}: {n} is too large")))
+        };
+        let t = &mut doc["campaign"];
+        // a key the file has keeps its place and comments
+        let mut set = |key: &str, new: Item| match t.get_mut(key) {
+            Some(Item::Value(v)) => {
+                let decor = v.decor().clone();
+                if let Item::Value(mut n) = new {
+                    *n.decor_mut() = decor;
+                    *v = n;
+                }
+            }
+            _ => t[key] = new,
+        };
+        if self.poses.is_some() {
+            set("poses", count("poses", c.poses as u64)?);
+        }
+        if self.ident.is_some() {
+            set("ident", count("ident", c.ident as u64)?);
+        }
+        if self.seed.is_some() {
+            set("seed", count("seed", c.seed)?);
+        }
+        if self.model.is_some() {
+            set("model", value(c.model.name()));
+        }
+        if self.nongeometric.is_some() {
+            let names: Array = c.nongeometric.iter().map(|f| f.name()).collect();
+            set("nongeometric", value(names));
+        }
+        Ok(doc.to_string())
+    }
+
+    /// The overrides into `cfg`'s `[campaign]` values, checked.
+    fn apply_values(&self, cfg: &mut CellConfig) -> Result<(), DaemonError> {
         let c = &mut cfg.campaign;
         if let Some(m) = &self.model {
             c.model = m
                 .parse()
                 .map_err(|e| DaemonError::BadRequest(format!("campaign.model: {e}")))?;
+        }
+        if let Some(names) = &self.nongeometric {
+            c.nongeometric = names
+                .iter()
+                .map(|n| n.parse())
+                .collect::<Result<_, _>>()
+                .map_err(|e| DaemonError::BadRequest(format!("campaign.nongeometric: {e}")))?;
         }
         c.poses = self.poses.unwrap_or(c.poses);
         c.ident = self.ident.unwrap_or(c.ident);
@@ -1478,5 +1546,72 @@ async fn pump_prompts(
         });
         // a store that cannot journal also stops the engine, which reports it
         let _ = journal_event(&store, id, &control, event).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::parse_cell_config;
+    use crate::model::TermFamily;
+
+    const FILE: &str = "# the cell\n[campaign]\n# the paper's campaign\nposes = 300 # all of them\n\n[stage]\ntravel_mm = 10.0\n";
+
+    fn apply(body: &str) -> Result<CellConfig, String> {
+        let mut cfg = parse_cell_config(FILE, std::path::Path::new("cell.toml")).unwrap();
+        let o: CampaignOverrides = serde_json::from_str(body).map_err(|e| e.to_string())?;
+        o.apply(&mut cfg).map(|()| cfg).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_campaigns_terms_can_be_chosen_per_request_and_bad_ones_are_named() {
+        let c = apply(r#"{"nongeometric": ["harmonics", "compliance"]}"#).unwrap();
+        assert_eq!(
+            c.campaign.nongeometric,
+            [TermFamily::Harmonics, TermFamily::Compliance]
+        );
+        assert!(apply("{}").unwrap().campaign.nongeometric.is_empty());
+        assert!(apply(r#"{"nongeometric": []}"#)
+            .unwrap()
+            .campaign
+            .nongeometric
+            .is_empty());
+        let e = apply(r#"{"nongeometric": ["gravity"]}"#).unwrap_err();
+        assert!(
+            e.contains("campaign.nongeometric: `gravity` is not one of compliance, harmonics"),
+            "{e}"
+        );
+        let e = apply(r#"{"nongeometric": ["harmonics", "harmonics"]}"#).unwrap_err();
+        assert!(e.contains("campaign.nongeometric"), "{e}");
+        assert!(apply(r#"{"nongeometric": "harmonics"}"#).is_err(), "a list");
+    }
+
+    #[test]
+    fn the_overrides_are_written_into_the_stored_text_and_read_back_from_it() {
+        let body = r#"{"poses": 120, "ident": 40, "seed": 7, "model": "position",
+                       "nongeometric": ["harmonics"]}"#;
+        let c = apply(body).unwrap();
+        let back = parse_cell_config(&c.text, std::path::Path::new("stored")).unwrap();
+        assert_eq!(back.campaign, c.campaign);
+        assert_eq!(
+            (back.campaign.poses, back.campaign.ident, back.campaign.seed),
+            (120, 40, 7)
+        );
+        assert_eq!(back.campaign.model, crate::identify::ObsModel::Position);
+        assert_eq!(back.campaign.nongeometric, [TermFamily::Harmonics]);
+        // the rest of the file as it was, comments included
+        for kept in [
+            "# the cell",
+            "# the paper's campaign",
+            "# all of them",
+            "travel_mm = 10.0",
+        ] {
+            assert!(c.text.contains(kept), "{kept}: {}", c.text);
+        }
+        // no override: the text is the file's, byte for byte
+        assert_eq!(apply("{}").unwrap().text, FILE);
+        assert!(apply(r#"{"seed": 18446744073709551615}"#)
+            .unwrap_err()
+            .contains("campaign.seed"));
     }
 }

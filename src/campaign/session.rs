@@ -22,11 +22,13 @@ use crate::cell::{
 use crate::cell::{UrRobot, UrRobotConfig};
 use crate::compensate::Compensator;
 use crate::config::diff::changed_keys;
-use crate::config::{CellConfig, DeviceMode, RobotProtocol, SimWorldConfig, StageMode, StopWhen};
+use crate::config::{
+    parse_cell_config, CellConfig, DeviceMode, RobotProtocol, SimWorldConfig, StageMode, StopWhen,
+};
 use crate::dataset::PoseSet;
 use crate::identify::ObsModel;
 use crate::model::rotation::from_rotation_vector;
-use crate::model::{load_robot, RobotModel};
+use crate::model::{load_robot, RobotModel, TermFamily};
 use crate::plan::iso9283::{plan_iso, IsoPlan, IsoPlanError, IsoRequest, Targeting};
 use crate::plan::motion::MotionLimits;
 use crate::plan::selection::DesignSetup;
@@ -303,7 +305,7 @@ pub async fn open_session_with(
         campaign_id,
         plan,
         iso,
-        model_of_resumed,
+        own_of_resumed,
         lock,
         cell,
         plan_request: req,
@@ -311,15 +313,16 @@ pub async fn open_session_with(
     } = prepared;
     let sim = simulated_cell(&cfg, &nominal, robot_secret.clone()).await?;
     let devices = cell_devices(&cfg, &nominal, sim.as_ref(), robot_secret, prompter)?;
-    let resumed = model_of_resumed.is_some();
+    let resumed = own_of_resumed.is_some();
     let mut cfg = cfg;
     if let Some(v) = cfg.iso9283.as_ref().and_then(|i| i.speed_pct) {
         // the ISO campaign's speed, for every move of the campaign
         cfg.robot_controller.speed_pct = v;
     }
-    if let Some(model) = model_of_resumed {
-        // identify with the model the campaign was created with
+    if let Some((model, terms)) = own_of_resumed {
+        // identify as the campaign was created to: its model and its terms
         cfg.campaign.model = model;
+        cfg.campaign.nongeometric = terms;
     }
     // a campaign created now: the estimate stored with it (computed once); else afresh
     let estimate = match stored {
@@ -381,8 +384,8 @@ struct Prepared {
     plan: Plan,
     /// The ISO 9283 plan of an ISO campaign.
     iso: Option<IsoPlan>,
-    /// The observation model a resumed campaign was created with.
-    model_of_resumed: Option<ObsModel>,
+    /// The observation model and the terms a resumed campaign was created with.
+    own_of_resumed: Option<(ObsModel, Vec<TermFamily>)>,
     lock: CampaignLock,
     /// The cell, once [`open_session_with`] has recorded the campaign in it.
     cell: Option<CellLock>,
@@ -409,7 +412,10 @@ fn plan_and_store(
             Some(r) => feasibility::check_resumed(cfg, nominal, s, r.id)?,
         }
         campaign
-            .map(|r| stored_campaign(s, r, &cfg.text, &robot_text))
+            .map(|r| {
+                let config = (cfg.text.as_str(), cfg.campaign.nongeometric.as_slice());
+                stored_campaign(s, r, config, &robot_text)
+            })
             .transpose()
     })?;
     // a resumed calibration's hub is planned from its own request (its seed and pose counts,
@@ -419,7 +425,7 @@ fn plan_and_store(
         _ => req.clone(),
     };
     let fresh = plan_campaign(nominal, &own_req)?;
-    let (campaign_id, plan, iso, model_of_resumed, accepted_changes, estimate) = match resumed {
+    let (campaign_id, plan, iso, own_of_resumed, accepted_changes, estimate) = match resumed {
         Some(s) if s.iso.is_some() || cfg.iso9283.is_some() => {
             let iso =
                 match (s.iso, cfg.iso9283.is_some()) {
@@ -438,7 +444,7 @@ fn plan_and_store(
                 s.id,
                 plan,
                 Some(iso),
-                Some(s.model),
+                Some((s.model, s.nongeometric)),
                 s.accepted_changes,
                 None,
             )
@@ -467,7 +473,14 @@ fn plan_and_store(
                 sampling_order_s,
                 planned_order_s,
             };
-            (s.id, plan, None, Some(s.model), s.accepted_changes, None)
+            (
+                s.id,
+                plan,
+                None,
+                Some((s.model, s.nongeometric)),
+                s.accepted_changes,
+                None,
+            )
         }
         None => {
             let (id, estimate) = store.blocking(|s| {
@@ -500,7 +513,7 @@ fn plan_and_store(
         campaign_id,
         plan,
         iso,
-        model_of_resumed,
+        own_of_resumed,
         lock,
         cell: None,
         plan_request: own_req,
@@ -523,6 +536,8 @@ fn own_request(req: &PlanRequest, s: &StoredCampaign) -> PlanRequest {
 struct StoredCampaign {
     id: i64,
     model: ObsModel,
+    /// The non-geometric terms it identifies (its stored configuration's).
+    nongeometric: Vec<TermFamily>,
     /// The planning seed it was created with.
     seed: u64,
     poses: Vec<PlanEntry>,
@@ -536,7 +551,7 @@ struct StoredCampaign {
 fn stored_campaign(
     store: &Store,
     r: Resume,
-    config_text: &str,
+    (config_text, current_terms): (&str, &[TermFamily]),
     robot_text: &str,
 ) -> Result<StoredCampaign, SessionError> {
     let row = store.campaign(r.id)?;
@@ -568,11 +583,17 @@ fn stored_campaign(
         }
         _ => None,
     };
+    // an imported campaign has no stored configuration: the current one's terms
+    let nongeometric = parse_cell_config(&row.config_toml, Path::new("stored configuration"))
+        .ok()
+        .filter(|_| !row.config_toml.trim().is_empty())
+        .map(|c| c.campaign.nongeometric);
     Ok(StoredCampaign {
         id: r.id,
         model: row.model.parse().map_err(|e| {
             SessionError::Invalid(format!("campaign {}: its stored model: {e}", r.id))
         })?,
+        nongeometric: nongeometric.unwrap_or_else(|| current_terms.to_vec()),
         seed: row.seed,
         poses,
         iso,
@@ -826,9 +847,20 @@ fn stage_device(
     })
 }
 
+/// The `[campaign]` keys a campaign keeps as it was created (a request may override them):
+/// a resume plans and identifies with its own, whatever the configuration says now.
+const CAMPAIGN_OWN: [&str; 5] = [
+    "campaign.poses",
+    "campaign.ident",
+    "campaign.seed",
+    "campaign.model",
+    "campaign.nongeometric",
+];
+
 /// The configuration keys and robot-model keys that differ from the campaign's stored files
 /// (the simulated world's `[sim]` table is not the cell's configuration and is skipped, nor is
-/// `robot_controller.secret_file`: who may drive the robot, not what is measured).
+/// `robot_controller.secret_file`: who may drive the robot, not what is measured, nor the
+/// campaign's own keys, [`CAMPAIGN_OWN`]).
 fn config_changes(
     row: &CampaignRow,
     config_text: &str,
@@ -839,7 +871,9 @@ fn config_changes(
             "configuration",
             changed_keys(&row.config_toml, config_text, &["sim", "lock_dir"])
                 .into_iter()
-                .filter(|k| k != "robot_controller.secret_file")
+                .filter(|k| {
+                    k != "robot_controller.secret_file" && !CAMPAIGN_OWN.contains(&k.as_str())
+                })
                 .collect(),
         ),
         (

@@ -397,3 +397,39 @@ fn store_files_are_created_private_whatever_the_umask() {
         assert_eq!(m, 0o600, "{n} is {m:o}");
     }
 }
+
+/// A request's overrides are the campaign's own: written into the configuration it stores (so
+/// `identify --store`, the report and the export read them back) and kept by a resume, which
+/// the configuration file's other values do not change.
+#[test]
+fn a_campaigns_overridden_model_and_terms_are_stored_with_it_and_kept_on_resume() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = config(dir.path(), 300, 100, "");
+    let store = dir.path().join("c.db");
+    let s = start(&cfg, &store);
+    let body = r#"{"poses": 3000, "ident": 1000, "model": "position",
+                   "nongeometric": ["harmonics"]}"#;
+    let (code, v) = post(&s, "/api/campaigns", body);
+    assert_eq!(code, 201, "{v}");
+    assert_eq!(v["model"], "position", "{v}");
+    let id = v["id"].as_i64().expect("id");
+    let row = Store::open_reader(&store)
+        .expect("store")
+        .campaign(id)
+        .expect("row");
+    let stored = cellcal::config::parse_cell_config(&row.config_toml, Path::new("stored"))
+        .expect("the stored configuration parses");
+    assert_eq!((stored.campaign.poses, stored.campaign.ident), (3000, 1000));
+    assert_eq!(stored.campaign.model, cellcal::identify::ObsModel::Position);
+    assert_eq!(
+        stored.campaign.nongeometric,
+        [cellcal::model::TermFamily::Harmonics]
+    );
+    let commands = format!("/api/campaigns/{id}/commands");
+    assert_eq!(post(&s, &commands, r#"{"command": "abort"}"#).0, 200);
+    // resumed by the daemon of the unchanged file: no "changed configuration", its own model
+    let (code, v) = post(&s, &commands, r#"{"command": "arm"}"#);
+    assert_eq!((code, v["armed"].clone()), (200, true.into()), "{v}");
+    assert_eq!(v["model"], "position", "{v}");
+    assert_eq!(post(&s, &commands, r#"{"command": "abort"}"#).0, 200);
+}
