@@ -169,6 +169,8 @@ pub struct UrRobot {
     target: Option<[f64; 6]>,
     last_move: Option<(f64, f64)>,
     identity: Option<String>,
+    /// The controller's software version (major, minor), from RTDE once connected.
+    version: Option<(u32, u32)>,
 }
 
 impl UrRobot {
@@ -182,6 +184,7 @@ impl UrRobot {
             target: None,
             last_move: None,
             identity: None,
+            version: None,
         }
     }
 
@@ -244,6 +247,7 @@ impl UrRobot {
         );
         info!(identity = %id, "UR controller connected");
         self.identity = Some(id);
+        self.version = Some((v.major, v.minor));
         Ok(r)
     }
 
@@ -281,9 +285,19 @@ impl UrRobot {
         ScriptClient::new(addr, self.cfg.request_timeout())
     }
 
-    /// Refuses unless the pendant is in remote control (scripts and power commands need it).
-    /// Cancel-safe.
+    /// Whether the controller answers `is in remote control` (PolyScope 5.6 on; a CB3 has no
+    /// local/remote mode, and an e-Series before 5.6 refuses remote-only commands in Local
+    /// control with its own reply, which reaches the operator). Known once RTDE is connected.
+    fn reports_remote_control(&self) -> bool {
+        self.version.is_none_or(|v| v >= (5, 6))
+    }
+
+    /// Refuses unless the pendant is in remote control (scripts and power commands need it),
+    /// where the controller reports it ([`Self::reports_remote_control`]). Cancel-safe.
     async fn require_remote(&mut self) -> Result<(), CellError> {
+        if !self.reports_remote_control() {
+            return Ok(());
+        }
         let remote = self
             .dashboard(|d| Box::pin(d.is_in_remote_control()))
             .await?;
@@ -350,8 +364,9 @@ impl Robot for UrRobot {
                 format!("speed {speed_pct} % not in (0, 100]"),
             ));
         }
-        self.require_remote().await?;
+        // RTDE first: the controller's version says whether it reports remote control
         let s = self.state().await?;
+        self.require_remote().await?;
         if let Some(e) = safety_fault(s.safety_mode) {
             return Err(e);
         }
@@ -497,10 +512,19 @@ impl Robot for UrRobot {
     /// no power, no brake release, no script. Cancel-safe.
     async fn check(&mut self) -> Result<String, CellError> {
         let s = self.state().await?;
-        let remote = match self.dashboard(|d| Box::pin(d.is_in_remote_control())).await {
-            Ok(true) => "remote control".to_owned(),
-            Ok(false) => "LOCAL control (switch the pendant to Remote)".to_owned(),
-            Err(e) => format!("remote control unknown ({e})"),
+        let remote = match self.version {
+            Some((major, minor)) if !self.reports_remote_control() => Ok(format!(
+                "remote control not reported (controller {major}.{minor}, before PolyScope 5.6)"
+            )),
+            _ => Err(()),
+        };
+        let remote = match remote {
+            Ok(text) => text,
+            Err(()) => match self.dashboard(|d| Box::pin(d.is_in_remote_control())).await {
+                Ok(true) => "remote control".to_owned(),
+                Ok(false) => "LOCAL control (switch the pendant to Remote)".to_owned(),
+                Err(e) => format!("remote control unknown ({e})"),
+            },
         };
         let joints: Vec<String> = s
             .actual_q

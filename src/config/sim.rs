@@ -116,6 +116,9 @@ pub struct SimWorldConfig {
     /// Loopback address whose standard ports (29999, 30001–30004) the simulated UR controller
     /// serves.
     pub ur_host: std::net::IpAddr,
+    /// The simulated UR controller's software version `[major, minor, bugfix]`: 3.x is a CB3
+    /// (no local/remote mode), 5.x an e-Series (`is in remote control` from 5.6 on).
+    pub ur_version: [u32; 3],
     /// Initial joints (deg).
     pub initial_joints_deg: [f64; 6],
     /// Fault injection.
@@ -171,6 +174,7 @@ impl Default for SimWorldConfig {
             robot_power_on: false,
             robot_protocol: None,
             ur_host: std::net::Ipv4Addr::LOCALHOST.into(),
+            ur_version: [5, 11, 1],
             initial_joints_deg: [0.0, 0.0, 90.0, 0.0, 45.0, 0.0],
             faults: SimFaults::default(),
             stage_address: (1, 1),
@@ -251,6 +255,14 @@ impl SimWorldConfig {
             "sim.nongeometric_errors",
             "\"typical\" generates the compliance and harmonic errors: give it or \
              compliance_rad_per_nm / harmonics_urad, not both",
+        )?;
+        rule(
+            matches!(self.ur_version[0], 3 | 5),
+            "sim.ur_version",
+            format!(
+                "must be a CB3 (3.x.y) or e-Series (5.x.y) version, got {:?}",
+                self.ur_version
+            ),
         )?;
         rule(
             self.ur_host.is_loopback(),

@@ -222,6 +222,11 @@ impl UrSimCell {
             } else {
                 RobotMode::PowerOff
             },
+            version: [cfg.ur_version[0], cfg.ur_version[1], cfg.ur_version[2], 0],
+            polyscope_version: format!(
+                "URSoftware {}.{}.{}.0 (simulated)",
+                cfg.ur_version[0], cfg.ur_version[1], cfg.ur_version[2]
+            ),
             ..ControllerConfig::default()
         };
         let controller = SimController::new(config, Box::new(motion));

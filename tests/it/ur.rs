@@ -522,3 +522,67 @@ fn ur5_and_ur10_files_carry_the_published_masses_and_joint_speeds() {
         }
     }
 }
+
+/// The adapter against a simulated controller of software version `version` with the pendant
+/// in remote control or not: the check line, and what prepare answers.
+async fn prepare_on(
+    version: [u32; 3],
+    remote: bool,
+) -> (String, Result<(), cellcal::cell::CellError>) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let host = loopback();
+    let path = write_ur5(dir.path(), &host);
+    let [major, minor, bugfix] = version;
+    let text = ur5_text(&host).replace(
+        "ur_version = [5, 11, 1]",
+        &format!("ur_version = [{major}, {minor}, {bugfix}]"),
+    );
+    assert!(text.contains(&format!("ur_version = [{major}, ")));
+    let cfg = parse_cell_config(&text, &path).expect("config");
+    let nominal = load_robot(&dir.path().join("robots/ur5.toml")).expect("robot");
+    let cell = start_cell(
+        nominal.clone(),
+        cfg.sim.clone().expect("[sim]"),
+        std::future::pending(),
+    )
+    .await
+    .expect("sim cell");
+    let ur_sim = cell.ur.as_ref().expect("a simulated UR controller");
+    ur_sim.controller.set_remote_control(remote);
+    let mut ur =
+        UrRobotConfig::from_section(&cfg.robot_controller, MotionLimits::of(&nominal, 100.0));
+    cell.ur_robot_config(&cfg.robot_controller, &mut ur)
+        .expect("UR config");
+    let mut robot = UrRobot::new(ur);
+    let line = robot.check().await.expect("check");
+    let prepared = robot.prepare(50.0).await;
+    (line, prepared)
+}
+
+/// A CB3 (PolyScope 3) has no local/remote mode and does not understand `is in remote
+/// control`: the adapter does not ask it and prepares the arm; an e-Series from 5.6 on is
+/// asked, and in Local control refused with how to switch; before 5.6 the controller's own
+/// refusal of `power on` in Local control reaches the operator.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_remote_control_query_is_asked_only_of_controllers_that_answer_it() {
+    let (line, prepared) = prepare_on([3, 15, 7], false).await;
+    assert!(
+        line.contains("remote control not reported (controller 3.15, before PolyScope 5.6)"),
+        "{line}"
+    );
+    prepared.expect("a CB3 prepares");
+    let (line, prepared) = prepare_on([5, 11, 1], false).await;
+    assert!(line.contains("LOCAL control"), "{line}");
+    let e = prepared.expect_err("local control");
+    assert!(e.to_string().contains("Remote"), "{e}");
+    let (line, prepared) = prepare_on([5, 4, 0], false).await;
+    assert!(
+        line.contains("remote control not reported (controller 5.4"),
+        "{line}"
+    );
+    let e = prepared.expect_err("local control on 5.4");
+    assert!(
+        e.to_string().contains("not allowed in Local Control"),
+        "{e}"
+    );
+}

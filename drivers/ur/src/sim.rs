@@ -568,7 +568,8 @@ impl SimController {
             s.last_script_error = Some(why.clone());
             Err(why)
         };
-        if !s.remote_control {
+        // a CB3 has no local/remote mode
+        if self.inner.config.version[0] >= 5 && !s.remote_control {
             return refuse(&mut s, "the pendant is in local control".into());
         }
         let statements = match script::parse_program(text) {
@@ -616,7 +617,10 @@ impl SimController {
         let t = self.t(now);
         let cfg = &self.inner.config;
         let mut s = self.state(now);
-        if cmd.needs_remote_control() && !s.remote_control {
+        // a CB3 (PolyScope 3) has no local/remote mode; e-Series refuses remote-only commands
+        // in Local control, and answers `is in remote control` from 5.6 on
+        let e_series = cfg.version[0] >= 5;
+        if e_series && cmd.needs_remote_control() && !s.remote_control {
             return (dashboard::LOCAL_CONTROL.into(), false);
         }
         let reply = match cmd {
@@ -653,6 +657,9 @@ impl SimController {
             Command::RobotMode => format!("Robotmode: {}", s.robot_mode.name()),
             Command::SafetyMode => format!("Safetymode: {}", s.safety_mode.name()),
             Command::SafetyStatus => format!("Safetystatus: {}", s.safety_mode.name()),
+            Command::IsInRemoteControl if (cfg.version[0], cfg.version[1]) < (5, 6) => {
+                dashboard::not_understood(line)
+            }
             Command::IsInRemoteControl => s.remote_control.to_string(),
             Command::Running => format!("Program running: {}", s.program.is_some()),
             Command::ProgramState => match &s.program {
