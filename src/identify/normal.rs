@@ -1,8 +1,9 @@
 //! Normal-equation sums `rᵀr`, `Jᵀr`, `JᵀJ`, accumulated block by block.
 //!
 //! Rows `[J r]` are gathered in blocks of up to [`BLOCK_POSES`] poses and folded into the sums
-//! by one matrix product per block, `[J r]ᵀ[J r]`, which holds `JᵀJ`, `Jᵀr` and `rᵀr` at once
-//! (cache-friendly GEMM instead of a scalar loop per row). The
+//! by matrix products, `[J r]ᵀ[J r]`, which holds `JᵀJ`, `Jᵀr` and `rᵀr` at once
+//! (cache-friendly GEMM instead of a scalar loop per row; only its upper triangle, band by band,
+//! mirrored at the end). The
 //! position rows and the direction rows of a pose go to separate blocks: the direction block
 //! holds only the columns of parameters that turn directions (translations give zero direction
 //! rows), and the split lets one set of sums serve any direction weight ([`SplitSums`]).
