@@ -132,6 +132,21 @@ fn cell_err(e: UrError) -> CellError {
     err(classify_ur(&e), e.to_string())
 }
 
+/// The fault that forbids motion in state `s`: its safety mode's ([`safety_fault`]), or an arm
+/// not RUNNING (`"the arm is <mode><context>"`).
+fn motion_fault(s: &RobotState, context: &str) -> Result<(), CellError> {
+    if let Some(e) = safety_fault(s.safety_mode) {
+        return Err(e);
+    }
+    if s.robot_mode != RobotMode::Running {
+        return Err(err(
+            FaultKind::EmergencyStop,
+            format!("the arm is {}{context}", s.robot_mode.name()),
+        ));
+    }
+    Ok(())
+}
+
 /// The fault a safety mode means for the campaign, `None` when the arm may move. Every stop
 /// is the operator's to release (on the pendant); cellcal never sends `unlock protective stop`.
 pub fn safety_fault(mode: SafetyMode) -> Option<CellError> {
@@ -391,15 +406,7 @@ impl Robot for UrRobot {
             )
         })?;
         let s = self.state().await?;
-        if let Some(e) = safety_fault(s.safety_mode) {
-            return Err(e);
-        }
-        if s.robot_mode != RobotMode::Running {
-            return Err(err(
-                FaultKind::EmergencyStop,
-                format!("the arm is {}, not RUNNING", s.robot_mode.name()),
-            ));
-        }
+        motion_fault(&s, ", not RUNNING")?;
         let (v, a) = self.cfg.movej_speed(speed);
         let addr = self.addr(self.cfg.script_port).await?;
         self.target = Some(q);
@@ -419,15 +426,7 @@ impl Robot for UrRobot {
         let mut since: Option<Instant> = None;
         loop {
             let s = self.state().await?;
-            if let Some(e) = safety_fault(s.safety_mode) {
-                return Err(e);
-            }
-            if s.robot_mode != RobotMode::Running {
-                return Err(err(
-                    FaultKind::EmergencyStop,
-                    format!("the arm is {} during the move", s.robot_mode.name()),
-                ));
-            }
+            motion_fault(&s, " during the move")?;
             let at = s
                 .actual_q
                 .iter()

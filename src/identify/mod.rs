@@ -542,27 +542,24 @@ fn hold_at_initial(
     let state = params::retract(&fit.state, params, &step);
     Some(solver::Solution {
         state,
-        final_cost: fit.final_cost + held_cost(n, &h, &d_h, &k, &d_k),
+        final_cost: fit.final_cost + held_cost(n, &h, &d_h, &n_kk, &d_k),
         normal_matrix: n_kk,
         ..fit.clone()
     })
 }
 
-/// The cost that moving the parameters `h` by `d_h` and `k` by the constrained optimum `d_k`
-/// adds at a converged fit with normal matrix `n`, by the same quadratic model:
-/// `½(d_hᵀN_hh d_h − d_kᵀN_kk d_k)` (the Schur complement's form in `d_h`, ≥ 0).
+/// The cost that moving the parameters `h` by `d_h` and the kept ones by the constrained
+/// optimum `d_k` adds at a converged fit with normal matrix `n` (kept block `n_kk`), by the same
+/// quadratic model: `½(d_hᵀN_hh d_h − d_kᵀN_kk d_k)` (the Schur complement's form in `d_h`, ≥ 0).
 fn held_cost(
     n: &DMatrix<f64>,
     h: &[usize],
     d_h: &DVector<f64>,
-    k: &[usize],
+    n_kk: &DMatrix<f64>,
     d_k: &DVector<f64>,
 ) -> f64 {
-    let form = |idx: &[usize], d: &DVector<f64>| {
-        let m = DMatrix::from_fn(idx.len(), idx.len(), |a, b| n[(idx[a], idx[b])]);
-        d.dot(&(m * d))
-    };
-    (0.5 * (form(h, d_h) - form(k, d_k))).max(0.0)
+    let n_hh = DMatrix::from_fn(h.len(), h.len(), |a, b| n[(h[a], h[b])]);
+    (0.5 * (d_h.dot(&(n_hh * d_h)) - d_k.dot(&(n_kk * d_k)))).max(0.0)
 }
 
 /// The χ² value of `dof` degrees of freedom exceeded with the probability of a normal deviate
