@@ -166,7 +166,11 @@ pub fn calibrate(
     }
     let (ident, verify) = split_measured(rows, opts.obs.model, stage_travel_mm)?;
     // one joint table for both fits, the analysis, every linearisation and the ident metrics
-    let trig = JointTrig::of(&ident);
+    let trig = if opts.nongeometric.compliance {
+        JointTrig::of(&ident).with_torques(&ident, robot)
+    } else {
+        JointTrig::of(&ident)
+    };
     let data = Sets {
         rows,
         ident: &ident,

@@ -30,7 +30,7 @@ use crate::identify::{
     initial_model, BeforeBase, Identification, IdentifyOptions, Measured, ObsConfig,
 };
 use crate::model::rotation::from_rotation_vector;
-use crate::model::{ParamKind, RobotModel};
+use crate::model::{ParamKind, RobotModel, TermKind};
 
 /// The stored layout this code writes: 1 = contract + residuals + corrected model (0: a result
 /// stored before, the contract alone).
@@ -311,6 +311,19 @@ impl CorrectedModel {
         }
         if !m.has_terms() {
             m.terms.clear();
+        }
+        // compliances were identified on the nominal's torque chain: they keep it (§10)
+        let compliance = self.values.iter().any(|v| {
+            matches!(
+                v.param,
+                ParamId::Term {
+                    kind: TermKind::Compliance,
+                    ..
+                }
+            )
+        });
+        if compliance {
+            m.torque_chain = Some(nominal.torque_joints().to_vec());
         }
         let finite = |name: &str, v: &[f64; 3]| {
             if v.iter().all(|x| x.is_finite()) {

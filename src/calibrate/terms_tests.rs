@@ -204,3 +204,39 @@ fn with_terms_held_the_cost_of_the_quadratic_model_is_the_cost_of_the_data() {
         r.id.final_cost
     );
 }
+
+#[test]
+fn the_identified_model_keeps_its_torque_chain_and_the_torque_table_gives_its_sums() {
+    use crate::identify::problem::CalibProblem;
+    use crate::identify::JointTrig;
+    use crate::lsq::Problem;
+    let r = run(true, 300, &TermFamily::ALL);
+    let nominal = tx60_with_masses();
+    // the compliances were fitted to torques on the nominal chain: the model keeps it
+    let model = &r.id.corrected;
+    assert!(model.has_compliance());
+    assert_ne!(model.joints, nominal.joints);
+    assert_eq!(model.torque_chain.as_deref(), Some(&nominal.joints[..]));
+    let (opts, ident) = (options(&TermFamily::ALL), &r.ident);
+    let params = &r.id.identifiability.identified;
+    let plain = JointTrig::of(ident);
+    let tabled = JointTrig::of(ident).with_torques(ident, &nominal);
+    assert!(plain.torques_of(model).is_none());
+    // a model whose torques are on another chain is not given the table's
+    let own = RobotModel {
+        torque_chain: None,
+        ..model.clone()
+    };
+    assert!(tabled.torques_of(&own).is_none());
+    let linearize = |trig: &JointTrig| {
+        assert_eq!(
+            trig.torques_of(model).is_some(),
+            std::ptr::eq(trig, &tabled)
+        );
+        CalibProblem::with_trig(ident, trig, &opts.obs, params).linearize(model)
+    };
+    let ((c0, g0, h0), (c1, g1, h1)) = (linearize(&plain), linearize(&tabled));
+    assert!((c0 - c1).abs() <= 1e-12 * c0, "cost {c0} against {c1}");
+    assert!((&g0 - &g1).norm() <= 1e-12 * g0.norm(), "gradient");
+    assert!((&h0 - &h1).norm() <= 1e-12 * h0.norm(), "normal matrix");
+}

@@ -333,13 +333,18 @@ pub fn structural_set(
     result
 }
 
-/// Starting model: the given one, with the base from a rigid registration when identified.
+/// Starting model: the given one, with the base from a rigid registration when identified,
+/// and, when a compliance is to be identified, its torque chain kept (the gravity torques stay
+/// those of the given chain while its geometry is identified, §10).
 pub fn initial_model(
     nominal: &RobotModel,
     poses: &[Measured],
     opts: &IdentifyOptions,
 ) -> Result<RobotModel, IdentifyError> {
     let mut m = nominal.clone();
+    if opts.nongeometric.compliance {
+        m.torque_chain = Some(nominal.torque_joints().to_vec());
+    }
     if opts.identify_base {
         let a: Vec<Vector3<f64>> = poses
             .iter()
@@ -577,7 +582,13 @@ pub fn identify(
     poses: &[Measured],
     opts: &IdentifyOptions,
 ) -> Result<Identification, IdentifyError> {
-    identify_with(nominal, poses, &JointTrig::of(poses), opts)
+    let trig = JointTrig::of(poses);
+    let trig = if opts.nongeometric.compliance {
+        trig.with_torques(poses, nominal)
+    } else {
+        trig
+    };
+    identify_with(nominal, poses, &trig, opts)
 }
 
 /// [`identify`] given the poses' joint trigonometry (`trig` = [`JointTrig::of`] `poses`), which
@@ -632,6 +643,14 @@ pub fn identify_with(
         });
     }
     let initial = initial_model(nominal, poses, opts)?;
+    // every pose's gravity torques once: no parameter of the fit changes them
+    let with_torques;
+    let trig = if opts.nongeometric.compliance && trig.torques_of(&initial).is_none() {
+        with_torques = trig.clone().with_torques(poses, &initial);
+        &with_torques
+    } else {
+        trig
+    };
     let (mut ident, sums) = identifiability::analyze_linearized(
         &initial,
         poses,

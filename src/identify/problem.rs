@@ -7,21 +7,37 @@ use nalgebra::{DVector, Vector3};
 
 use super::normal::{Folder, NormalSums, SplitSums, BLOCK_POSES};
 use super::observation::{
-    residual_into, turns_directions, ColumnNeeds, JacobianSink, Measured, ObsConfig, RowMajor,
+    residual_into, turns_directions, ColumnNeeds, JacobianSink, Measured, ObsConfig, PoseTables,
+    RowMajor,
 };
 use super::params::{retract, ParamId};
 use super::solver::{Linearization, Problem};
-use crate::model::RobotModel;
+use crate::model::gravity::Mass;
+use crate::model::kinematics::{forward_from, torques_into, Frames, Pose};
+use crate::model::{Mdh, RobotModel};
 
 /// `sin_cos` of every pose's joint values, pose after pose: no parameter changes them, so one
 /// table serves the identifiability analysis, every linearisation and the metrics, which then
-/// evaluate no sine or cosine per pose.
+/// evaluate no sine or cosine per pose. With [`with_torques`](Self::with_torques) it also
+/// holds every pose's gravity torques: no identified parameter changes them either (they are
+/// computed on the model's torque chain, §10).
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointTrig {
     /// `sin_cos` of the joint values, pose after pose.
     sin_cos: Vec<(f64, f64)>,
     /// Start of each pose's joint values in `sin_cos` (and the end).
     start: Vec<usize>,
+    /// The gravity torques about each joint, pose after pose as `sin_cos`, and what they were
+    /// computed from.
+    torques: Option<(TorqueKey, Vec<f64>)>,
+}
+
+/// What gravity torques are computed from: a model's torque chain, masses and gravity.
+#[derive(Debug, Clone, PartialEq)]
+struct TorqueKey {
+    chain: Vec<Mdh>,
+    masses: Vec<Mass>,
+    gravity: Vector3<f64>,
 }
 
 impl JointTrig {
@@ -34,21 +50,48 @@ impl JointTrig {
             start.push(start[start.len() - 1] + p.q.len());
         }
         let mut sin_cos = vec![(0.0, 0.0); start[poses.len()]];
-        let fill = |poses: &[Measured], out: &mut [(f64, f64)]| {
+        let fill = |_: usize, poses: &[Measured], out: &mut [(f64, f64)]| {
             let q = poses.iter().flat_map(|p| &p.q);
             out.iter_mut().zip(q).for_each(|(sc, q)| *sc = q.sin_cos());
         };
-        if poses.len() < PARALLEL_MIN_POSES {
-            fill(poses, &mut sin_cos);
-        } else {
-            let half = poses.len() / 2;
-            let (a, b) = sin_cos.split_at_mut(start[half]);
-            std::thread::scope(|s| {
-                s.spawn(|| fill(&poses[half..], b));
-                fill(&poses[..half], a);
-            });
+        in_halves(poses, &mut sin_cos, &start, fill);
+        JointTrig {
+            sin_cos,
+            start,
+            torques: None,
         }
-        JointTrig { sin_cos, start }
+    }
+
+    /// This table of `poses` with their gravity torques on `model`'s torque model (its torque
+    /// chain, masses and gravity); unchanged when the model has no masses.
+    pub fn with_torques(mut self, poses: &[Measured], model: &RobotModel) -> JointTrig {
+        assert!(self.covers(poses.len()), "a joint table of other poses");
+        if model.masses.is_empty() {
+            return self;
+        }
+        let mut tau = vec![0.0; self.sin_cos.len()];
+        let (start, sin_cos) = (&self.start, &self.sin_cos);
+        let chain = model.torque_joints();
+        in_halves(poses, &mut tau, start, |first_pose, part, out| {
+            let first = start[first_pose];
+            let (mut frames, mut one) = (Frames::new(), Vec::new());
+            let mut at = 0;
+            for p in part {
+                let n = p.q.len();
+                let sc = &sin_cos[first + at..first + at + n];
+                forward_from(&Pose::identity(), chain, &p.q, Some(sc), &mut frames);
+                torques_into(model, &frames, &model.gravity, &mut one);
+                out[at..at + n].copy_from_slice(&one);
+                at += n;
+            }
+        });
+        let key = TorqueKey {
+            chain: chain.to_vec(),
+            masses: model.masses.clone(),
+            gravity: model.gravity,
+        };
+        self.torques = Some((key, tau));
+        self
     }
 
     /// `sin_cos` of pose `i`'s joint values.
@@ -56,9 +99,50 @@ impl JointTrig {
         &self.sin_cos[self.start[i]..self.start[i + 1]]
     }
 
+    /// The table's gravity torques when they are `model`'s (the same torque chain, masses and
+    /// gravity), pose after pose; to read with [`pose_tables`](Self::pose_tables).
+    pub fn torques_of(&self, model: &RobotModel) -> Option<&[f64]> {
+        let (key, tau) = self.torques.as_ref()?;
+        let same = key.chain == model.torque_joints()
+            && key.masses == model.masses
+            && key.gravity == model.gravity;
+        same.then_some(tau.as_slice())
+    }
+
+    /// What the table gives of pose `i`: its sines, and its torques from `torques` (the
+    /// answer of [`torques_of`](Self::torques_of)) when given.
+    pub fn pose_tables<'t>(&'t self, i: usize, torques: Option<&'t [f64]>) -> PoseTables<'t> {
+        let range = self.start[i]..self.start[i + 1];
+        PoseTables {
+            sin_cos: Some(&self.sin_cos[range.clone()]),
+            torques: torques.map(|t| &t[range]),
+        }
+    }
+
     /// Whether this is the table of `n` poses.
     pub fn covers(&self, n: usize) -> bool {
         self.start.len() == n + 1
+    }
+}
+
+/// Fill `out` (per joint of each pose, `start` its offsets) by `fill` over `poses`, its two
+/// halves on two threads above [`PARALLEL_MIN_POSES`] (in place: no copy; `fill` gets the
+/// index of a run's first pose, the run and its part of `out`).
+fn in_halves<T: Send>(
+    poses: &[Measured],
+    out: &mut [T],
+    start: &[usize],
+    fill: impl Fn(usize, &[Measured], &mut [T]) + Sync,
+) {
+    if poses.len() < PARALLEL_MIN_POSES {
+        fill(0, poses, out);
+    } else {
+        let half = poses.len() / 2;
+        let (a, b) = out.split_at_mut(start[half]);
+        std::thread::scope(|s| {
+            s.spawn(|| fill(half, &poses[half..], b));
+            fill(0, &poses[..half], a);
+        });
     }
 }
 
@@ -119,14 +203,22 @@ impl<'a> CalibProblem<'a> {
         }
     }
 
-    /// `sin_cos` of pose `i`'s joint values.
-    fn q_trig(&self, i: usize) -> &[(f64, f64)] {
-        self.trig.pose(i)
+    /// What the joint table gives of pose `i`, its torques from `torques` (the table's
+    /// [`JointTrig::torques_of`] the state, asked once per pass).
+    fn tables<'t>(&'t self, i: usize, torques: Option<&'t [f64]>) -> PoseTables<'t> {
+        self.trig.pose_tables(i, torques)
     }
 
-    /// `rᵀr` of pose `i` at a state (its sines from the joint table; `res` has a pose's rows).
-    fn squared_residual(&self, state: &RobotModel, i: usize, res: &mut [f64]) -> f64 {
-        let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+    /// `rᵀr` of pose `i` at a state (its sines, and its torques when `torques` is the table's
+    /// of that state, from the joint table; `res` has a pose's rows).
+    fn squared_residual(
+        &self,
+        state: &RobotModel,
+        torques: Option<&[f64]>,
+        i: usize,
+        res: &mut [f64],
+    ) -> f64 {
+        let (p, t) = (&self.poses[i], self.tables(i, torques));
         let mut none = RowMajor {
             jac: &mut [],
             np: self.params.len(),
@@ -147,8 +239,9 @@ impl<'a> CalibProblem<'a> {
     /// Weighted residual norm of each pose at a state.
     pub fn pose_norms(&self, state: &RobotModel) -> Vec<f64> {
         let mut res = vec![0.0; self.cfg.model.rows()];
+        let torques = self.trig.torques_of(state);
         (0..self.poses.len())
-            .map(|i| self.squared_residual(state, i, &mut res).sqrt())
+            .map(|i| self.squared_residual(state, torques, i, &mut res).sqrt())
             .collect()
     }
 }
@@ -248,6 +341,7 @@ impl CalibProblem<'_> {
         let mut dir = Folder::new(self.turning.clone(), k, block * nd);
         let (pos_stride, dir_stride) = (pos.stride(), dir.stride());
         let mut res = vec![0.0; 3 + nd];
+        let torques = self.trig.torques_of(state);
         for i in range.filter(|&i| self.poses[i].weight != 0.0) {
             let mut sink = BlockSink {
                 pos: pos.rows(3),
@@ -256,7 +350,7 @@ impl CalibProblem<'_> {
                 dir_stride,
                 dir_col: &self.dir_col,
             };
-            let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+            let (p, t) = (&self.poses[i], self.tables(i, torques));
             residual_into(
                 state,
                 p,
@@ -286,8 +380,9 @@ impl CalibProblem<'_> {
         let mut jac = vec![0.0; rows * k];
         let (mut r0, mut r1) = (vec![0.0; rows], vec![0.0; rows]);
         let mut sum = DVector::zeros(k);
+        let (at_state, at_moved) = (self.trig.torques_of(state), self.trig.torques_of(moved));
         for i in range.filter(|&i| self.poses[i].weight != 0.0) {
-            let (p, t) = (&self.poses[i], Some(self.q_trig(i)));
+            let p = &self.poses[i];
             let mut sink = RowMajor {
                 jac: &mut jac,
                 np: k,
@@ -295,7 +390,7 @@ impl CalibProblem<'_> {
             residual_into(
                 state,
                 p,
-                t,
+                self.tables(i, at_state),
                 self.cfg,
                 self.params,
                 self.needs,
@@ -309,7 +404,7 @@ impl CalibProblem<'_> {
             residual_into(
                 moved,
                 p,
-                t,
+                self.tables(i, at_moved),
                 self.cfg,
                 self.params,
                 self.needs,
@@ -366,11 +461,12 @@ impl Problem for CalibProblem<'_> {
     }
 
     fn cost(&self, state: &RobotModel) -> f64 {
+        let torques = self.trig.torques_of(state);
         let parts = split_map(self.poses.len(), |range| {
             let mut res = vec![0.0; self.cfg.model.rows()];
             range
                 .filter(|&i| self.poses[i].weight != 0.0)
-                .map(|i| self.squared_residual(state, i, &mut res))
+                .map(|i| self.squared_residual(state, torques, i, &mut res))
                 .sum::<f64>()
         });
         0.5 * parts.iter().sum::<f64>()

@@ -148,6 +148,10 @@ pub struct RobotModel {
     pub gravity: Vector3<f64>,
     /// Non-geometric terms per joint (empty or all zero: none, §10).
     pub terms: Vec<super::terms::JointTerms>,
+    /// The MDH chain the gravity torques are computed on (`None`: `joints`): an identified
+    /// model keeps the chain it was identified from, so its compliances mean what they were
+    /// fitted to and the torques do not move with the identified geometry (§10).
+    pub torque_chain: Option<Vec<Mdh>>,
 }
 
 impl RobotModel {
@@ -178,6 +182,17 @@ impl RobotModel {
     /// Whether any non-geometric coefficient is non-zero.
     pub fn has_terms(&self) -> bool {
         self.terms.iter().any(|t| !t.is_zero())
+    }
+
+    /// The MDH chain the gravity torques are computed on: [`torque_chain`](Self::torque_chain)
+    /// or else the model's own joints.
+    pub fn torque_joints(&self) -> &[Mdh] {
+        self.torque_chain.as_deref().unwrap_or(&self.joints)
+    }
+
+    /// Whether the gravity torques are computed on the model's own joints.
+    pub fn torques_on_own_chain(&self) -> bool {
+        self.torque_chain.as_ref().is_none_or(|c| *c == self.joints)
     }
 
     /// Whether any joint has a non-zero compliance (the gravity torques are needed).

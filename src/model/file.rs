@@ -21,7 +21,9 @@
 //! The gravity model and the non-geometric terms (§10), all optional: a top-level
 //! `gravity = [x, y, z]` (unit vector, robot base frame, default `[0, 0, -1]`), lumped masses
 //! `[[masses]] frame = k, at_mm = [x, y, z], kg = m` (k = 1..n, the MDH frame the mass is fixed
-//! in), and per joint `compliance_rad_per_nm` and `harmonics_rad = [sin_q, cos_q, sin_2q, cos_2q]`.
+//! in), per joint `compliance_rad_per_nm` and `harmonics_rad = [sin_q, cos_q, sin_2q, cos_2q]`,
+//! and `[[torque_chain]]` (one table of MDH keys per joint, no limits): the chain the torques
+//! are computed on when it is not the model's own (a corrected model's nominal chain).
 
 use std::path::Path;
 
@@ -43,6 +45,8 @@ struct RobotFile {
     joints: Vec<JointEntry>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     masses: Vec<MassEntry>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    torque_chain: Vec<ChainEntry>,
     base: Option<BaseEntry>,
     tool: Option<ToolEntry>,
 }
@@ -64,6 +68,20 @@ struct JointEntry {
     max_accel_deg_s2: Option<f64>,
     compliance_rad_per_nm: Option<f64>,
     harmonics_rad: Option<[f64; 4]>,
+}
+
+/// One joint of `[[torque_chain]]`: MDH parameters only.
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+struct ChainEntry {
+    theta_deg: Option<f64>,
+    theta_rad: Option<f64>,
+    d_mm: f64,
+    a_mm: f64,
+    alpha_deg: Option<f64>,
+    alpha_rad: Option<f64>,
+    beta_deg: Option<f64>,
+    beta_rad: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -121,16 +139,17 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
     if file.joints.is_empty() {
         return Err(invalid("joints".into(), "at least one joint is required"));
     }
-    let angle = |i: usize, stem: &str, deg: Option<f64>, rad: Option<f64>, required: bool| {
-        let key = format!("joints[{}].{stem}_deg|{stem}_rad", i + 1);
-        match (deg, rad) {
-            (Some(_), Some(_)) => Err(invalid(key, "give degrees or radians, not both")),
-            (Some(d), None) => Ok(deg_to_rad(d)),
-            (None, Some(r)) => Ok(r),
-            (None, None) if required => Err(invalid(key, "missing")),
-            (None, None) => Ok(0.0),
-        }
-    };
+    let angle =
+        |table: &str, i: usize, stem: &str, deg: Option<f64>, rad: Option<f64>, required| {
+            let key = format!("{table}[{}].{stem}_deg|{stem}_rad", i + 1);
+            match (deg, rad) {
+                (Some(_), Some(_)) => Err(invalid(key, "give degrees or radians, not both")),
+                (Some(d), None) => Ok(deg_to_rad(d)),
+                (None, Some(r)) => Ok(r),
+                (None, None) if required => Err(invalid(key, "missing")),
+                (None, None) => Ok(0.0),
+            }
+        };
     let mut joints = Vec::new();
     let mut limits = Vec::new();
     let mut motion = Vec::new();
@@ -152,11 +171,11 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
             max_accel: rate("max_accel_deg_s2", j.max_accel_deg_s2)?,
         });
         joints.push(Mdh {
-            theta: angle(i, "theta", j.theta_deg, j.theta_rad, true)?,
+            theta: angle("joints", i, "theta", j.theta_deg, j.theta_rad, true)?,
             d: j.d_mm,
             a: j.a_mm,
-            alpha: angle(i, "alpha", j.alpha_deg, j.alpha_rad, true)?,
-            beta: angle(i, "beta", j.beta_deg, j.beta_rad, false)?,
+            alpha: angle("joints", i, "alpha", j.alpha_deg, j.alpha_rad, true)?,
+            beta: angle("joints", i, "beta", j.beta_deg, j.beta_rad, false)?,
         });
         let key = |unit: &str| format!("joints[{}].limits_{unit}", i + 1);
         let (min, max, unit) = match (j.limits_deg, j.limits_rad) {
@@ -224,6 +243,30 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
     if terms.iter().all(JointTerms::is_zero) {
         terms.clear();
     }
+    let torque_chain = if file.torque_chain.is_empty() {
+        None
+    } else if file.torque_chain.len() != n {
+        return Err(invalid(
+            "torque_chain".into(),
+            &format!(
+                "must have one table per joint ({n}), got {}",
+                file.torque_chain.len()
+            ),
+        ));
+    } else {
+        let mut chain = Vec::with_capacity(n);
+        for (i, j) in file.torque_chain.iter().enumerate() {
+            let t = "torque_chain";
+            chain.push(Mdh {
+                theta: angle(t, i, "theta", j.theta_deg, j.theta_rad, true)?,
+                d: j.d_mm,
+                a: j.a_mm,
+                alpha: angle(t, i, "alpha", j.alpha_deg, j.alpha_rad, true)?,
+                beta: angle(t, i, "beta", j.beta_deg, j.beta_rad, false)?,
+            });
+        }
+        Some(chain)
+    };
     Ok(RobotModel {
         name: file.name,
         joints,
@@ -235,6 +278,7 @@ pub fn parse_robot(text: &str, path: &Path) -> Result<RobotModel, RobotFileError
         masses,
         gravity,
         terms,
+        torque_chain,
     })
 }
 
@@ -266,6 +310,18 @@ fn limits_line(l: &JointLimit) -> String {
     }
 }
 
+/// One joint's MDH lines (angles in rad, with degrees in a comment).
+fn write_mdh(out: &mut String, m: &Mdh) {
+    use std::fmt::Write;
+    let angle =
+        |stem: &str, v: f64| format!("{stem}_rad = {}  # {:.6} deg", exact(v), v.to_degrees());
+    let _ = writeln!(out, "{}", angle("theta", m.theta));
+    let _ = writeln!(out, "d_mm = {}", exact(m.d));
+    let _ = writeln!(out, "a_mm = {}", exact(m.a));
+    let _ = writeln!(out, "{}", angle("alpha", m.alpha));
+    let _ = writeln!(out, "{}", angle("beta", m.beta));
+}
+
 /// A robot model as robot-file TOML that [`parse_robot`] reads back to the same model:
 /// every float in shortest round-trip form (angles in rad, with degrees in a comment), the
 /// base rotation as a rotation vector ([`log_so3`], exact for small angles). `header` lines
@@ -281,14 +337,8 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
         let _ = writeln!(out, "gravity = {}", exact_array(model.gravity.as_slice()));
     }
     for (i, (m, l)) in model.joints.iter().zip(&model.limits).enumerate() {
-        let angle =
-            |stem: &str, v: f64| format!("{stem}_rad = {}  # {:.6} deg", exact(v), v.to_degrees());
         let _ = writeln!(out, "\n[[joints]]");
-        let _ = writeln!(out, "{}", angle("theta", m.theta));
-        let _ = writeln!(out, "d_mm = {}", exact(m.d));
-        let _ = writeln!(out, "a_mm = {}", exact(m.a));
-        let _ = writeln!(out, "{}", angle("alpha", m.alpha));
-        let _ = writeln!(out, "{}", angle("beta", m.beta));
+        write_mdh(&mut out, m);
         let _ = writeln!(out, "{}", limits_line(l));
         let motion = model.motion.get(i).copied().unwrap_or_default();
         for (key, v) in [
@@ -313,6 +363,12 @@ pub fn write_robot(model: &RobotModel, header: &[String]) -> String {
         let _ = writeln!(out, "frame = {}", m.frame);
         let _ = writeln!(out, "at_mm = {}", exact_array(m.at.as_slice()));
         let _ = writeln!(out, "kg = {}", exact(m.kg));
+    }
+    if let Some(chain) = &model.torque_chain {
+        for m in chain {
+            let _ = writeln!(out, "\n[[torque_chain]]");
+            write_mdh(&mut out, m);
+        }
     }
     let rv = log_so3(&model.base_rotation);
     let _ = writeln!(out, "\n[base]");
@@ -504,8 +560,11 @@ mod tests {
         ];
         *m.term_mut(1, crate::model::TermKind::Compliance) = 1.0 / 3.0 * 1e-6;
         *m.term_mut(4, crate::model::TermKind::Cos2Q) = -2.5e-5;
+        // the chain its torques were identified on (the nominal one)
+        m.torque_chain = Some(crate::model::tx60().joints);
         let text = write_robot(&m, &[]);
         let back = parse_robot(&text, Path::new("w.toml")).unwrap();
+        assert_eq!(back.torque_chain, m.torque_chain, "{text}");
         assert_eq!(back.masses, m.masses, "{text}");
         assert_eq!(back.gravity, m.gravity, "{text}");
         assert_eq!(back.terms, m.terms, "{text}");
@@ -518,7 +577,13 @@ mod tests {
             },
             &[],
         );
-        for key in ["gravity", "masses", "compliance", "harmonics"] {
+        for key in [
+            "gravity",
+            "masses",
+            "compliance",
+            "harmonics",
+            "torque_chain",
+        ] {
             assert!(!plain.contains(key), "{plain}");
         }
         for (from, to, want) in [
@@ -546,6 +611,17 @@ mod tests {
                 "limits_deg = [-10, 10]\n",
                 "limits_deg = [-10, 10]\nharmonics_rad = [0, 1]\n",
                 "harmonics_rad",
+            ),
+            (
+                "",
+                "[[torque_chain]]\ntheta_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n\
+                 [[torque_chain]]\ntheta_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n",
+                "torque_chain: must have one table per joint (1), got 2",
+            ),
+            (
+                "",
+                "[[torque_chain]]\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n",
+                "torque_chain[1].theta_deg|theta_rad: missing",
             ),
         ] {
             let text = if from.is_empty() {

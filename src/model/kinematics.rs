@@ -316,11 +316,12 @@ pub fn measured_rotation(model: &RobotModel, q: &[f64]) -> Matrix3<f64> {
 }
 
 /// Static gravity torque about each joint's +z axis (N·m) at commanded joints `q`: the weight
-/// of every mass in the frames the joint moves, the chain taken without its non-geometric
+/// of every mass in the frames the joint moves, on the model's torque chain
+/// ([`RobotModel::torque_joints`]: a corrected model's nominal one) without the non-geometric
 /// terms (a deflection of a few µrad changes no lever measurably), gravity along
 /// `model.gravity` in the robot base frame.
 pub fn gravity_torques(model: &RobotModel, q: &[f64]) -> Vec<f64> {
-    torques_of_frames(model, &forward_joints(&model.joints, q))
+    torques_of_frames(model, &forward_joints(model.torque_joints(), q))
 }
 
 /// [`gravity_torques`] from the frames of the bare chain at the commanded joints (robot base
@@ -365,7 +366,7 @@ pub fn torques_into(
 /// origins of the joints after it, about its axis.
 pub fn gravity_torque_rates(model: &RobotModel, q: &[f64]) -> DMatrix<f64> {
     let n = model.dof();
-    let frames = forward_joints(&model.joints, q);
+    let frames = forward_joints(model.torque_joints(), q);
     let axes: Vec<JointAxes> = (0..n).map(|j| frames.joint_axes(j)).collect();
     let mut rates = DMatrix::zeros(n, n);
     for m in &model.masses {

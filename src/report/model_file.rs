@@ -102,10 +102,15 @@ fn terms_line(m: &RobotModel) -> Option<String> {
     Some(format!(
         "Non-geometric terms (docs/method.md §10): compliance_rad_per_nm on joints {}, \
          harmonics_rad on joints {}; gravity torques from the {} [[masses]] and the gravity \
-         direction the identification used.",
+         direction the identification used{}.",
         joints(&|t| t.compliance != 0.0),
         joints(&|t| t.harmonics.iter().any(|h| *h != 0.0)),
-        m.masses.len()
+        m.masses.len(),
+        if m.torque_chain.is_some() {
+            ", on the chain it started from ([[torque_chain]])"
+        } else {
+            ""
+        }
     ))
 }
 

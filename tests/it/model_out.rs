@@ -299,6 +299,8 @@ fn the_model_file_carries_the_terms_with_their_masses_and_gravity_and_loads_back
         });
         *expected.term_mut(joint, kind) = value;
     }
+    // compliances keep the chain they were identified on: the nominal one
+    expected.torque_chain = Some(nominal.joints.clone());
     let text = corrected_model_toml(
         &result,
         &nominal,
@@ -313,6 +315,7 @@ fn the_model_file_carries_the_terms_with_their_masses_and_gravity_and_loads_back
     assert_eq!(file.terms, expected.terms, "{text}");
     assert_eq!(file.masses, nominal.masses, "{text}");
     assert_eq!(file.gravity, nominal.gravity, "{text}");
+    assert_eq!(file.torque_chain, expected.torque_chain, "{text}");
     let (dp, dr) = fk_difference(&file, &expected);
     assert!(
         dp < 1e-9 && dr < 1e-12,
@@ -324,6 +327,8 @@ fn the_model_file_carries_the_terms_with_their_masses_and_gravity_and_loads_back
     for line in [
         "# Non-geometric terms (docs/method.md §10): compliance_rad_per_nm on joints 2, 3, \
          harmonics_rad on joints 1, 3, 5; gravity torques from the 2 [[masses]]",
+        "on the chain it started from ([[torque_chain]])",
+        "\n[[torque_chain]]\ntheta_rad = ",
         "compliance_rad_per_nm = ",
         "harmonics_rad = [",
         "[[masses]]",
