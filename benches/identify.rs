@@ -7,7 +7,7 @@ use cellcal::calibrate::calibrate;
 use cellcal::dataset::to_measured;
 use cellcal::identify::observation::residual_jacobian;
 use cellcal::identify::{all_params, identify, IdentifyOptions, Nongeometric, ObsConfig, ObsModel};
-use cellcal::model::TermFamily;
+use cellcal::model::{TermFamily, TermKind};
 use cellcal::simulate::{self, truth, SimConfig};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use nalgebra::Vector3;
@@ -91,12 +91,30 @@ fn bench_pose(c: &mut Criterion) {
 
 /// Issue 21's time figure: OP at 10 000 poses on the TX60 with its masses, the geometric
 /// identification against the one with both term families (`identify`), and the whole
-/// `calibrate` (which with terms also fits the geometric model to judge them).
+/// `calibrate` (which with terms also fits the geometric model to judge them); `identify` again
+/// on a simulated robot that has compliance and harmonics too (`…_truth_terms`).
 fn bench_nongeometric(c: &mut Criterion) {
     let (_, rows) = setup(10_000, Vector3::y());
     let nominal =
         cellcal::model::load_robot(std::path::Path::new("config/robots/staubli_tx60.toml"))
             .expect("robot file");
+    let mut truth = truth::apply_errors(&nominal, &truth::paper_errors()).expect("errors");
+    // a few tenths of a milliradian, as in the calibration's tests
+    *truth.term_mut(1, TermKind::Compliance) = 4e-6;
+    *truth.term_mut(2, TermKind::Compliance) = 6e-6;
+    for j in 0..5 {
+        for (k, v) in TermKind::ALL[1..].iter().zip([2e-4, -1e-4, 0.5e-4, 1e-4]) {
+            *truth.term_mut(j, *k) = v * if j % 2 == 0 { 1.0 } else { -0.7 };
+        }
+    }
+    let cfg = SimConfig {
+        poses: 10_000,
+        ident: 10_000,
+        seed: 4812,
+        stage_axis: Vector3::y(),
+        ..SimConfig::default()
+    };
+    let with_terms = simulate::simulate(&nominal, &truth, &cfg).expect("sim");
     let mut g = c.benchmark_group("nongeometric_10000_op");
     g.sample_size(10);
     for (name, families) in [
@@ -113,6 +131,10 @@ fn bench_nongeometric(c: &mut Criterion) {
         });
         g.bench_function(format!("calibrate_{name}"), |b| {
             b.iter(|| calibrate(&nominal, black_box(&rows), &opts, 10.0).expect("calibrate"))
+        });
+        let meas = to_measured(&with_terms.observations, ObsModel::Op, 10.0).expect("convert");
+        g.bench_function(format!("identify_{name}_truth_terms"), |b| {
+            b.iter(|| identify(&nominal, black_box(&meas), &opts).expect("identify"))
         });
     }
     g.finish();
