@@ -212,7 +212,7 @@ fn terms_lines(out: &mut String, x: &Extended) {
             .collect();
         let _ = writeln!(
             out,
-            "torque model: gravity ({}, {}, {}) in the robot base frame; {}",
+            "torque model: gravity ({}, {}, {}) in the robot base frame; {}; on the nominal chain",
             fmt_fixed(g[0], 4),
             fmt_fixed(g[1], 4),
             fmt_fixed(g[2], 4),

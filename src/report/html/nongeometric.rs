@@ -165,7 +165,9 @@ fn torque_model(x: &Extended) -> String {
         "<h3 id=\"torque-model\">Torque model</h3>\n<p>The static gravity torque τ<sub>j</sub>(q) \
          about each joint comes from these lumped masses, each fixed in an MDH frame, and the \
          direction of gravity in the robot base frame (robot model file: <code>gravity</code>, \
-         <code>[[masses]]</code>).</p>\n",
+         <code>[[masses]]</code>), on the nominal MDH chain the identification started from: \
+         the identified geometry does not move the levers, and the corrected model keeps that \
+         chain (<code>[[torque_chain]]</code>).</p>\n",
     );
     match x.gravity {
         Some(g) => {
