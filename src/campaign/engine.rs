@@ -585,12 +585,6 @@ impl Run<'_> {
         self.ctx.nominal.within_limits(q) && target_ok(&self.ctx.nominal, q, &self.ctx.plan_request)
     }
 
-    /// Whether a pose measures P2 too (always, except an ISO campaign with
-    /// `measure_axis = false`).
-    fn measures_axis(&self) -> bool {
-        self.ctx.cfg.iso9283.as_ref().is_none_or(|i| i.measure_axis)
-    }
-
     /// Move to a joint target after the safety checks, through the via points of its route
     /// from the robot's joints as read before each attempt (every leg passes the path check);
     /// returns the joints read after settling at the target. Every attempt re-checks that the
@@ -953,7 +947,7 @@ impl Run<'_> {
     ) -> Result<PoseMeasurement, Stop> {
         let approach = self.ctx.plan.approach.get(&entry.index).cloned();
         let joints = self.move_via(&entry.q_rad, approach.as_deref()).await?;
-        if !self.measures_axis() {
+        if !self.ctx.cfg.axis_readings().at(entry.set) {
             let a1 = self.stage_to(s1).await?;
             let p1 = self.measure_point(Some(entry.index), &joints, a1).await?;
             return Ok(PoseMeasurement {

@@ -155,14 +155,13 @@ pub fn estimate_campaign_time(
         ),
         _ => None,
     };
-    let axis = cfg.iso9283.as_ref().is_none_or(|i| i.measure_axis);
     let walk = campaign_walk(
         plan,
         cfg.campaign.drift_every,
         setup,
         start_q,
         (p1, cfg.stage.travel_mm, cfg.stage.tolerance_mm),
-        axis,
+        cfg.axis_readings(),
     );
     let times = cell_times(cfg, nominal);
     let mut router = Router::new(nominal, &req.workspace, &req.tool_mm, &plan.drift_reference).ok();

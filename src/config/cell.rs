@@ -332,6 +332,22 @@ pub struct CampaignSection {
     /// With terms, the model handed over: `extended` (always the one with the terms) or
     /// `better` (the one with the lower verification position RMS).
     pub nongeometric_keep: NongeometricKeep,
+    /// What a verification pose measures: `p1_p2` (the position and the flange axis, as the
+    /// identification poses) or `p1` (the position only).
+    pub verify_readings: VerifyReadings,
+}
+
+/// `campaign.verify_readings`: the readings taken at each verification pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+pub enum VerifyReadings {
+    /// P1 and P2: the position and one flange axis, as at the identification poses.
+    #[default]
+    #[serde(rename = "p1_p2")]
+    P1P2,
+    /// P1 only: the position, which is what the verification figures are (the axis error of
+    /// the verification set is then not measured); one reading and no stage move per pose.
+    #[serde(rename = "p1")]
+    P1,
 }
 
 /// `campaign.stop_when`: measure every planned identification pose, or stop once the
@@ -382,6 +398,7 @@ impl Default for CampaignSection {
             stop_block: None,
             nongeometric: Vec::new(),
             nongeometric_keep: NongeometricKeep::Extended,
+            verify_readings: VerifyReadings::P1P2,
         }
     }
 }
@@ -693,6 +710,16 @@ impl CellConfig {
     /// The configured observation model.
     pub fn model(&self) -> ObsModel {
         self.campaign.model
+    }
+
+    /// Which planned poses the engine measures at P2 too: every one unless an ISO 9283 run
+    /// says `measure_axis = false`; a verification pose only with `verify_readings = "p1_p2"`.
+    pub fn axis_readings(&self) -> crate::plan::timing::AxisReadings {
+        let axis = self.iso9283.as_ref().is_none_or(|i| i.measure_axis);
+        crate::plan::timing::AxisReadings {
+            ident: axis,
+            verify: axis && self.campaign.verify_readings == VerifyReadings::P1P2,
+        }
     }
 
     /// The tracker's stationary measuring time (ms): `[tracker] measure_ms` when given, else

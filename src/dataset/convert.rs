@@ -44,7 +44,8 @@ pub enum ConvertError {
     },
 }
 
-/// Convert rows for `model`; P2 − P1 must be within 50 % of `travel_mm`.
+/// Convert rows for `model`; P2 − P1 must be within 50 % of `travel_mm`. NP and OP need P2 of
+/// every identification row; a verification row without it verifies the position only.
 pub fn to_measured(
     rows: &[Observation],
     model: ObsModel,
@@ -129,8 +130,11 @@ fn measured(o: &Observation, model: ObsModel, travel_mm: f64) -> Result<Measured
         }
         m.rotation = Some(Box::new(project_so3(r)));
     }
+    // a verification row without P2 verifies the position only (`verify_readings = "p1"`)
     let missing = match model {
-        ObsModel::Np | ObsModel::Op if m.direction.is_none() => Some("p2_x, p2_y, p2_z"),
+        ObsModel::Np | ObsModel::Op if m.direction.is_none() && o.set == PoseSet::Ident => {
+            Some("p2_x, p2_y, p2_z")
+        }
         ObsModel::Full if m.rotation.is_none() => Some("n_x … a_z"),
         _ => None,
     };
@@ -203,5 +207,27 @@ mod tests {
                 "{e:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_verification_row_without_p2_verifies_the_position_and_an_identification_row_needs_it() {
+        let mut verify = row(3, PoseSet::Verify, 10.0);
+        verify.p2 = None;
+        for model in [ObsModel::Np, ObsModel::Op] {
+            let m = to_measured(std::slice::from_ref(&verify), model, 10.0).unwrap();
+            assert_eq!((m[0].p1, m[0].direction), (verify.p1, None));
+        }
+        let ident = Observation {
+            set: PoseSet::Ident,
+            ..verify.clone()
+        };
+        let e = to_measured(&[ident], ObsModel::Op, 10.0).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "line 5 (pose 3): the op model needs p2_x, p2_y, p2_z"
+        );
+        // the full model reads the rotation of every row
+        let e = to_measured(&[verify], ObsModel::Full, 10.0).unwrap_err();
+        assert!(matches!(e, ConvertError::Missing { .. }), "{e:?}");
     }
 }

@@ -3,7 +3,8 @@
 //! A header row; lines starting with `#` are comments; columns found by name in any order
 //! (names are trimmed and case-insensitive): `pose` (optional id), `set` (`ident`|`verify`),
 //! `q1`…`qn` (rad), `p1_x,p1_y,p1_z` (mm, measurement frame), optional `p2_x,p2_y,p2_z` (mm,
-//! ball after the stage moved by +travel along `u`), optional `n_x … a_z` (measured flange
+//! ball after the stage moved by +travel along `u`; all three empty in a row without P2),
+//! optional `n_x … a_z` (measured flange
 //! rotation columns). Unknown columns are ignored.
 //!
 //! The measurement setup travels with the data in comment lines before the header row, one
@@ -466,7 +467,11 @@ impl Columns {
         for &c in &self.q {
             q.push(num(c)?);
         }
-        let p2 = self.p2.as_deref().map(vec3).transpose()?;
+        // a row without P2 (its three cells empty) verifies the position only
+        let p2 = match self.p2.as_deref() {
+            Some(cols) if cols.iter().all(|&c| field(c).trim().is_empty()) => None,
+            cols => cols.map(vec3).transpose()?,
+        };
         let rotation = match &self.rotation {
             Some(cols) if self.rotation_unused => {
                 for &c in cols {
@@ -710,9 +715,10 @@ fn line_start(text: &str, i: usize) -> usize {
         .map_or(text.len(), |p| i + p)
 }
 
-/// Write a data set; p2 and rotation columns are written when every row has them.
+/// Write a data set; p2 columns are written when a row has P2 (empty cells in a row without:
+/// a verification row of the position only), rotation columns when every row has one.
 pub fn write_csv(obs: &[Observation], dof: usize, comment: &str) -> String {
-    let with_p2 = !obs.is_empty() && obs.iter().all(|o| o.p2.is_some());
+    let with_p2 = obs.iter().any(|o| o.p2.is_some());
     let with_rot = !obs.is_empty() && obs.iter().all(|o| o.rotation.is_some());
     let mut s = String::new();
     for line in comment.lines() {
@@ -735,8 +741,10 @@ pub fn write_csv(obs: &[Observation], dof: usize, comment: &str) -> String {
         let mut cells = vec![o.id.clone(), o.set.as_str().to_owned()];
         cells.extend(o.q.iter().map(|v| format!("{v:?}")));
         cells.extend(o.p1.iter().map(|v| format!("{v:?}")));
-        if let (true, Some(p2)) = (with_p2, o.p2) {
-            cells.extend(p2.iter().map(|v| format!("{v:?}")));
+        match (with_p2, o.p2) {
+            (true, Some(p2)) => cells.extend(p2.iter().map(|v| format!("{v:?}"))),
+            (true, None) => cells.extend([""; 3].map(String::from)),
+            (false, _) => {}
         }
         if let (true, Some(r)) = (with_rot, &o.rotation) {
             cells.extend(r.as_slice().iter().map(|v| format!("{v:?}")));
@@ -774,6 +782,22 @@ mod tests {
             v.iter().map(|o| (&o.q, o.p1)).collect::<Vec<_>>(),
             w.iter().map(|o| (&o.q, o.p1)).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn a_verification_row_without_p2_is_written_with_empty_cells_and_reads_back() {
+        let mut v = parse_csv(OK, 2, Required::default()).unwrap();
+        v[0].p2 = Some(Vector3::new(1.0, 12.0, 3.0));
+        let s = write_csv(&v, 2, "");
+        assert!(s.ends_with("b,verify,0.0,0.0,4.0,5.0,6.0,,,\n"), "{s}");
+        let w = parse_csv(&s, 2, Required::default()).unwrap();
+        assert_eq!(
+            v.iter().map(|o| (o.p1, o.p2)).collect::<Vec<_>>(),
+            w.iter().map(|o| (o.p1, o.p2)).collect::<Vec<_>>()
+        );
+        // one empty cell of three is no row without P2: it is refused
+        let half = s.replace(",,,\n", ",1,,\n");
+        assert!(parse_csv(&half, 2, Required::default()).is_err());
     }
 
     /// `n` rows without a `pose` column, a comment every 7th line; row `bad` (if any) has a

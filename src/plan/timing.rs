@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::campaign::Plan;
 pub use super::motion::{MotionLimits, MoveProfile, FALLBACK_RAMP_S, FALLBACK_SPEED_DEG_S};
 use super::route::Router;
+use crate::dataset::PoseSet;
 use crate::units::human::{fmt_estimate, UNDER_TEN_S};
 
 /// The planned duration of a campaign by part (s); stored, shown, compared with the actual.
@@ -173,16 +174,44 @@ pub struct CampaignWalk {
     pub stage_tolerance_mm: f64,
 }
 
+/// Which planned poses are measured at P2 too (a flange axis besides the position), by set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AxisReadings {
+    /// Identification poses.
+    pub ident: bool,
+    /// Verification poses.
+    pub verify: bool,
+}
+
+impl AxisReadings {
+    /// P2 at every pose (`true`) or at none.
+    pub fn all(axis: bool) -> AxisReadings {
+        AxisReadings {
+            ident: axis,
+            verify: axis,
+        }
+    }
+
+    /// Whether a pose of `set` is measured at P2.
+    pub fn at(self, set: PoseSet) -> bool {
+        match set {
+            PoseSet::Ident => self.ident,
+            PoseSet::Verify => self.verify,
+        }
+    }
+}
+
 /// The campaign a fresh [`Plan`] measures, visit by visit as the engine does (setup visits
-/// given): the frame reference at the drift reference, every pose (P1, P2, P1), a drift check
-/// after every `drift_every` poses (not after the last) and at the end.
+/// given): the frame reference at the drift reference, every pose (P1, and P2 where `axis`
+/// says, from where the stage stands), a drift check after every `drift_every` poses (not
+/// after the last) and at the end.
 pub fn campaign_walk(
     plan: &Plan,
     drift_every: usize,
     setup: Vec<Visit>,
     start_q: Option<Vec<f64>>,
     stage: (f64, f64, f64),
-    axis: bool,
+    axis: AxisReadings,
 ) -> CampaignWalk {
     let (p1, travel, tolerance) = stage;
     let drift = || Visit {
@@ -191,18 +220,19 @@ pub fn campaign_walk(
         stage_mm: vec![p1],
         readings: 1,
     };
-    let per_pose = if axis { 2 } else { 1 };
     let mut measured = vec![drift()];
     let mut stage_at = Some(p1);
     let total = plan.poses.len();
+    let mut readings = 0;
     for (done, p) in plan.poses.iter().enumerate().map(|(i, p)| (i + 1, p)) {
-        let stage_mm = pose_stage_targets(stage_at, p1, p1 + travel, axis);
+        let stage_mm = pose_stage_targets(stage_at, p1, p1 + travel, axis.at(p.set));
         stage_at = stage_mm.last().copied();
+        readings += stage_mm.len();
         measured.push(Visit {
             q_rad: p.q_rad.clone(),
             approach: plan.approach.get(&p.index).cloned(),
+            readings: stage_mm.len(),
             stage_mm,
-            readings: per_pose,
         });
         if drift_every > 0 && done % drift_every == 0 && done < total {
             measured.push(drift());
@@ -215,7 +245,7 @@ pub fn campaign_walk(
         setup,
         measured,
         poses: total,
-        readings: total * per_pose,
+        readings,
         stage_home_mm: 0.0,
         stage_tolerance_mm: tolerance,
     }
@@ -456,7 +486,14 @@ mod tests {
             sampling_order_s: 0.0,
             planned_order_s: 0.0,
         };
-        let walk = campaign_walk(&plan, 2, Vec::new(), None, (0.0, 10.0, 0.02), true);
+        let walk = campaign_walk(
+            &plan,
+            2,
+            Vec::new(),
+            None,
+            (0.0, 10.0, 0.02),
+            AxisReadings::all(true),
+        );
         // reference, p, p, drift, p, p, drift, p, final drift
         let drift_at: Vec<usize> = walk
             .measured
@@ -494,7 +531,14 @@ mod tests {
         let sum = e.setup_s + e.motion_s + e.settle_s + e.measure_s + e.stage_s;
         assert!(close(e.total_s, sum));
         // without the axis: P1 only
-        let p1 = campaign_walk(&plan, 0, Vec::new(), None, (0.0, 10.0, 0.02), false);
+        let p1 = campaign_walk(
+            &plan,
+            0,
+            Vec::new(),
+            None,
+            (0.0, 10.0, 0.02),
+            AxisReadings::all(false),
+        );
         assert_eq!((p1.readings, p1.measured.len()), (5, 7));
     }
 }

@@ -18,6 +18,7 @@ use crate::campaign::events::{CampaignCommand, CampaignEvent, CampaignState, Con
 use crate::campaign::session::plan_request;
 use crate::cell::FaultKind;
 use crate::config::{parse_cell_config, CellConfig};
+use crate::dataset::PoseSet;
 use crate::plan::plan_campaign;
 use crate::sim::fake::{Call, FakeCell, Fault, Op};
 use crate::store::{NewCampaign, PointKind, PointRecord, Store, StoreHandle};
@@ -1076,4 +1077,55 @@ fn the_travel_check_allows_the_tolerance_plus_three_sigma_and_refuses_nan() {
     // a point without σ counts at the quality gate
     assert!(check_travel(&p1, &point([0.0, 10.1, 0.0], 10.0, f64::NAN), 0.02, 0.05).is_ok());
     assert!(check_travel(&p1, &point([f64::NAN, 10.0, 0.0], 10.0, 0.01), 0.02, 0.05).is_err());
+}
+
+/// With `verify_readings = "p1"` a verification pose is read at P1 only: no P2 is stored and
+/// the stage does not move for it (the identification poses keep both readings, one stage
+/// move each), and the plan's estimate counts those readings.
+#[tokio::test]
+async fn with_verify_readings_p1_a_verification_pose_is_read_at_p1_only_without_a_stage_move() {
+    let p1_only = (
+        "drift_every = 50",
+        "drift_every = 50\nverify_readings = \"p1\"",
+    );
+    let mut b = Bench::new(config(POSES, IDENT, false, &[p1_only]), false);
+    let (outcome, _) = b.run(nobody).await;
+    assert!(matches!(outcome, Outcome::Done(_)), "{outcome:?}");
+    let s1 = b.ctx.cfg.stage.p1_mm;
+    let stage_moves = (b.cell.calls().iter())
+        .filter(|c| matches!(c, Call::StageMove(_)))
+        .count();
+    // the frame reference's P1, then one move per identification pose and one back to P1
+    // for a verification pose only where an identification pose left the stage at P2
+    let (mut at_p1, mut expected) = (true, 1);
+    for p in &b.ctx.plan.poses {
+        if p.set == PoseSet::Ident || !at_p1 {
+            expected += 1;
+            at_p1 = !at_p1 || p.set == PoseSet::Verify;
+        }
+    }
+    assert!(expected < 1 + POSES, "nothing saved: {expected} moves");
+    assert_eq!(stage_moves, expected);
+    let id = b.ctx.campaign_id;
+    let poses = b.with_store(|s| s.measured_poses(id)).expect("poses");
+    assert_eq!(poses.len(), POSES);
+    let set_of = |i: usize| b.ctx.plan.poses.iter().find(|p| p.index == i).unwrap().set;
+    for (_, m) in &poses {
+        match set_of(m.index) {
+            PoseSet::Ident => assert!(m.p2.is_some(), "ident pose {}", m.index),
+            PoseSet::Verify => {
+                assert!(m.p2.is_none(), "verify pose {}", m.index);
+                assert!((m.p1.stage_mm - s1).abs() < 1e-9, "pose {}", m.index);
+            }
+        }
+    }
+    let walk = crate::plan::timing::campaign_walk(
+        &b.ctx.plan,
+        0,
+        Vec::new(),
+        None,
+        (s1, b.ctx.cfg.stage.travel_mm, b.ctx.cfg.stage.tolerance_mm),
+        b.ctx.cfg.axis_readings(),
+    );
+    assert_eq!(walk.readings, 2 * IDENT + (POSES - IDENT));
 }
