@@ -434,6 +434,8 @@ async function create(ev) {
     if (raw !== '') body[k] = Number(raw);
   }
   if ($('create-model').value) body.model = $('create-model').value;
+  const terms = $('create-nongeometric').value;
+  if (terms) body.nongeometric = terms === 'none' ? [] : terms.split(',');
   say('');
   try {
     const view = await api('POST', '/api/campaigns', body);

@@ -749,6 +749,59 @@ async fn the_page_runs_a_manual_campaign_with_its_dashboard() {
     c.close().await.expect("close");
 }
 
+/// The create form chooses the campaign's non-geometric terms: they are its own, stored with
+/// its configuration (what `identify --store`, the report and a resume read).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_creates_a_campaign_with_the_terms_chosen() {
+    let Some(driver) = chromedriver() else { return };
+    let (dir, s, c) = signed_in_on_a_manual_cell(&driver).await;
+    let stored_terms = |id: i64| {
+        let row = cellcal::store::Store::open_reader(&dir.path().join("c.db"))
+            .expect("store")
+            .campaign(id)
+            .expect("row");
+        let cfg = cellcal::config::parse_cell_config(&row.config_toml, Path::new("stored"))
+            .expect("the stored configuration parses");
+        cfg.campaign.nongeometric
+    };
+    use cellcal::model::TermFamily::{Compliance, Harmonics};
+    for (field, n) in [("create-poses", POSES), ("create-ident", IDENT)] {
+        by_id(&c, field)
+            .await
+            .send_keys(&n.to_string())
+            .await
+            .expect("count");
+    }
+    for (choice, want) in [
+        ("compliance,harmonics", vec![Compliance, Harmonics]),
+        ("harmonics", vec![Harmonics]),
+    ] {
+        by_id(&c, "create-nongeometric")
+            .await
+            .select_by_value(choice)
+            .await
+            .expect("terms");
+        let before = get(&s, "/api/campaigns").1.as_array().map_or(0, Vec::len);
+        click(&c, "create").await;
+        let server = &s;
+        let id = until("the campaign is created", 30, || async move {
+            let (_, list) = get(server, "/api/campaigns");
+            let list = list.as_array()?;
+            (list.len() > before).then(|| list.last()?["id"].as_i64())?
+        })
+        .await;
+        assert_eq!(stored_terms(id), want, "{choice}");
+        // one campaign on the cell at a time: this one ends before the next is created
+        let abort = super::serve::post(
+            &s,
+            &format!("/api/campaigns/{id}/commands"),
+            r#"{"command": "abort"}"#,
+        );
+        assert_eq!(abort.0, 200, "{abort:?}");
+    }
+    c.close().await.expect("close");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_is_usable_with_the_keyboard_alone() {
     let Some(driver) = chromedriver() else { return };
