@@ -203,12 +203,6 @@ impl<'a> CalibProblem<'a> {
         }
     }
 
-    /// What the joint table gives of pose `i`, its torques from `torques` (the table's
-    /// [`JointTrig::torques_of`] the state, asked once per pass).
-    fn tables<'t>(&'t self, i: usize, torques: Option<&'t [f64]>) -> PoseTables<'t> {
-        self.trig.pose_tables(i, torques)
-    }
-
     /// `rᵀr` of pose `i` at a state (its sines, and its torques when `torques` is the table's
     /// of that state, from the joint table; `res` has a pose's rows).
     fn squared_residual(
@@ -218,7 +212,7 @@ impl<'a> CalibProblem<'a> {
         i: usize,
         res: &mut [f64],
     ) -> f64 {
-        let (p, t) = (&self.poses[i], self.tables(i, torques));
+        let (p, t) = (&self.poses[i], self.trig.pose_tables(i, torques));
         let mut none = RowMajor {
             jac: &mut [],
             np: self.params.len(),
@@ -350,7 +344,7 @@ impl CalibProblem<'_> {
                 dir_stride,
                 dir_col: &self.dir_col,
             };
-            let (p, t) = (&self.poses[i], self.tables(i, torques));
+            let (p, t) = (&self.poses[i], self.trig.pose_tables(i, torques));
             residual_into(
                 state,
                 p,
@@ -390,7 +384,7 @@ impl CalibProblem<'_> {
             residual_into(
                 state,
                 p,
-                self.tables(i, at_state),
+                self.trig.pose_tables(i, at_state),
                 self.cfg,
                 self.params,
                 self.needs,
@@ -404,7 +398,7 @@ impl CalibProblem<'_> {
             residual_into(
                 moved,
                 p,
-                self.tables(i, at_moved),
+                self.trig.pose_tables(i, at_moved),
                 self.cfg,
                 self.params,
                 self.needs,

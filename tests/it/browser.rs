@@ -772,6 +772,7 @@ async fn the_page_creates_a_campaign_with_the_terms_chosen() {
             .await
             .expect("count");
     }
+    screenshot_from(&c, "create-form", "create-form.png").await;
     for (choice, want) in [
         ("compliance,harmonics", vec![Compliance, Harmonics]),
         ("harmonics", vec![Harmonics]),
