@@ -11,6 +11,7 @@
 //! measuring order with every pose measured and identifies on the first 24, 32, … 100
 //! identification poses: what a stop there would have verified, with the stop rule's view at
 //! each (parameters identified and held back, a-posteriori σ, prediction, gains).
+//! `STOP_FIGURE_KEYS='stop_remaining_gain = 0.02'`: more `[campaign]` keys for (b).
 //! `STOP_FIGURE_ORIGIN=1`: the ball exactly at the flange origin and the stage exactly along
 //! +y, both known (no tool-frame setup; the setup's sphere fit has no lever with the ball at
 //! the flange origin).
@@ -156,11 +157,11 @@ async fn main() {
     let mut lines = Vec::new();
     for seed in first..first + seeds {
         let random = campaign(&config_text(seed, "")).await;
-        let stop = campaign(&config_text(
-            seed,
-            "selection = \"optimal\"\nstop_when = \"predicted\"",
-        ))
-        .await;
+        let keys = format!(
+            "selection = \"optimal\"\nstop_when = \"predicted\"\n{}",
+            std::env::var("STOP_FIGURE_KEYS").unwrap_or_default()
+        );
+        let stop = campaign(&config_text(seed, &keys)).await;
         let r = stop.after_mm / random.after_mm;
         // over each campaign's own noise floor: the noise of the readings cancels
         let rf = (stop.after_mm / stop.floor_mm) / (random.after_mm / random.floor_mm);

@@ -787,6 +787,95 @@ mod selection_tests {
         Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal))
     }
 
+    /// What a held-back parameter leaves, against the kinematics: a true arm off in `a5` alone
+    /// by its prior error, read exactly at 40 identification poses, the other parameters
+    /// fitted by Gauss–Newton on the solver's rows (from the nominal, to convergence): the
+    /// fitted model's ball error at each verification pose is the bias's σ (one parameter:
+    /// `B·e`, `e` = the prior). A parameter the kept ones mimic exactly (d1: the base's z
+    /// takes it) leaves nothing.
+    #[test]
+    fn held_back_bias_is_what_the_fitted_parameters_leave_of_a_held_error() {
+        use crate::identify::params::{retract, ParamId};
+        use crate::model::ParamKind;
+        let ident = random_poses(40, 1);
+        let verify = random_poses(25, 2);
+        let full = paper_design(&random_poses(200, 3));
+        let a5 = ParamId::Mdh {
+            joint: 4,
+            kind: ParamKind::A,
+        };
+        assert!(full.params.contains(&a5));
+        let mut kept = full.clone();
+        kept.params.retain(|p| *p != a5);
+        let e = prior_error(&a5);
+        assert_eq!(e, 0.2);
+        let truth = retract(&full.model, &[a5], &[e]);
+        let measured: Vec<(Vector3<f64>, Vector3<f64>)> = ident
+            .iter()
+            .map(|q| {
+                let pr = predict(&truth, q);
+                (pr.p, pr.r * kept.obs.stage_axis)
+            })
+            .collect();
+        let w = kept.obs.direction_weight_mm;
+        let mut model = kept.model.clone();
+        for _ in 0..5 {
+            let fit = Design {
+                model: model.clone(),
+                ..kept.clone()
+            };
+            let k = fit.params.len();
+            let (mut a, mut g) = (DMatrix::zeros(k, k), DVector::zeros(k));
+            for (q, (p, l)) in ident.iter().zip(&measured) {
+                let j = fit.jacobian(q);
+                let pr = predict(&model, q);
+                let lm = pr.r * fit.obs.stage_axis;
+                let r = DVector::from_fn(6, |i, _| {
+                    if i < 3 {
+                        pr.p[i] - p[i]
+                    } else {
+                        w * (lm[i - 3] - l[i - 3])
+                    }
+                });
+                a += j.transpose() * &j;
+                g += j.transpose() * r;
+            }
+            let step = -a.cholesky().unwrap().solve(&g);
+            model = retract(&model, &fit.params, step.as_slice());
+        }
+        let bias = held_back_bias(&kept, &[a5], &ident, &verify).unwrap();
+        let mut absorbed = 0.0;
+        for (q, b) in verify.iter().zip(&bias) {
+            let err = (predict(&truth, q).p - predict(&model, q).p).norm();
+            let predicted = b.trace().sqrt();
+            assert!(
+                (err - predicted).abs() < 0.01 * predicted + 1e-6,
+                "ball error {err} mm, bias σ {predicted} mm"
+            );
+            absorbed += predicted
+                / (full
+                    .position_jacobian(q)
+                    .column(full.params.iter().position(|p| *p == a5).unwrap())
+                    .norm()
+                    * e);
+        }
+        // the others absorb all but about 1 % of it (θ5 with the ball on the flange axis)
+        let absorbed = absorbed / verify.len() as f64;
+        assert!(absorbed > 1e-3 && absorbed < 0.05, "{absorbed}");
+        // d1 is the base's z on every pose: nothing stays
+        let d1 = ParamId::Mdh {
+            joint: 0,
+            kind: ParamKind::D,
+        };
+        assert!(!full.params.contains(&d1));
+        let none = held_back_bias(&full, &[d1], &ident, &verify).unwrap();
+        assert!(
+            none.iter().all(|b| b.trace().sqrt() < 1e-9),
+            "{:?}",
+            none[0]
+        );
+    }
+
     /// The prediction against a Monte Carlo of the campaign's least squares, linearised in
     /// the parameters but with the physical noise: P1 and P2 read with the tracker's σ at
     /// their range, the direction normalised from them, the arm jittered once per pose, the

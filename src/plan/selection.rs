@@ -38,7 +38,9 @@
 
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
-use crate::identify::identifiability::{analyze_linearized, PracticalBounds};
+use crate::identify::identifiability::{
+    analyze_linearized, is_compliance, PracticalBounds, REFERENCE_TORQUE_NM,
+};
 use crate::identify::observation::{predict, residual_jacobian, Measured, ObsConfig, ObsModel};
 use crate::identify::params::{all_params, ParamId};
 use crate::identify::problem::JointTrig;
@@ -403,13 +405,28 @@ pub fn predicted_verification(
     cov: &DMatrix<f64>,
     verify_q: &[Vec<f64>],
 ) -> PredictedError {
+    predicted_verification_biased(design, cov, verify_q, None)
+}
+
+/// [`predicted_verification`] with, at each verification pose, the covariance (mm²) of what
+/// the parameters held at nominal leave in the model ([`held_back_bias`]; `None`: nothing).
+pub fn predicted_verification_biased(
+    design: &Design,
+    cov: &DMatrix<f64>,
+    verify_q: &[Vec<f64>],
+    bias: Option<&[Matrix3<f64>]>,
+) -> PredictedError {
     let n = verify_q.len().max(1) as f64;
     let (mut mean, mut floor) = (0.0, 0.0);
-    for q in verify_q {
+    for (i, q) in verify_q.iter().enumerate() {
         let jv = design.position_jacobian(q);
         let noise = design.reading_noise(q);
         let par = &jv * cov * jv.transpose();
-        let total = noise + Matrix3::from_fn(|a, b| par[(a, b)]);
+        let held = bias
+            .and_then(|b| b.get(i))
+            .copied()
+            .unwrap_or_else(Matrix3::zeros);
+        let total = noise + held + Matrix3::from_fn(|a, b| par[(a, b)]);
         mean += expected_norm(&total);
         floor += expected_norm(&noise);
     }
@@ -417,6 +434,80 @@ pub fn predicted_verification(
         mean_mm: mean / n,
         noise_floor_mm: floor / n,
     }
+}
+
+/// The spread of a parameter's error before calibration (its unit), what a parameter held at
+/// nominal is expected to be off by: the RMS of the TX60's errors in the paper's Table 3
+/// (docs/method.md §7), rounded up: 1 mrad for a joint offset θ (Table 3: 1.0 mrad), 0.5 mrad
+/// for another angle (α: 0.54 mrad), 0.2 mm for a length (d, a: 0.16 mm), and for a
+/// compliance the angle at [`REFERENCE_TORQUE_NM`].
+pub fn prior_error(p: &ParamId) -> f64 {
+    if is_compliance(p) {
+        PRIOR_ERROR_RAD / REFERENCE_TORQUE_NM
+    } else if matches!(
+        p,
+        ParamId::Mdh {
+            kind: ParamKind::Theta,
+            ..
+        }
+    ) {
+        PRIOR_OFFSET_ERROR_RAD
+    } else if p.is_angle() {
+        PRIOR_ERROR_RAD
+    } else {
+        PRIOR_ERROR_MM
+    }
+}
+
+/// σ of a length's error before calibration (mm), [`prior_error`].
+pub const PRIOR_ERROR_MM: f64 = 0.2;
+/// σ of an angle's error before calibration (rad), [`prior_error`].
+pub const PRIOR_ERROR_RAD: f64 = 5e-4;
+/// σ of a joint offset's error before calibration (rad), [`prior_error`].
+pub const PRIOR_OFFSET_ERROR_RAD: f64 = 1e-3;
+
+/// What parameters held at nominal (`held`, each off by its [`prior_error`]) leave in a model
+/// whose `design.params` are identified on `ident_q`: the identification absorbs the part of
+/// their effect its parameters can mimic on those poses (least squares, `A = (J_kᵀJ_k)⁻¹J_kᵀJ_h`
+/// over the solver's rows), the rest stays; at each verification pose the covariance (mm²) of
+/// the ball's error that rest makes, `B·diag(σ²)·Bᵀ` with `B = J_v,h − J_v,k·A`. `None` when the
+/// poses do not determine `design.params`.
+pub fn held_back_bias(
+    design: &Design,
+    held: &[ParamId],
+    ident_q: &[Vec<f64>],
+    verify_q: &[Vec<f64>],
+) -> Option<Vec<Matrix3<f64>>> {
+    let k = design.params.len();
+    let mut both = design.clone();
+    both.params.extend(held.iter().copied());
+    let h = held.len();
+    let (mut jkk, mut jkh) = (DMatrix::zeros(k, k), DMatrix::zeros(k, h));
+    for q in ident_q {
+        let j = both.jacobian(q);
+        let (jk, jh) = (j.columns(0, k), j.columns(k, h));
+        jkk += jk.transpose() * jk;
+        jkh += jk.transpose() * jh;
+    }
+    let a = jkk.cholesky()?.solve(&jkh);
+    let prior = DMatrix::from_fn(h, h, |i, j| {
+        if i == j {
+            prior_error(&held[i]).powi(2)
+        } else {
+            0.0
+        }
+    });
+    Some(
+        verify_q
+            .iter()
+            .map(|q| {
+                let j = both.position_jacobian(q);
+                let b = j.columns(k, h) - j.columns(0, k) * &a;
+                let c = &b * &prior * b.transpose();
+                Matrix3::from_fn(|r, s| c[(r, s)])
+            })
+            .collect(),
+    )
 }
 
 /// Prior σ of a length parameter in the search (mm): weak, it only orders the first picks.

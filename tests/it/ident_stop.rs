@@ -93,17 +93,15 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
     let last = stop.history.last().expect("history");
     assert_eq!(last.after_poses, ident_done);
     assert_eq!(last.stopped, Some(stop.reason));
-    assert!(last.held_back.is_empty(), "{last:?}");
     match stop.reason {
         StopReason::MinGain => assert!(last.gain.expect("gain") < 0.02),
         _ => assert!(last.remaining_gain.expect("remaining gain") < 0.05),
     }
-    // every check before went on: a parameter held back, or both gains large enough
+    // every check before went on: both gains large enough (a held-back parameter is in them)
     assert!(stop.history[..stop.history.len() - 1].iter().all(|c| {
         c.stopped.is_none()
-            && (!c.held_back.is_empty()
-                || (c.gain.is_none_or(|g| g >= 0.02)
-                    && c.remaining_gain.is_some_and(|g| g >= 0.05)))
+            && c.gain.is_none_or(|g| g >= 0.02)
+            && c.remaining_gain.is_some_and(|g| g >= 0.05)
     }));
     // the identification used the measured ident poses only
     assert_eq!(early.report.metrics.ident.after.poses, ident_done);
@@ -138,13 +136,14 @@ async fn a_predicted_stop_measures_fewer_ident_poses_all_verify_poses_and_says_w
     );
 }
 
-/// The rule stops on predictions, and a prediction knows only the parameters the
-/// identification identified: with the ranked optimal poses the campaign's identification
-/// holds back a5 and d5 (practical test) until some 60 poses on this cell, and a model without
-/// them verifies some 7 % worse (docs/design.md). The rule before stopped after 45 such poses
-/// here; now it measures on until the identification identifies what the whole plan does.
+/// A parameter the identification holds back is in the predictions with its expected error
+/// before calibration, less what the identified parameters absorb: with the ranked optimal
+/// poses the campaign's identification holds back a5 and d5 (practical test) until some 60
+/// poses on this cell, and the identified parameters absorb most of what they do, so the rule
+/// stops on its gains with them held back (the rule before measured on while any was, to 64–80 poses) and
+/// verifies as the whole plan does.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn never_stops_holding_back_a_parameter() {
+async fn held_back_parameters_are_priced_by_the_stop_rule() {
     let full = run_in_process(&config_text("", "selection = \"optimal\"", "")).await;
     let early = run_in_process(&config_text(
         "",
@@ -165,22 +164,19 @@ async fn never_stops_holding_back_a_parameter() {
             .collect::<Vec<_>>()
     );
     assert!(stop.ident_measured < stop.ident_planned);
+    let last = stop.history.last().expect("history");
+    assert!(last.stopped.is_some());
     assert!(
-        stop.history
-            .iter()
-            .any(|c| c.stopped.is_none() && !c.held_back.is_empty()),
-        "a check went on for a parameter held back"
+        !last.held_back.is_empty(),
+        "it stopped with a parameter held back: {last:?}"
     );
-    assert!(stop
-        .history
-        .iter()
-        .all(|c| c.stopped.is_none() || c.held_back.is_empty()));
-    assert_eq!(
-        early.report.identified, full.report.identified,
-        "the stopped identification identifies what the whole plan does"
-    );
+    // the report says what is held back, and the whole plan identifies it
+    for name in &last.held_back {
+        assert!(!early.report.identified.contains(name), "{name}");
+        assert!(full.report.identified.contains(name), "{name}");
+    }
     assert!(
-        early.report_after_mm <= 1.10 * full.report_after_mm,
+        early.report_after_mm <= 1.05 * full.report_after_mm,
         "{} vs {}",
         early.report_after_mm,
         full.report_after_mm
@@ -264,13 +260,7 @@ async fn the_target_stops_the_identification_poses_once_the_prediction_reaches_i
     assert_eq!(stop.reason, StopReason::Target);
     let (last, before) = stop.history.split_last().expect("history");
     assert!(last.predicted_mm <= target && stop.predicted_mm == Some(last.predicted_mm));
-    assert!(
-        before
-            .iter()
-            .all(|c| c.predicted_mm > target || !c.held_back.is_empty()),
-        "{before:?}"
-    );
-    assert!(last.held_back.is_empty());
+    assert!(before.iter().all(|c| c.predicted_mm > target), "{before:?}");
     assert_eq!(stop.target_verify_mm, Some(target));
     assert!(stop.ident_measured < stop.ident_planned);
     let s = Store::open(&f.store).expect("store");

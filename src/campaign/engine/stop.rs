@@ -4,13 +4,17 @@
 //! After each block of `stop_block` measured identification poses the engine identifies on
 //! what is stored (the campaign's own recipe, [`super::identification_input`]) and predicts,
 //! from that one identification ([`predict_check`]), the mean verification error at the plan's
-//! verification poses ([`predicted_verification`] of `plan::selection`: the parameter
+//! verification poses ([`predicted_verification_biased`] of `plan::selection`: the parameter
 //! covariance carried to the ball at each verification pose, plus the readings' noise there)
 //! with the poses measured, without the last block, and with every planned identification pose.
 //! It stops measuring identification poses ([`decide`]) once the prediction is at or below
 //! `target_verify_mm`, the last block bought less than `stop_min_gain`, or the poses still
-//! planned would buy less than `stop_remaining_gain` — never while the identification holds
-//! back a parameter the whole plan identifies (its error is in no prediction). Comparing
+//! planned would buy less than `stop_remaining_gain`. A parameter the identification holds
+//! back (practical test) but the whole plan identifies is in the predictions with its prior
+//! error ([`crate::plan::selection::prior_error`]: the paper's Table 3), less what the
+//! identified parameters absorb on the poses measured ([`held_back_bias`]): a hold-back that
+//! costs accuracy is a gain the poses still planned would buy, one the others absorb is not
+//! (the rule before measured on while any was held back). Comparing
 //! predictions of one identification keeps the fit's own noise out of the gains: comparing each
 //! check with the previous one (the rule before) followed the a-posteriori σ of two fits and
 //! stopped after 45 to 75 poses of the same design. The remaining identification poses
@@ -24,7 +28,7 @@
 
 use std::collections::BTreeSet;
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 
 use super::{identification_input, Run, Stop};
 use crate::calibrate::{calibrate, IdentCheck, IdentStop, StopReason};
@@ -32,9 +36,12 @@ use crate::campaign::events::CampaignEvent;
 use crate::config::{CellConfig, StopWhen};
 use crate::dataset::PoseSet;
 use crate::identify::identifiability::DropKind;
+use crate::identify::ParamId;
 use crate::identify::{all_params, Identification, TrackerNoise};
 use crate::model::RobotModel;
-use crate::plan::selection::{predicted_verification, Design, NoiseModel, PredictedError};
+use crate::plan::selection::{
+    held_back_bias, predicted_verification_biased, Design, NoiseModel, PredictedError,
+};
 use crate::plan::Plan;
 use crate::units::human::fmt_mm;
 
@@ -52,7 +59,8 @@ pub struct CheckPrediction {
     /// With every planned identification pose.
     pub all_mm: f64,
     /// Parameters the whole plan identifies that this identification holds back (public
-    /// names): their error is in no prediction, so the rule does not stop while there are any.
+    /// names): each is in `now` and `before_block_mm` with its prior error, less what the
+    /// identified parameters absorb ([`held_back_bias`]), and identified in `all_mm`.
     pub held_back: Vec<String>,
 }
 
@@ -192,8 +200,7 @@ impl StopRule {
             gain,
             remaining_gain,
             &self.thresholds,
-        )
-        .filter(|_| predicted.held_back.is_empty());
+        );
         IdentCheck {
             after_poses,
             predicted_mm: predicted.now.mean_mm,
@@ -245,7 +252,7 @@ impl StopRule {
 }
 
 /// What identification `id` (stage travel `travel_mm`) predicts at `verify_q`
-/// ([`predicted_verification`]; [`CheckPrediction`]): its covariance over the identified
+/// ([`predicted_verification_biased`]; [`CheckPrediction`]): its covariance over the identified
 /// parameters (σ and correlations as it reports them: the a-posteriori σ of unit weight, so a
 /// cell noisier than the tracker's model asks for more poses), the identified model
 /// (measurement frame, the ball as its tool) as the linearisation point, and the AT960 noise
@@ -255,8 +262,11 @@ impl StopRule {
 /// with every planned pose are the design's, its tracker noise scaled by the identification's
 /// own: so that the design's covariance of `measured_q` has the identification's parameter part
 /// at `verify_q`, the verification readings as noisy (the gains do not depend on that scale,
-/// nor on the fit's noisy estimate of it); they are given as ratios to `now`. `None` when a σ
-/// is not finite or the prediction is not a number.
+/// nor on the fit's noisy estimate of it); they are given as ratios to `now`. The parameters it
+/// held back (practical test) that the whole plan identifies are in `now` and the prediction
+/// without the last block with their prior error less what the identified ones absorb
+/// ([`held_back_bias`]), and identified in the prediction with every planned pose (the whole
+/// plan's parameter set). `None` when a σ is not finite or the prediction is not a number.
 pub fn predict_check(
     id: &Identification,
     travel_mm: f64,
@@ -291,15 +301,12 @@ pub fn predict_check(
         },
         params,
     };
-    let now = predicted_verification(&design, &cov, verify_q);
-    if !now.mean_mm.is_finite() {
-        return None;
-    }
     let all: Vec<Vec<f64>> = measured_q.iter().chain(rest_q).cloned().collect();
     // what the whole plan identifies (the structural and practical test of the campaign's
-    // identification, at this identification's model): the parameters this identification
-    // held back by the practical test that the whole plan would identify
-    let held_back = Design::new(
+    // identification, at this identification's model), and the parameters this identification
+    // held back by the practical test that the whole plan would identify: their errors stay
+    // in this model, less what the identified parameters absorb
+    let whole = Design::new(
         id.corrected.clone(),
         id.options.obs,
         travel_mm,
@@ -308,15 +315,29 @@ pub fn predict_check(
         id.options.identify_tool,
         &all,
     )
-    .map(|whole| {
-        id.identifiability
-            .dropped
-            .iter()
-            .filter(|d| d.kind != DropKind::Structural && whole.params.contains(&d.param))
-            .map(|d| d.param.name())
-            .collect()
-    })
-    .unwrap_or_default();
+    .ok();
+    let held: Vec<ParamId> = whole
+        .as_ref()
+        .map(|whole| {
+            id.identifiability
+                .dropped
+                .iter()
+                .filter(|d| d.kind != DropKind::Structural && whole.params.contains(&d.param))
+                .map(|d| d.param)
+                .collect()
+        })
+        .unwrap_or_default();
+    let bias = |set: &[Vec<f64>]| -> Option<Option<Vec<Matrix3<f64>>>> {
+        if held.is_empty() {
+            Some(None)
+        } else {
+            held_back_bias(&design, &held, set, verify_q).map(Some)
+        }
+    };
+    let now = predicted_verification_biased(&design, &cov, verify_q, bias(measured_q)?.as_deref());
+    if !now.mean_mm.is_finite() {
+        return None;
+    }
     // κ: the identification's parameter part at the verification poses over the design's for
     // the same poses (≈ its a-posteriori σ² over the tracker model's); the readings are as
     // much noisier as the fit saw, so the gains are the design's with the noise scaled by √κ
@@ -330,25 +351,31 @@ pub fn predict_check(
         .covariance(measured_q)
         .map(|c| part(&cov) / part(&c))
         .filter(|s| s.is_finite() && *s > 0.0);
-    let mut scaled = design;
-    if let Some(k) = kappa {
-        scaled.noise.tracker.k /= k.sqrt();
-    }
-    let predict = |set: &[Vec<f64>]| -> Option<f64> {
-        let c = scaled.covariance(set)?;
-        Some(predicted_verification(&scaled, &c, verify_q).mean_mm).filter(|m| m.is_finite())
+    let scale = |mut d: Design| {
+        if let Some(k) = kappa {
+            d.noise.tracker.k /= k.sqrt();
+        }
+        d
     };
-    let now_scaled = predict(measured_q).filter(|_| kappa.is_some());
+    let scaled = scale(design.clone());
+    let predict = |d: &Design, set: &[Vec<f64>], bias: Option<Vec<Matrix3<f64>>>| -> Option<f64> {
+        let c = d.covariance(set)?;
+        Some(predicted_verification_biased(d, &c, verify_q, bias.as_deref()).mean_mm)
+            .filter(|m| m.is_finite())
+    };
+    let now_scaled = predict(&scaled, measured_q, bias(measured_q)?).filter(|_| kappa.is_some());
     let before_block_mm = measured_q
         .len()
         .checked_sub(block)
         .filter(|n| *n > 0)
-        .and_then(|n| predict(&measured_q[..n]));
-    let all_mm = if rest_q.is_empty() {
-        now_scaled
-    } else {
-        predict(&all)
+        .and_then(|n| predict(&scaled, &measured_q[..n], bias(&measured_q[..n])?));
+    let all_mm = match whole {
+        // the whole plan identifies the held-back parameters: none left at nominal
+        Some(whole) if !held.is_empty() => predict(&scale(whole), &all, None),
+        _ if rest_q.is_empty() => now_scaled,
+        _ => predict(&scaled, &all, None),
     };
+    let held_back = held.iter().map(|p| p.name()).collect();
     // in the reported prediction's terms: the same ratios to it
     let to_now = |x: Option<f64>| now_scaled.zip(x).map(|(n, x)| now.mean_mm * x / n);
     Some(CheckPrediction {
@@ -605,19 +632,23 @@ mod tests {
         );
     }
 
+    /// A held-back parameter is in the predictions (its prior error, less what the others
+    /// absorb): the rule decides on them as on any check, and the check names it.
     #[test]
-    fn a_parameter_held_back_that_the_whole_plan_identifies_keeps_the_rule_measuring() {
+    fn a_parameter_held_back_is_decided_on_by_the_predictions_that_price_it() {
         let r = rule(10, 100);
+        // what it leaves is small: the last block and the poses still planned buy little
         let mut p = predicted(0.0260, Some(0.0268), 0.0250);
         p.held_back = vec!["d5".into(), "a5".into()];
         let c = r.check(40, &p);
-        assert_eq!(c.stopped, None, "its error is in no prediction");
+        assert_eq!(c.stopped, Some(StopReason::RemainingGain));
         assert_eq!(c.held_back, ["d5", "a5"]);
-        // the target does not stop it either
+        // what it leaves is large: the poses still planned, which identify it, buy 20 %
+        p.all_mm = 0.0208;
+        assert_eq!(r.check(40, &p).stopped, None);
+        // the target stops it too
         let mut r = rule(10, 100);
         r.thresholds.target_mm = Some(0.03);
-        assert_eq!(r.check(40, &p).stopped, None);
-        p.held_back.clear();
         assert_eq!(r.check(40, &p).stopped, Some(StopReason::Target));
     }
 
