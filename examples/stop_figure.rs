@@ -11,6 +11,8 @@
 //! measuring order with every pose measured and identifies on the first 24, 32, … 100
 //! identification poses: what a stop there would have verified, with the stop rule's view at
 //! each (parameters identified and held back, a-posteriori σ, prediction, gains).
+//! `STOP_FIGURE_KNOWN=1`: the README's ball 60 mm above the flange, exactly where designed, and
+//! the stage exactly along +y, both known (no setup error).
 //! `STOP_FIGURE_KEYS='stop_remaining_gain = 0.02'`: more `[campaign]` keys for (b).
 //! `STOP_FIGURE_ORIGIN=1`: the ball exactly at the flange origin and the stage exactly along
 //! +y, both known (no tool-frame setup; the setup's sphere fit has no lever with the ball at
@@ -55,6 +57,17 @@ fn config_text(seed: u64, campaign: &str) -> String {
         text = text
             .replace("tool_mm = [0.0, 0.0, 60.0]", "tool_mm = [0.0, 0.0, 0.0]")
             .replace("tool_mm = [0.4, -0.3, 60.0]", "tool_mm = [0.0, 0.0, 0.0]")
+            .replace(
+                "stage_misalignment_mrad = [1.5, 0.0, -2.5]",
+                "stage_misalignment_mrad = [0.0, 0.0, 0.0]",
+            )
+            .replace("tool_frame = true ", "tool_frame = false ");
+    }
+    if std::env::var_os("STOP_FIGURE_KNOWN").is_some() {
+        // the README's ball 60 mm up, but exactly where designed and the stage exactly along
+        // +y, both known: no setup error
+        text = text
+            .replace("tool_mm = [0.4, -0.3, 60.0]", "tool_mm = [0.0, 0.0, 60.0]")
             .replace(
                 "stage_misalignment_mrad = [1.5, 0.0, -2.5]",
                 "stage_misalignment_mrad = [0.0, 0.0, 0.0]",
