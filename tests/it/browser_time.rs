@@ -86,16 +86,26 @@ async fn the_page_shows_the_estimate_before_arming_and_planned_against_actual_af
     // after: planned against actual, as the REST view says
     click(&c, "cmd-resume").await;
     until_text(&c, "campaign-state", "done", 120).await;
-    let (_, done) = get(&s, &format!("/api/campaigns/{id}"));
-    let (measuring, paused) = (seconds(&done, "measuring_s"), seconds(&done, "paused_s"));
-    let want = format!(
-        "planned {}, took {} measuring ({:.2} × planned) · paused {}",
-        duration(total),
-        duration(measuring),
-        measuring / total,
-        duration(paused)
-    );
-    until_text(&c, "campaign-time", &want, 10).await;
+    // the page's line and the REST view, read together until they agree: the page may show
+    // "done" a moment before the view's final times, or the other way round
+    let page = &c;
+    let want = until(
+        "planned against actual, as the REST view says",
+        10,
+        || async move {
+            let (_, done) = get(server, &format!("/api/campaigns/{id}"));
+            let (measuring, paused) = (seconds(&done, "measuring_s"), seconds(&done, "paused_s"));
+            let want = format!(
+                "planned {}, took {} measuring ({:.2} × planned) · paused {}",
+                duration(total),
+                duration(measuring),
+                measuring / total,
+                duration(paused)
+            );
+            (text(page, "campaign-time").await == want).then_some(want)
+        },
+    )
+    .await;
     assert_eq!(text(&c, "campaign-estimate").await, summary);
     screenshot_from(&c, "dashboard", "time-done-1280x1800.png").await;
     eprintln!("page: {summary}; {want}");
