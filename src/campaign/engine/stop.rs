@@ -334,7 +334,8 @@ pub fn predict_check(
             held_back_bias(&design, &held, set, verify_q).map(Some)
         }
     };
-    let now = predicted_verification_biased(&design, &cov, verify_q, bias(measured_q)?.as_deref());
+    let bias_now = bias(measured_q)?;
+    let now = predicted_verification_biased(&design, &cov, verify_q, bias_now.as_deref());
     if !now.mean_mm.is_finite() {
         return None;
     }
@@ -358,17 +359,19 @@ pub fn predict_check(
         d
     };
     let scaled = scale(design.clone());
-    let predict = |d: &Design, set: &[Vec<f64>], bias: Option<Vec<Matrix3<f64>>>| -> Option<f64> {
+    let predict = |d: &Design, set: &[Vec<f64>], bias: Option<&[Matrix3<f64>]>| -> Option<f64> {
         let c = d.covariance(set)?;
-        Some(predicted_verification_biased(d, &c, verify_q, bias.as_deref()).mean_mm)
-            .filter(|m| m.is_finite())
+        Some(predicted_verification_biased(d, &c, verify_q, bias).mean_mm).filter(|m| m.is_finite())
     };
-    let now_scaled = predict(&scaled, measured_q, bias(measured_q)?).filter(|_| kappa.is_some());
+    let now_scaled = predict(&scaled, measured_q, bias_now.as_deref()).filter(|_| kappa.is_some());
     let before_block_mm = measured_q
         .len()
         .checked_sub(block)
         .filter(|n| *n > 0)
-        .and_then(|n| predict(&scaled, &measured_q[..n], bias(&measured_q[..n])?));
+        .and_then(|n| {
+            let set = &measured_q[..n];
+            predict(&scaled, set, bias(set)?.as_deref())
+        });
     let all_mm = match whole {
         // the whole plan identifies the held-back parameters: none left at nominal
         Some(whole) if !held.is_empty() => predict(&scale(whole), &all, None),
@@ -473,7 +476,8 @@ impl Run<'_> {
                     String::new()
                 } else {
                     format!(
-                        ", {} held back (the whole plan identifies them)",
+                        ", {} held back (priced at their error before calibration; the whole \
+                         plan identifies them)",
                         check.held_back.join(", ")
                     )
                 };
